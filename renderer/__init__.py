@@ -1,0 +1,42 @@
+"""Lucent's renderer: a numba path tracer for scene format v1.
+
+The public entry points live in their modules (pbrt-like layout):
+
+- ``renderer.scene``: ``load_scene``/``load_scene_file`` (schema and validation), ``compile_scene``;
+- ``renderer.render``: ``render_tile`` (the farm's unit of work) and ``render``;
+- ``renderer.film``: ``SampleBuffer`` and image files.
+
+Importing this package only fixes where numba keeps its compiled kernels (see ``_cache_dir``); no
+kernel is compiled until it is first called.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+from pathlib import Path
+
+__version__ = "0.1.0"
+
+
+def _cache_dir() -> str:
+    """A numba cache folder keyed by the renderer's source.
+
+    numba's ``cache=True`` checks only the timestamp of the file that holds the kernel, not of the
+    files whose functions it inlines, so a changed ``sampling.py`` could leave a stale kernel in the
+    cache. Keying the folder by a hash of every renderer source file makes that impossible.
+    """
+    root = Path(__file__).parent
+    digest = hashlib.sha1()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    base = os.environ.get("LUCENT_CACHE_DIR") or os.path.join(
+        os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "lucent"
+    )
+    return os.path.join(base, "numba", digest.hexdigest()[:16])
+
+
+# Must happen before numba is imported anywhere: numba reads its configuration once.
+if "NUMBA_CACHE_DIR" not in os.environ:
+    os.environ["NUMBA_CACHE_DIR"] = _cache_dir()

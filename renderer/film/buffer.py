@@ -1,0 +1,96 @@
+"""Sample buffers: what a tile render returns and what the farm adds together.
+
+A buffer covers a rectangle of the frame and holds, per pixel, the sum of the radiance of its
+samples, the sum of their squares (for a variance estimate), the number of samples added, and the
+number of samples dropped because their radiance was not finite. Buffers of the same pixels merge
+by addition, in any order and any grouping: that is what makes a frame the same however it was
+cut into tiles and passes.
+"""
+
+from __future__ import annotations
+
+import io
+from dataclasses import dataclass
+
+import numpy as np
+
+
+@dataclass
+class SampleBuffer:
+    x0: int
+    y0: int
+    sum: np.ndarray  # (h, w, 3) float64: Σ L
+    sum_sq: np.ndarray  # (h, w, 3) float64: Σ L²
+    count: np.ndarray  # (h, w) int64: samples added
+    dropped: np.ndarray  # (h, w) int64: non-finite samples left out
+
+    @classmethod
+    def empty(cls, x0: int, y0: int, width: int, height: int) -> SampleBuffer:
+        return cls(
+            x0=x0,
+            y0=y0,
+            sum=np.zeros((height, width, 3)),
+            sum_sq=np.zeros((height, width, 3)),
+            count=np.zeros((height, width), np.int64),
+            dropped=np.zeros((height, width), np.int64),
+        )
+
+    @property
+    def width(self) -> int:
+        return self.sum.shape[1]
+
+    @property
+    def height(self) -> int:
+        return self.sum.shape[0]
+
+    def add(self, other: SampleBuffer) -> SampleBuffer:
+        """Add ``other`` in place; its rectangle must lie inside this one (a tile into a frame)."""
+        ox, oy = other.x0 - self.x0, other.y0 - self.y0
+        if ox < 0 or oy < 0 or ox + other.width > self.width or oy + other.height > self.height:
+            raise ValueError(
+                f"buffer at ({other.x0}, {other.y0}) size {other.width}x{other.height} does not "
+                f"fit in buffer at ({self.x0}, {self.y0}) size {self.width}x{self.height}"
+            )
+        window = (slice(oy, oy + other.height), slice(ox, ox + other.width))
+        self.sum[window] += other.sum
+        self.sum_sq[window] += other.sum_sq
+        self.count[window] += other.count
+        self.dropped[window] += other.dropped
+        return self
+
+    def __add__(self, other: SampleBuffer) -> SampleBuffer:
+        if (self.x0, self.y0, self.sum.shape) != (other.x0, other.y0, other.sum.shape):
+            raise ValueError("only buffers of the same rectangle can be summed with +")
+        return SampleBuffer.empty(self.x0, self.y0, self.width, self.height).add(self).add(other)
+
+    def mean(self) -> np.ndarray:
+        """The pixel estimates (h, w, 3) float32; pixels without samples are 0."""
+        n = np.maximum(self.count, 1)[..., None]
+        return (self.sum / n).astype(np.float32)
+
+    def variance_of_mean(self) -> np.ndarray:
+        """Unbiased estimate of the variance of each pixel's mean, (h, w, 3); inf below 2 samples."""
+        n = self.count[..., None].astype(np.float64)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            mean = self.sum / n
+            var = (self.sum_sq - n * mean * mean) / (n - 1.0)
+            out = np.maximum(var, 0.0) / n
+        return np.where(n >= 2, out, np.inf)
+
+    @property
+    def total_dropped(self) -> int:
+        return int(self.dropped.sum())
+
+    def to_bytes(self) -> bytes:
+        """A compact, pickle-free serialization (numpy's .npz format)."""
+        out = io.BytesIO()
+        np.savez(out, origin=np.array([self.x0, self.y0]), sum=self.sum, sum_sq=self.sum_sq,
+                 count=self.count, dropped=self.dropped)
+        return out.getvalue()
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> SampleBuffer:
+        with np.load(io.BytesIO(data), allow_pickle=False) as z:
+            x0, y0 = (int(v) for v in z["origin"])
+            return cls(x0=x0, y0=y0, sum=z["sum"], sum_sq=z["sum_sq"], count=z["count"],
+                       dropped=z["dropped"])

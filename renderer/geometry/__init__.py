@@ -1,0 +1,1 @@
+"""Shapes, their intersection routines and the BVH over them."""

@@ -1,0 +1,162 @@
+"""Ray–shape intersection for the three primitive kinds every object compiles to.
+
+A primitive is a row of ``prim_geo`` (float64, 9 columns):
+
+- ``SPHERE``: centre (0:3), radius (3);
+- ``QUAD``: origin (0:3), edge1 (3:6), edge2 (6:9) — the parallelogram origin + s·e1 + t·e2;
+- ``TRIANGLE``: v0 (0:3), e1 = v1 − v0 (3:6), e2 = v2 − v0 (6:9).
+
+Boxes become six quads with outward normals, meshes become triangles. Each routine returns
+(t, u, v) with t = inf on a miss; (u, v) are the surface parameters the hit point is rebuilt from.
+Rays start off the surface (see ``spawn_offset``), so every routine accepts any t > 0.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+from renderer.jit import kernel
+
+SPHERE = 0
+QUAD = 1
+TRIANGLE = 2
+
+INF = np.inf
+
+
+@kernel
+def intersect_sphere(o, d, geo):
+    """Nearest t > 0 on a sphere; d need not be normalized.
+
+    The discriminant is computed as r² − |f − (f·d̂)d̂|² rather than b² − c, which keeps precision
+    for rays that start far from a small sphere (Haines et al., "Precision Improvements for
+    Ray/Sphere Intersection", Ray Tracing Gems, ch. 7).
+    """
+    cx, cy, cz, r = geo[0], geo[1], geo[2], geo[3]
+    fx, fy, fz = o[0] - cx, o[1] - cy, o[2] - cz
+    dd = d[0] * d[0] + d[1] * d[1] + d[2] * d[2]
+    b = -(fx * d[0] + fy * d[1] + fz * d[2])  # b' = -f·d
+    # l = f + (b'/dd) d : the vector from the centre to the ray's closest approach
+    s = b / dd
+    lx, ly, lz = fx + s * d[0], fy + s * d[1], fz + s * d[2]
+    disc = dd * (r * r - (lx * lx + ly * ly + lz * lz))
+    if disc < 0.0:
+        return INF, 0.0, 0.0
+    c = fx * fx + fy * fy + fz * fz - r * r
+    q = b + math.copysign(math.sqrt(disc), b)
+    if q == 0.0:
+        return INF, 0.0, 0.0
+    t0 = c / q
+    t1 = q / dd
+    if t0 > t1:
+        t0, t1 = t1, t0
+    if t0 > 0.0:
+        return t0, 0.0, 0.0
+    if t1 > 0.0:
+        return t1, 0.0, 0.0
+    return INF, 0.0, 0.0
+
+
+@kernel
+def intersect_parallelogram(o, d, geo, is_triangle):
+    """Möller–Trumbore for a triangle (u, v ≥ 0, u + v ≤ 1) or a parallelogram (u, v ∈ [0, 1])."""
+    e1x, e1y, e1z = geo[3], geo[4], geo[5]
+    e2x, e2y, e2z = geo[6], geo[7], geo[8]
+    # p = d × e2
+    px = d[1] * e2z - d[2] * e2y
+    py = d[2] * e2x - d[0] * e2z
+    pz = d[0] * e2y - d[1] * e2x
+    det = e1x * px + e1y * py + e1z * pz
+    if det == 0.0:
+        return INF, 0.0, 0.0
+    inv_det = 1.0 / det
+    tx, ty, tz = o[0] - geo[0], o[1] - geo[1], o[2] - geo[2]
+    u = (tx * px + ty * py + tz * pz) * inv_det
+    if u < 0.0 or u > 1.0:
+        return INF, 0.0, 0.0
+    # q = t × e1
+    qx = ty * e1z - tz * e1y
+    qy = tz * e1x - tx * e1z
+    qz = tx * e1y - ty * e1x
+    v = (d[0] * qx + d[1] * qy + d[2] * qz) * inv_det
+    if v < 0.0 or (u + v > 1.0 if is_triangle else v > 1.0):
+        return INF, 0.0, 0.0
+    t = (e2x * qx + e2y * qy + e2z * qz) * inv_det
+    if t > 0.0:
+        return t, u, v
+    return INF, 0.0, 0.0
+
+
+@kernel
+def intersect_prim(kind, o, d, geo):
+    if kind == SPHERE:
+        return intersect_sphere(o, d, geo)
+    return intersect_parallelogram(o, d, geo, kind == TRIANGLE)
+
+
+@kernel
+def surface_point(kind, geo, o, d, t, u, v):
+    """Hit point and outward geometric normal (unit) of a primitive hit at (t, u, v).
+
+    Spheres reproject the point onto the surface, and planar shapes rebuild it from (u, v): both are
+    exact to a few ulps of the shape's coordinates, whatever the ray's length, so the offset in
+    ``spawn_offset`` can stay tiny.
+    """
+    if kind == SPHERE:
+        px = o[0] + t * d[0] - geo[0]
+        py = o[1] + t * d[1] - geo[1]
+        pz = o[2] + t * d[2] - geo[2]
+        inv = 1.0 / math.sqrt(px * px + py * py + pz * pz)
+        nx, ny, nz = px * inv, py * inv, pz * inv
+        r = geo[3]
+        return (geo[0] + nx * r, geo[1] + ny * r, geo[2] + nz * r), (nx, ny, nz)
+    p = (
+        geo[0] + u * geo[3] + v * geo[6],
+        geo[1] + u * geo[4] + v * geo[7],
+        geo[2] + u * geo[5] + v * geo[8],
+    )
+    nx = geo[4] * geo[8] - geo[5] * geo[7]
+    ny = geo[5] * geo[6] - geo[3] * geo[8]
+    nz = geo[3] * geo[7] - geo[4] * geo[6]
+    inv = 1.0 / math.sqrt(nx * nx + ny * ny + nz * nz)
+    return p, (nx * inv, ny * inv, nz * inv)
+
+
+# Relative size of the offset that lifts a ray's origin off the surface it leaves. Hit points are
+# exact to ~1e-15 of the primitive's coordinates (see surface_point); 1e-9 of them is a million
+# times that and still far below anything visible, at any scene scale (tests/…/test_scale.py).
+SPAWN_EPSILON = 1e-9
+
+
+@kernel
+def spawn_offset(p, n, w, prim_scale):
+    """Origin for a ray leaving ``p`` in direction ``w``: pushed to the side of the normal w lies on."""
+    eps = SPAWN_EPSILON * max(prim_scale, max(abs(p[0]), abs(p[1]), abs(p[2])))
+    if w[0] * n[0] + w[1] * n[1] + w[2] * n[2] < 0.0:
+        eps = -eps
+    return (p[0] + eps * n[0], p[1] + eps * n[1], p[2] + eps * n[2])
+
+
+def prim_bounds(kind: np.ndarray, geo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Axis-aligned bounds of every primitive, vectorized (host code)."""
+    n = kind.shape[0]
+    lo = np.empty((n, 3))
+    hi = np.empty((n, 3))
+    sph = kind == SPHERE
+    r = geo[sph, 3:4]
+    lo[sph] = geo[sph, 0:3] - r
+    hi[sph] = geo[sph, 0:3] + r
+    quad = kind == QUAD
+    tri = kind == TRIANGLE
+    p0 = geo[:, 0:3]
+    p1 = p0 + geo[:, 3:6]
+    p2 = p0 + geo[:, 6:9]
+    p3 = p1 + geo[:, 6:9]
+    flat = quad | tri
+    lo[flat] = np.minimum(np.minimum(p0[flat], p1[flat]), p2[flat])
+    hi[flat] = np.maximum(np.maximum(p0[flat], p1[flat]), p2[flat])
+    lo[quad] = np.minimum(lo[quad], p3[quad])
+    hi[quad] = np.maximum(hi[quad], p3[quad])
+    return lo, hi

@@ -1,0 +1,1 @@
+"""Light transport algorithms: unidirectional path tracing (``path.py``)."""

@@ -1,0 +1,70 @@
+"""Dispatch on the material tag: the fixed list of material types (pbrt-v4's TaggedPointer idea).
+
+Material kinds are small integers in ``mat_kind``, their parameters a row of ``mat_param``. All
+surfaces but dielectrics are two-sided for reflection (scene format v1), so their normal is turned
+to the side ``wo`` lies on before the model is asked.
+"""
+
+from __future__ import annotations
+
+from renderer.jit import kernel
+from renderer.materials.dielectric import dielectric_sample
+from renderer.materials.diffuse import diffuse_eval, diffuse_pdf, diffuse_sample
+from renderer.materials.mirror import mirror_sample
+from renderer.materials.phong import phong_eval, phong_pdf, phong_sample
+
+DIFFUSE = 0
+PHONG = 1
+MIRROR = 2
+DIELECTRIC = 3
+TRANSLUCENT = 4
+
+N_PARAMS = 12
+
+
+@kernel
+def is_delta(kind):
+    return kind == MIRROR or kind == DIELECTRIC
+
+
+@kernel
+def _facing(wo, n):
+    if wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2] < 0.0:
+        return (-n[0], -n[1], -n[2])
+    return n
+
+
+@kernel
+def bsdf_eval(kind, param, wo, wi, n):
+    """f(wo, wi)·|cos θi| for the non-delta materials (zero for delta ones)."""
+    ns = _facing(wo, n)
+    if kind == DIFFUSE:
+        return diffuse_eval(param, wo, wi, ns)
+    if kind == PHONG:
+        return phong_eval(param, wo, wi, ns)
+    return (0.0, 0.0, 0.0)
+
+
+@kernel
+def bsdf_pdf(kind, param, wo, wi, n):
+    ns = _facing(wo, n)
+    if kind == DIFFUSE:
+        return diffuse_pdf(param, wo, wi, ns)
+    if kind == PHONG:
+        return phong_pdf(param, wo, wi, ns)
+    return 0.0
+
+
+@kernel
+def bsdf_sample(kind, param, wo, n, uc, u1, u2):
+    """(wi, f·|cos|/pdf, pdf, ok); pdf is 0 for the delta materials."""
+    if kind == DIELECTRIC:
+        wi, w = dielectric_sample(param, wo, n, uc)
+        return wi, (w, w, w), 0.0, True
+    ns = _facing(wo, n)
+    if kind == MIRROR:
+        wi, weight = mirror_sample(param, wo, ns)
+        return wi, weight, 0.0, True
+    if kind == PHONG:
+        return phong_sample(param, wo, ns, uc, u1, u2)
+    return diffuse_sample(param, wo, ns, u1, u2)

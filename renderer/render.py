@@ -1,0 +1,91 @@
+"""Host entry points: ``render_tile`` (the farm's unit of work) and ``render`` (a whole frame)."""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numba
+import numpy as np
+
+from renderer.film.buffer import SampleBuffer
+from renderer.integrators.path import render_tile_kernel
+from renderer.scene.compile import CompiledScene, compile_scene
+
+
+def render_tile(
+    scene: CompiledScene,
+    x0: int,
+    y0: int,
+    width: int,
+    height: int,
+    sample_start: int,
+    sample_count: int,
+) -> SampleBuffer:
+    """Render samples [sample_start, sample_start + sample_count) of every pixel of a tile.
+
+    Sample indices are global: the same (pixel, index) always gives the same sample, so a tile
+    rendered as passes 0–7 and 8–15 adds up to the tile rendered as 0–15.
+    """
+    if width < 0 or height < 0 or sample_start < 0 or sample_count < 0:
+        raise ValueError("tile sizes and sample ranges must be non-negative")
+    if x0 < 0 or y0 < 0 or x0 + width > scene.width or y0 + height > scene.height:
+        raise ValueError(
+            f"tile ({x0}, {y0}, {width}x{height}) outside the {scene.width}x{scene.height} frame"
+        )
+    buf = SampleBuffer.empty(x0, y0, width, height)
+    if width and height and sample_count:
+        render_tile_kernel(
+            scene.arrays, scene.width, scene.height, scene.seed, scene.max_depth,
+            scene.stack_size, x0, y0, width, height, sample_start, sample_count,
+            buf.sum, buf.sum_sq, buf.count, buf.dropped,
+        )
+    return buf
+
+
+def _as_compiled(scene) -> CompiledScene:
+    if isinstance(scene, CompiledScene):
+        return scene
+    if isinstance(scene, dict):
+        from renderer.scene import load_scene
+
+        scene = load_scene(scene)
+    return compile_scene(scene)
+
+
+def render_buffer(
+    scene,
+    spp: int | None = None,
+    *,
+    threads: int | None = None,
+    pass_spp: int | None = None,
+    progress: Callable[[int, int, float], None] | None = None,
+) -> SampleBuffer:
+    """Render a whole frame in passes of ``pass_spp`` samples per pixel.
+
+    ``progress(samples_done, samples_total, seconds)`` is called after every pass (per pixel
+    samples × pixels), which is what the CLI's progress bar shows.
+    """
+    cs = _as_compiled(scene)
+    spp = cs.spp if spp is None else spp
+    if threads is not None:
+        numba.set_num_threads(max(1, min(threads, numba.config.NUMBA_NUM_THREADS)))
+    if pass_spp is None:
+        # Aim at passes of ~2 M samples so the progress bar moves about once a second
+        pass_spp = max(1, min(spp, 2_000_000 // max(1, cs.width * cs.height)))
+    frame = SampleBuffer.empty(0, 0, cs.width, cs.height)
+    start = time.perf_counter()
+    done = 0
+    while done < spp:
+        n = min(pass_spp, spp - done)
+        frame.add(render_tile(cs, 0, 0, cs.width, cs.height, done, n))
+        done += n
+        if progress is not None:
+            progress(done * cs.width * cs.height, spp * cs.width * cs.height,
+                     time.perf_counter() - start)
+    return frame
+
+
+def render(scene, spp: int | None = None, *, threads: int | None = None) -> np.ndarray:
+    """Render a scene (dict, validated ``Scene`` or ``CompiledScene``) to an HxWx3 float32 image."""
+    return render_buffer(scene, spp, threads=threads).mean()

@@ -1,0 +1,270 @@
+"""Compile a validated scene once into the flat arrays the kernels take.
+
+Everything a kernel needs is packed into ``SceneArrays``, a namedtuple of numpy arrays that numba
+passes as one argument. Objects become primitives (spheres; quads, with boxes as six outward-facing
+quads; triangles, from meshes), ordered by the BVH so each leaf is a contiguous range. Materials
+become a tag and a parameter row, lights a table with a power-proportional selection CDF.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import namedtuple
+from dataclasses import dataclass, field
+
+import numpy as np
+
+from renderer.geometry.bvh import build_bvh, bvh_depth
+from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
+from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
+from renderer.materials.bsdf import DIELECTRIC, DIFFUSE, MIRROR, N_PARAMS, PHONG
+
+SceneArrays = namedtuple(
+    "SceneArrays",
+    [
+        # BVH (renderer.geometry.bvh)
+        "bvh_lo", "bvh_hi", "bvh_offset", "bvh_count", "bvh_axis",
+        # primitives in BVH order (renderer.geometry.shapes)
+        "prim_kind", "prim_geo", "prim_scale", "prim_material", "prim_light",
+        # materials (renderer.materials.bsdf)
+        "mat_kind", "mat_param",
+        # lights (renderer.lights)
+        "light_kind", "light_prim", "light_data", "light_cdf", "light_pmf", "env_light",
+        # camera: position, forward, right, up (unit), tan(fov/2), aspect; background radiance
+        "camera", "background",
+    ],
+)
+
+
+class CompileError(ValueError):
+    """A scene that validated but cannot be rendered by this version (e.g. a method not built)."""
+
+
+@dataclass
+class CompiledScene:
+    """A scene ready for ``render_tile``: the arrays plus the settings of its ``render`` block."""
+
+    arrays: SceneArrays
+    width: int
+    height: int
+    spp: int
+    max_depth: int
+    seed: int
+    stack_size: int
+    info: dict = field(default_factory=dict)
+
+
+def _luminance(c) -> float:
+    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+
+
+def rotation_matrix(axis, angle_degrees: float) -> np.ndarray:
+    """Right-handed rotation about ``axis`` through the origin (Rodrigues' formula)."""
+    k = np.asarray(axis, dtype=np.float64)
+    k = k / np.linalg.norm(k)
+    a = math.radians(angle_degrees)
+    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
+    return np.eye(3) + math.sin(a) * kx + (1 - math.cos(a)) * (kx @ kx)
+
+
+def box_quads(lo, hi, rotate=None, translate=(0.0, 0.0, 0.0)) -> np.ndarray:
+    """The six faces of a box as quad rows (origin, edge1, edge2) with outward normals."""
+    x0, y0, z0 = lo
+    x1, y1, z1 = hi
+    dx, dy, dz = x1 - x0, y1 - y0, z1 - z0
+    faces = np.array([
+        [x0, y0, z0, 0, 0, dz, 0, dy, 0],  # −x
+        [x1, y0, z0, 0, dy, 0, 0, 0, dz],  # +x
+        [x0, y0, z0, dx, 0, 0, 0, 0, dz],  # −y
+        [x0, y1, z0, 0, 0, dz, dx, 0, 0],  # +y
+        [x0, y0, z0, 0, dy, 0, dx, 0, 0],  # −z
+        [x0, y0, z1, dx, 0, 0, 0, dy, 0],  # +z
+    ], dtype=np.float64)
+    if rotate is not None:
+        r = rotation_matrix(rotate.axis, rotate.angle)
+        faces = (faces.reshape(6, 3, 3) @ r.T).reshape(6, 9)
+    faces[:, 0:3] += np.asarray(translate, dtype=np.float64)
+    return faces
+
+
+def _material_row(name: str, m) -> tuple[int, np.ndarray]:
+    p = np.zeros(N_PARAMS)
+    if m.type == "diffuse":
+        p[0:3] = m.albedo
+        return DIFFUSE, p
+    if m.type == "phong":
+        p[0:3] = m.diffuse
+        p[3:6] = m.specular
+        p[6] = m.exponent
+        return PHONG, p
+    if m.type == "mirror":
+        p[0:3] = m.reflectance
+        return MIRROR, p
+    if m.type == "dielectric":
+        p[0] = m.ior
+        p[1:4] = m.absorption
+        return DIELECTRIC, p
+    raise CompileError(
+        f"materials.{name}: the translucent method {m.method!r} is not implemented in this "
+        "version of the renderer"
+    )
+
+
+def _camera(cam, width: int, height: int) -> np.ndarray:
+    pos = np.asarray(cam.position, dtype=np.float64)
+    forward = np.asarray(cam.look_at, dtype=np.float64) - pos
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(cam.up, dtype=np.float64))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    tan_half = math.tan(math.radians(cam.fov) / 2.0)
+    return np.concatenate([pos, forward, right, up, [tan_half, width / height]])
+
+
+def compile_scene(scene) -> CompiledScene:
+    """Pack a validated ``renderer.scene.Scene`` into arrays and build its BVH."""
+    names = list(scene.materials)
+    mat_index = {name: i for i, name in enumerate(names)}
+    mat_kind = np.zeros(len(names), np.int32)
+    mat_param = np.zeros((len(names), N_PARAMS))
+    for i, name in enumerate(names):
+        mat_kind[i], mat_param[i] = _material_row(name, scene.materials[name])
+
+    # Objects → primitives
+    kinds, geos, mats, emissions = [], [], [], []
+    n_triangles = 0
+    for obj in scene.objects:
+        m = mat_index[obj.material]
+        if obj.type == "sphere":
+            g = np.zeros((1, 9))
+            g[0, 0:3] = obj.center
+            g[0, 3] = obj.radius
+            k = SPHERE
+        elif obj.type == "quad":
+            g = np.concatenate([obj.origin, obj.edge1, obj.edge2]).reshape(1, 9)
+            k = QUAD
+        elif obj.type == "box":
+            g = box_quads(obj.min, obj.max, obj.rotate, obj.translate)
+            k = QUAD
+        else:
+            verts, tris = obj.arrays()
+            v0 = verts[tris[:, 0]]
+            g = np.concatenate([v0, verts[tris[:, 1]] - v0, verts[tris[:, 2]] - v0], axis=1)
+            k = TRIANGLE
+            n_triangles += len(tris)
+        kinds.append(np.full(len(g), k, np.int8))
+        geos.append(np.asarray(g, dtype=np.float64))
+        mats.append(np.full(len(g), m, np.int32))
+        e = obj.emission if obj.emission is not None else (0.0, 0.0, 0.0)
+        emissions.append(np.tile(np.asarray(e, dtype=np.float64), (len(g), 1)))
+    prim_kind = np.concatenate(kinds)
+    prim_geo = np.concatenate(geos)
+    prim_material = np.concatenate(mats)
+    prim_emission = np.concatenate(emissions)
+
+    # BVH, then primitives in BVH order
+    lo, hi = prim_bounds(prim_kind, prim_geo)
+    bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis, order = build_bvh(lo, hi)
+    prim_kind = prim_kind[order]
+    prim_geo = np.ascontiguousarray(prim_geo[order])
+    prim_material = prim_material[order]
+    prim_emission = prim_emission[order]
+    lo, hi = lo[order], hi[order]
+    prim_scale = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
+
+    # Scene bounds: the radius that turns a directional light's or the background's radiance
+    # into a power for light selection (pbrt-v4's DistantLight::Phi)
+    s_lo, s_hi = lo.min(axis=0), hi.max(axis=0)
+    radius = 0.5 * float(np.linalg.norm(s_hi - s_lo))
+
+    # Lights: emissive primitives, then point and directional lights, then the background
+    light_kind, light_prim, light_data, power = [], [], [], []
+    prim_light = np.full(len(prim_kind), -1, np.int64)
+    emissive = np.nonzero(prim_emission.max(axis=1) > 0.0)[0]
+    if len(emissive):
+        g = prim_geo[emissive]
+        cross = np.cross(g[:, 3:6], g[:, 6:9])
+        area = np.linalg.norm(cross, axis=1)
+        area = np.where(prim_kind[emissive] == TRIANGLE, 0.5 * area, area)
+        sph = prim_kind[emissive] == SPHERE
+        area[sph] = 4.0 * math.pi * g[sph, 3] ** 2
+        le = prim_emission[emissive]
+        lum = le @ np.array([0.2126, 0.7152, 0.0722])
+        prim_light[emissive] = np.arange(len(emissive))
+        light_kind.append(np.full(len(emissive), AREA, np.int32))
+        light_prim.append(emissive.astype(np.int64))
+        data = np.zeros((len(emissive), 6))
+        data[:, 3:6] = le
+        light_data.append(data)
+        power.append(math.pi * lum * area)
+    extra_kind, extra_data, extra_power = [], [], []
+    for light in scene.lights:
+        row = np.zeros(6)
+        if light.type == "point":
+            row[0:3] = light.position
+            row[3:6] = light.intensity
+            extra_kind.append(POINT)
+            extra_power.append(4.0 * math.pi * _luminance(light.intensity))
+        else:
+            direction = np.asarray(light.direction, dtype=np.float64)
+            row[0:3] = direction / np.linalg.norm(direction)
+            row[3:6] = light.irradiance
+            extra_kind.append(DIRECTIONAL)
+            extra_power.append(math.pi * radius**2 * _luminance(light.irradiance))
+        extra_data.append(row)
+    background = np.asarray(scene.background, dtype=np.float64)
+    env_light = -1
+    if background.max() > 0.0:
+        row = np.zeros(6)
+        row[3:6] = background
+        env_light = len(emissive) + len(extra_kind)
+        extra_kind.append(BACKGROUND)
+        extra_data.append(row)
+        extra_power.append(4.0 * math.pi**2 * radius**2 * _luminance(background))
+    if extra_kind:
+        light_kind.append(np.asarray(extra_kind, np.int32))
+        light_prim.append(np.full(len(extra_kind), -1, np.int64))
+        light_data.append(np.asarray(extra_data))
+        power.append(np.asarray(extra_power))
+    if light_kind:
+        light_kind_a = np.concatenate(light_kind)
+        light_prim_a = np.concatenate(light_prim)
+        light_data_a = np.concatenate(light_data)
+        power_a = np.concatenate(power)
+    else:
+        light_kind_a = np.zeros(0, np.int32)
+        light_prim_a = np.zeros(0, np.int64)
+        light_data_a = np.zeros((0, 6))
+        power_a = np.zeros(0)
+    if len(power_a) and power_a.sum() > 0:
+        light_pmf = power_a / power_a.sum()
+    else:
+        light_pmf = np.full(len(power_a), 1.0 / max(1, len(power_a)))
+    light_cdf = np.cumsum(light_pmf)
+
+    arrays = SceneArrays(
+        bvh_lo=bvh_lo, bvh_hi=bvh_hi, bvh_offset=bvh_offset, bvh_count=bvh_count,
+        bvh_axis=bvh_axis,
+        prim_kind=prim_kind, prim_geo=prim_geo, prim_scale=prim_scale,
+        prim_material=prim_material, prim_light=prim_light,
+        mat_kind=mat_kind, mat_param=mat_param,
+        light_kind=light_kind_a, light_prim=light_prim_a, light_data=light_data_a,
+        light_cdf=light_cdf, light_pmf=light_pmf, env_light=np.array([env_light], np.int64),
+        camera=_camera(scene.camera, scene.film.width, scene.film.height),
+        background=background,
+    )
+    return CompiledScene(
+        arrays=arrays,
+        width=scene.film.width,
+        height=scene.film.height,
+        spp=scene.render.spp,
+        max_depth=scene.render.max_depth,
+        seed=scene.render.seed,
+        stack_size=int(bvh_depth(bvh_offset, bvh_count)) + 2,
+        info={
+            "primitives": int(len(prim_kind)),
+            "triangles": int(n_triangles),
+            "bvh_nodes": int(len(bvh_offset)),
+            "lights": int(len(light_kind_a)),
+        },
+    )
