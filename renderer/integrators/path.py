@@ -23,7 +23,7 @@ import numpy as np
 from numba import prange
 
 from renderer.geometry.bvh import intersect_closest, occluded
-from renderer.geometry.shapes import spawn_offset, surface_point
+from renderer.geometry.shapes import SPAWN_EPSILON, spawn_offset, surface_point
 from renderer.jit import kernel, parallel_kernel
 from renderer.lights import area_light_pdf, sample_light
 from renderer.materials.bsdf import DIELECTRIC, bsdf_eval, bsdf_pdf, bsdf_sample, is_delta
@@ -36,8 +36,9 @@ DIMS_PER_BOUNCE = 8
 # roulette surviving at 0.95 still ends, but only with probability one); 2¹⁶ events survive
 # roulette with probability 0.95^65531 ≈ 10⁻¹⁴⁶⁰, so the cap never biases an image.
 MAX_EVENTS = 1 << 16
-# A shadow ray stops this fraction short of the light point it aims at, so it does not hit the
-# light's own surface; hit points are exact to ~1e-15 relative (shapes.surface_point).
+# A shadow ray stops this fraction of its length (plus SPAWN_EPSILON of the light point's
+# coordinates) short of the light point it aims at, so it does not hit the light's own surface;
+# sampled points are exact to ~1e-15 relative.
 SHADOW_SLACK = 1e-7
 
 
@@ -109,7 +110,13 @@ def trace_path(S, o, d, key, stack, max_depth):
                 if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
                     origin = spawn_offset(p, n, wi, scale)
                     if t_max < math.inf:
-                        t_max *= 1.0 - SHADOW_SLACK
+                        # Measure from the lifted origin, and stop short of the light's surface
+                        # by more than the rounding of its point (relative to its coordinates)
+                        q = (p[0] + t_max * wi[0], p[1] + t_max * wi[1], p[2] + t_max * wi[2])
+                        t_max -= ((origin[0] - p[0]) * wi[0] + (origin[1] - p[1]) * wi[1]
+                                  + (origin[2] - p[2]) * wi[2])
+                        t_max = t_max * (1.0 - SHADOW_SLACK) - SPAWN_EPSILON * max(
+                            abs(q[0]), abs(q[1]), abs(q[2]))
                     if not occluded(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count, S.bvh_axis,
                                     S.prim_kind, S.prim_geo, origin, wi, t_max, stack):
                         w = 1.0 / pdf_l
@@ -165,8 +172,9 @@ def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, ti
                        sample_start, sample_count, out_sum, out_sum_sq, out_count, out_dropped):
     """Add samples [sample_start, sample_start + sample_count) of every pixel of a tile.
 
-    Rows are shared among numba's threads; a sample whose radiance is not finite is not added but
-    counted in ``out_dropped``, so a bad path can never turn a pixel into NaN unnoticed.
+    Rows are shared among numba's threads; a sample whose radiance is not finite (or whose square
+    overflows, |L| > 1e154) is not added but counted in ``out_dropped``, so a bad path can never
+    turn a pixel into NaN or inf unnoticed.
     """
     for row in prange(tile_h):
         stack = np.empty(stack_size, np.int64)
@@ -182,7 +190,8 @@ def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, ti
                 key = sample_key(seed, pixel, s)
                 o, d = camera_ray(S.camera, width, height, x, y, uniform(key, 0), uniform(key, 1))
                 r, g, b = trace_path(S, o, d, key, stack, max_depth)
-                if math.isfinite(r) and math.isfinite(g) and math.isfinite(b):
+                # Dropped also when the square overflows, so the variance sums stay finite
+                if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
                     sr += r
                     sg += g
                     sb += b

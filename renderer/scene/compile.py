@@ -121,6 +121,7 @@ def _camera(cam, width: int, height: int) -> np.ndarray:
     return np.concatenate([pos, forward, right, up, [tan_half, width / height]])
 
 
+@np.errstate(over="ignore")  # light powers of absurd radiances: see _selection_pmf
 def compile_scene(scene) -> CompiledScene:
     """Pack a validated ``renderer.scene.Scene`` into arrays and build its BVH."""
     names = list(scene.materials)
@@ -236,10 +237,7 @@ def compile_scene(scene) -> CompiledScene:
         light_prim_a = np.zeros(0, np.int64)
         light_data_a = np.zeros((0, 6))
         power_a = np.zeros(0)
-    if len(power_a) and power_a.sum() > 0:
-        light_pmf = power_a / power_a.sum()
-    else:
-        light_pmf = np.full(len(power_a), 1.0 / max(1, len(power_a)))
+    light_pmf = _selection_pmf(power_a)
     light_cdf = np.cumsum(light_pmf)
 
     arrays = SceneArrays(
@@ -268,3 +266,19 @@ def compile_scene(scene) -> CompiledScene:
             "lights": int(len(light_kind_a)),
         },
     )
+
+
+def _selection_pmf(power: np.ndarray) -> np.ndarray:
+    """Light selection probabilities in proportion to power, safe for any finite input.
+
+    The power of an absurd but valid light (radiance 1e300 times an area) overflows to inf; it is
+    clamped to the largest float and the powers are scaled by their maximum before summing, so the
+    probabilities stay finite. Without any positive power, lights are chosen uniformly.
+    """
+    if len(power) == 0:
+        return np.zeros(0)
+    p = np.maximum(np.nan_to_num(power, nan=0.0, posinf=np.finfo(np.float64).max), 0.0)
+    if p.max() <= 0.0:
+        return np.full(len(p), 1.0 / len(p))
+    w = p / p.max()
+    return w / w.sum()

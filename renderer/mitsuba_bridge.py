@@ -1,0 +1,535 @@
+"""Mitsuba 3 bridge: render a Lucent scene with the outside reference renderer.
+
+Mitsuba 3 is an optional extra (``pip install 'lucent-farm[mitsuba]'``), never a runtime dependency:
+``mitsuba`` is imported lazily inside the functions below. The bridge exists so that tests and
+benchmarks can compare Lucent's images with Mitsuba's **pixel by pixel**, so every mapping below is
+meant to be exact (same geometry, same radiometry, same pixel footprint); only the noise differs.
+
+API
+---
+- :func:`to_mitsuba_dict` — a Lucent scene (the JSON dict of ``SCENE_FORMAT.md``) → a Mitsuba 3
+  scene dict for ``mi.load_dict``.
+- :func:`render_mitsuba` — render it and return a float32 ``H×W×3`` linear-RGB image.
+- :func:`default_variant` — ``"llvm_ad_rgb"`` when Dr.Jit can load libLLVM, else ``"scalar_rgb"``.
+
+Mapping (Lucent → Mitsuba 3)
+----------------------------
+.. list-table::
+
+ * - camera {position, look_at, up=(0,1,0), fov=39}
+   - ``perspective``, ``fov_axis="y"``, ``fov``; ``to_world`` columns (left, up', forward, position)
+     with left = −right = normalize(cross(up, forward)). Mitsuba's sample→camera transform maps
+     camera-space +x to image *left* (it scales x by −0.5), so this is Mitsuba's own ``look_at``
+     and the image is **not** mirrored: image x grows along right = cross(forward, up), row 0 is the
+     top, as in Lucent (checked by ``tests/reference/test_mitsuba_bridge.py``).
+ * - film {width, height}
+   - ``hdrfilm``, ``rfilter="box"`` (radius 0.5: uniform jitter in the pixel square),
+     ``pixel_format="rgb"``, ``component_format="float32"``.
+ * - render {spp=64, seed=0}
+   - ``independent`` sampler, ``sample_count=spp``, ``seed``.
+ * - render.max_depth (=-1)
+   - Lucent counts scattering events (0 = emitters seen directly, 1 = direct lighting); Mitsuba
+     counts path segments (1 = emitters only, 2 = direct). Mitsuba ``max_depth`` = Lucent + 1;
+     −1 (unlimited) stays −1. ``rr_depth`` stays at Mitsuba's default (5): Russian roulette is
+     unbiased, so it changes the noise, not the expected image.
+ * - integrator
+   - ``path``; ``volpath`` when any medium is needed (an absorbing dielectric or a volumetric
+     translucent). Volpath does not count index-matched (``null``) crossings as depth, and Lucent
+     does not count them as scattering events either; medium scattering counts in both.
+ * - diffuse {albedo=0.5}
+   - ``twosided`` ( ``diffuse`` reflectance ).
+ * - mirror {reflectance=1}
+   - ``twosided`` ( ``conductor``, ``material="none"`` (Fresnel ≡ 1), ``specular_reflectance`` ).
+ * - dielectric {ior=1.5, absorption=0}
+   - ``dielectric`` ``int_ior=ior``, ``ext_ior=1``; absorption > 0 adds an interior
+     ``homogeneous`` medium, ``sigma_t=absorption``, ``albedo=0`` (pure Beer–Lambert).
+ * - translucent, method "volumetric"
+   - ``dielectric`` (ior ≠ 1) or ``null`` (ior = 1) boundary; interior ``homogeneous`` medium with
+     ``sigma_t=density``, ``albedo``, phase ``hg`` g (``isotropic`` when g = 0). Mitsuba's ``hg``
+     with g > 0 scatters forward, as Lucent's does. Other methods: ``NotImplementedError``.
+ * - phong
+   - ``NotImplementedError`` — Mitsuba 3 has no Phong plugin.
+ * - sphere {center, radius}
+   - ``sphere``.
+ * - quad {origin, edge1, edge2}
+   - ``rectangle`` ([−1,1]² in local xy, normal +z) with ``to_world`` columns (edge1/2, edge2/2,
+     n = normalize(cross(edge1, edge2))) and translation origin + edge1/2 + edge2/2. The shading
+     normal of the rectangle is then ∝ cross(edge1, edge2) (inverse transpose of that matrix), so
+     its one-sided ``area`` emitter lights the same side as Lucent's quad.
+ * - box {min, max, rotate, translate}
+   - six ``rectangle`` with outward normals; corners rotated about the world origin (Rodrigues,
+     right-handed, degrees), then translated.
+ * - mesh {vertices, triangles} / {path}
+   - ``mi.Mesh`` filled through ``mi.traverse`` (no vertex normals ⇒ flat face normals
+     cross(v1 − v0, v2 − v0), as Lucent); a ``path`` loads ``obj`` / ``ply`` with
+     ``face_normals=True``.
+ * - object emission
+   - ``area`` emitter, ``radiance`` rgb. Mitsuba's area emitter is one-sided (front = normal side)
+     like Lucent's: quads emit on their normal side, spheres/boxes/meshes outward.
+ * - lights: point / directional / background
+   - ``point`` (position, intensity), ``directional`` (direction = the way light travels,
+     irradiance), ``constant`` (radiance) when the background is non-zero.
+
+RGB values above 1 (media ``sigma_t``) are wrapped in a ``constvolume`` because Mitsuba's plain
+``rgb`` texture rejects reflectance-like values outside [0, 1]; emitter ``rgb`` is unbounded.
+
+Mitsuba's ``Mesh`` objects belong to one variant, so :func:`to_mitsuba_dict` selects the variant
+before it builds them; load the dict under that same variant.
+
+Example::
+
+    import json
+    from renderer.mitsuba_bridge import render_mitsuba
+    img = render_mitsuba(json.load(open("examples/cornell_box.json")), spp=256, seed=3)
+"""
+
+from __future__ import annotations
+
+import ctypes.util
+import glob
+import math
+import os
+from typing import Any
+
+import numpy as np
+
+__all__ = ["default_variant", "render_mitsuba", "to_mitsuba_dict"]
+
+_INSTALL_HINT = "pip install 'lucent-farm[mitsuba]'"
+
+# Debian's LLVM 19 (``apt-get install libllvm19``), which Dr.Jit's LLVM backend compiles with.
+_LIBLLVM_DEFAULT = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+
+# JIT variants trace one wavefront of width·height·spp lanes; above this many lanes a render is
+# split into passes with derived seeds so that memory stays bounded (16384 spp at 64×48 would be
+# 50 M lanes, several GB of loop state).
+_MAX_LANES_PER_PASS = 1 << 23
+
+
+# --------------------------------------------------------------------------------------------------
+# Variant selection and lazy import
+# --------------------------------------------------------------------------------------------------
+
+
+def _find_libllvm() -> str | None:
+    """Path of a libLLVM shared library for Dr.Jit, setting DRJIT_LIBLLVM_PATH when we pick one."""
+    env = os.environ.get("DRJIT_LIBLLVM_PATH")
+    if env:
+        return env if os.path.isfile(env) else None
+    candidates = [_LIBLLVM_DEFAULT]
+    found = ctypes.util.find_library("LLVM")
+    if found:
+        candidates.append(found if os.path.isabs(found) else f"/usr/lib/x86_64-linux-gnu/{found}")
+    for libdir in ("/usr/lib/x86_64-linux-gnu", "/usr/lib64", "/usr/lib", "/usr/local/lib"):
+        candidates += sorted(glob.glob(os.path.join(libdir, "libLLVM*.so*")), reverse=True)
+    for path in candidates:
+        if os.path.isfile(path):
+            # Must be set before Dr.Jit initialises its LLVM backend.
+            os.environ["DRJIT_LIBLLVM_PATH"] = path
+            return path
+    return None
+
+
+def _import_mitsuba() -> Any:
+    try:
+        import mitsuba as mi
+    except ImportError as exc:  # pragma: no cover - depends on the environment
+        raise ImportError(
+            f"Mitsuba 3 is needed for the reference renders: {_INSTALL_HINT}"
+        ) from exc
+    return mi
+
+
+def default_variant() -> str:
+    """``"llvm_ad_rgb"`` when Dr.Jit can load libLLVM, else ``"scalar_rgb"``."""
+    if _find_libllvm() is None:
+        return "scalar_rgb"
+    mi = _import_mitsuba()
+    import drjit as dr
+
+    if "llvm_ad_rgb" in mi.variants() and dr.has_backend(dr.JitBackend.LLVM):
+        return "llvm_ad_rgb"
+    return "scalar_rgb"
+
+
+def _use_variant(variant: str | None) -> Any:
+    """Import Mitsuba and select ``variant`` (None: the current one, or the default if none)."""
+    mi = _import_mitsuba()
+    if variant is None:
+        variant = mi.variant() or default_variant()
+    elif variant.startswith("llvm"):
+        _find_libllvm()
+    if mi.variant() != variant:
+        mi.set_variant(variant)
+    return mi
+
+
+# --------------------------------------------------------------------------------------------------
+# Small geometry helpers (plain NumPy)
+# --------------------------------------------------------------------------------------------------
+
+
+def _vec3(value: Any, path: str) -> np.ndarray:
+    v = np.asarray(value, dtype=np.float64)
+    if v.shape != (3,):
+        raise ValueError(f"{path}: expected 3 numbers, got {value!r}")
+    return v
+
+
+def _normalize(v: np.ndarray, path: str) -> np.ndarray:
+    n = float(np.linalg.norm(v))
+    if n == 0.0 or not math.isfinite(n):
+        raise ValueError(f"{path}: degenerate (zero-length) vector")
+    return v / n
+
+
+def _rotation_matrix(axis: np.ndarray, angle_deg: float) -> np.ndarray:
+    """Rodrigues' formula, R = I + sin θ K + (1 − cos θ) K², right-handed about ``axis``."""
+    kx, ky, kz = _normalize(axis, "rotate.axis")
+    k_cross = np.array([[0.0, -kz, ky], [kz, 0.0, -kx], [-ky, kx, 0.0]])
+    theta = math.radians(angle_deg)
+    return np.eye(3) + math.sin(theta) * k_cross + (1.0 - math.cos(theta)) * (k_cross @ k_cross)
+
+
+def _rectangle_matrix(origin: np.ndarray, edge1: np.ndarray, edge2: np.ndarray) -> np.ndarray:
+    """Affine map from Mitsuba's [-1,1]² rectangle (normal +z) onto origin + s·edge1 + t·edge2."""
+    normal = _normalize(np.cross(edge1, edge2), "quad: edge1 × edge2")
+    m = np.eye(4)
+    m[:3, 0] = edge1 / 2.0
+    m[:3, 1] = edge2 / 2.0
+    m[:3, 2] = normal
+    m[:3, 3] = origin + edge1 / 2.0 + edge2 / 2.0
+    return m
+
+
+def _camera_matrix(position: np.ndarray, target: np.ndarray, up: np.ndarray) -> np.ndarray:
+    """Camera-to-world matrix, identical to Mitsuba's ``Transform4f.look_at``.
+
+    Columns (left, up', forward, position): Mitsuba's perspective camera looks down local +z and
+    its film x grows towards local −x, so image x grows along −left = cross(forward, up) = Lucent's
+    right. No mirroring is needed.
+    """
+    forward = _normalize(target - position, "camera.look_at - camera.position")
+    left = _normalize(np.cross(up, forward), "camera.up × forward (up parallel to view?)")
+    true_up = np.cross(forward, left)
+    m = np.eye(4)
+    m[:3, 0] = left
+    m[:3, 1] = true_up
+    m[:3, 2] = forward
+    m[:3, 3] = position
+    return m
+
+
+def _box_faces(obj: dict, path: str) -> list[tuple[np.ndarray, np.ndarray, np.ndarray]]:
+    """The six faces of a box as (origin, edge1, edge2) with cross(edge1, edge2) pointing out."""
+    lo = _vec3(obj["min"], f"{path}.min")
+    hi = _vec3(obj["max"], f"{path}.max")
+    if np.any(hi <= lo):
+        raise ValueError(f"{path}: max must be > min on every axis")
+    size = hi - lo
+    rotate = obj.get("rotate")
+    rot = (
+        _rotation_matrix(_vec3(rotate["axis"], f"{path}.rotate.axis"), float(rotate["angle"]))
+        if rotate is not None
+        else np.eye(3)
+    )
+    translate = _vec3(obj.get("translate", [0.0, 0.0, 0.0]), f"{path}.translate")
+    basis = np.eye(3)
+    faces = []
+    for a in range(3):
+        b, c = (a + 1) % 3, (a + 2) % 3  # e_b × e_c = e_a
+        eb, ec = size[b] * basis[b], size[c] * basis[c]
+        # +a face: edges (eb, ec) → normal +e_a.  −a face: swapped → normal −e_a.
+        for corner, e1, e2 in ((hi[a] * basis[a], eb, ec), (lo[a] * basis[a], ec, eb)):
+            origin = corner + lo[b] * basis[b] + lo[c] * basis[c]
+            faces.append((rot @ origin + translate, rot @ e1, rot @ e2))
+    return faces
+
+
+# --------------------------------------------------------------------------------------------------
+# Scene dict pieces
+# --------------------------------------------------------------------------------------------------
+
+
+def _rgb(value: Any, path: str) -> dict:
+    return {"type": "rgb", "value": [float(x) for x in _vec3(value, path)]}
+
+
+def _unbounded_rgb(value: Any, path: str) -> dict:
+    """An RGB medium coefficient that may exceed 1 (``rgb`` alone is checked against [0, 1])."""
+    return {"type": "constvolume", "value": _rgb(value, path)}
+
+
+def _material(materials: dict, name: str, path: str) -> tuple[dict, dict | None]:
+    """Mitsuba (bsdf, interior medium or None) for the Lucent material ``name``."""
+    if name not in materials:
+        raise ValueError(f"{path}.material: unknown material {name!r}")
+    mat = materials[name]
+    mpath = f"materials.{name}"
+    kind = mat.get("type")
+    if kind == "diffuse":
+        albedo = mat.get("albedo", [0.5, 0.5, 0.5])
+        inner = {"type": "diffuse", "reflectance": _rgb(albedo, f"{mpath}.albedo")}
+        return {"type": "twosided", "bsdf": inner}, None
+    if kind == "mirror":
+        reflectance = mat.get("reflectance", [1.0, 1.0, 1.0])
+        inner = {
+            "type": "conductor",
+            "material": "none",
+            "specular_reflectance": _rgb(reflectance, f"{mpath}.reflectance"),
+        }
+        return {"type": "twosided", "bsdf": inner}, None
+    if kind == "dielectric":
+        ior = float(mat.get("ior", 1.5))
+        absorption = _vec3(mat.get("absorption", [0.0, 0.0, 0.0]), f"{mpath}.absorption")
+        bsdf = {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0}
+        medium = None
+        if np.any(absorption > 0.0):
+            # Beer–Lambert only: every extinction event absorbs (albedo 0).
+            medium = {
+                "type": "homogeneous",
+                "sigma_t": _unbounded_rgb(absorption, f"{mpath}.absorption"),
+                "albedo": 0.0,
+            }
+        return bsdf, medium
+    if kind == "phong":
+        raise NotImplementedError("phong has no Mitsuba 3 counterpart")
+    if kind == "translucent":
+        method = mat.get("method")
+        if method is None:
+            raise ValueError(f"{mpath}.method: required by the Mitsuba bridge")
+        if method != "volumetric":
+            raise NotImplementedError(
+                f"{mpath}: translucent method {method!r} has no Mitsuba 3 counterpart "
+                "(only 'volumetric' does)"
+            )
+        ior = float(mat["ior"])
+        g = float(mat.get("g", 0.0))
+        phase = {"type": "isotropic"} if g == 0.0 else {"type": "hg", "g": g}
+        medium = {
+            "type": "homogeneous",
+            "sigma_t": float(mat["density"]),
+            "albedo": _rgb(mat["albedo"], f"{mpath}.albedo"),
+            "phase": phase,
+        }
+        if ior == 1.0:
+            bsdf: dict = {"type": "null"}
+        else:
+            bsdf = {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0}
+        return bsdf, medium
+    raise ValueError(f"{mpath}.type: unknown material type {kind!r}")
+
+
+def _area(emission: Any, path: str) -> dict | None:
+    if emission is None:
+        return None
+    radiance = _vec3(emission, path)
+    if not np.any(radiance != 0.0):
+        return None
+    return {"type": "area", "radiance": _rgb(radiance, path)}
+
+
+def _inline_mesh(
+    mi: Any, obj: dict, path: str, key: str, bsdf: dict, medium: dict | None, emitter: dict | None
+) -> Any:
+    """A ``mi.Mesh`` with flat face normals from inline vertices/triangles."""
+    vertices = np.asarray(obj["vertices"], dtype=np.float32)
+    triangles = np.asarray(obj["triangles"], dtype=np.int64)
+    if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
+        raise ValueError(f"{path}.vertices: expected a non-empty list of [x, y, z]")
+    if triangles.ndim != 2 or triangles.shape[1] != 3 or len(triangles) == 0:
+        raise ValueError(f"{path}.triangles: expected a non-empty list of [i, j, k]")
+    if triangles.min() < 0 or triangles.max() >= len(vertices):
+        raise ValueError(f"{path}.triangles: vertex index out of range")
+    props = mi.Properties()
+    props["bsdf"] = mi.load_dict(bsdf)
+    if medium is not None:
+        props["interior"] = mi.load_dict(medium)
+    if emitter is not None:
+        props["emitter"] = mi.load_dict(emitter)
+    # No vertex normals: Mitsuba then shades with the geometric (face) normal, no smoothing.
+    mesh = mi.Mesh(key, len(vertices), len(triangles), props=props, has_vertex_normals=False)
+    params = mi.traverse(mesh)
+    params["vertex_positions"] = vertices.ravel()
+    params["faces"] = triangles.astype(np.uint32).ravel()
+    params.update()
+    return mesh
+
+
+def _shapes(mi: Any, scene: dict) -> tuple[dict, bool]:
+    """Mitsuba shapes keyed by id, and whether any medium is present."""
+    materials = scene.get("materials", {})
+    shapes: dict[str, Any] = {}
+    any_medium = False
+    for i, obj in enumerate(scene.get("objects", [])):
+        path = f"objects[{i}]"
+        key = f"object_{i:03d}"
+        bsdf, medium = _material(materials, obj.get("material"), path)
+        any_medium |= medium is not None
+        emitter = _area(obj.get("emission"), f"{path}.emission")
+
+        def dress(shape: dict, bsdf=bsdf, medium=medium, emitter=emitter) -> dict:
+            shape["bsdf"] = bsdf
+            if medium is not None:
+                shape["interior"] = medium
+            if emitter is not None:
+                shape["emitter"] = emitter
+            return shape
+
+        kind = obj.get("type")
+        if kind == "sphere":
+            shapes[key] = dress(
+                {
+                    "type": "sphere",
+                    "center": [float(x) for x in _vec3(obj["center"], f"{path}.center")],
+                    "radius": float(obj["radius"]),
+                }
+            )
+        elif kind == "quad":
+            m = _rectangle_matrix(
+                _vec3(obj["origin"], f"{path}.origin"),
+                _vec3(obj["edge1"], f"{path}.edge1"),
+                _vec3(obj["edge2"], f"{path}.edge2"),
+            )
+            shapes[key] = dress({"type": "rectangle", "to_world": mi.ScalarTransform4f(m)})
+        elif kind == "box":
+            for k, (origin, e1, e2) in enumerate(_box_faces(obj, path)):
+                m = _rectangle_matrix(origin, e1, e2)
+                shapes[f"{key}_face{k}"] = dress(
+                    {"type": "rectangle", "to_world": mi.ScalarTransform4f(m)}
+                )
+        elif kind == "mesh":
+            if "path" in obj:
+                ext = os.path.splitext(obj["path"])[1].lower().lstrip(".")
+                if ext not in ("obj", "ply"):
+                    raise ValueError(f"{path}.path: only .obj and .ply meshes are supported")
+                shapes[key] = dress(
+                    {"type": ext, "filename": str(obj["path"]), "face_normals": True}
+                )
+            else:
+                shapes[key] = _inline_mesh(mi, obj, path, key, bsdf, medium, emitter)
+        else:
+            raise ValueError(f"{path}.type: unknown object type {kind!r}")
+    return shapes, any_medium
+
+
+def _lights(scene: dict) -> dict:
+    lights: dict[str, dict] = {}
+    for i, light in enumerate(scene.get("lights", [])):
+        path = f"lights[{i}]"
+        kind = light.get("type")
+        if kind == "point":
+            lights[f"light_{i:03d}"] = {
+                "type": "point",
+                "position": [float(x) for x in _vec3(light["position"], f"{path}.position")],
+                "intensity": _rgb(light["intensity"], f"{path}.intensity"),
+            }
+        elif kind == "directional":
+            # Both formats give the direction in which the light travels.
+            direction = _normalize(_vec3(light["direction"], f"{path}.direction"), path)
+            lights[f"light_{i:03d}"] = {
+                "type": "directional",
+                "direction": [float(x) for x in direction],
+                "irradiance": _rgb(light["irradiance"], f"{path}.irradiance"),
+            }
+        else:
+            raise ValueError(f"{path}.type: unknown light type {kind!r}")
+    background = _vec3(scene.get("background", [0.0, 0.0, 0.0]), "background")
+    if np.any(background != 0.0):
+        lights["background"] = {"type": "constant", "radiance": _rgb(background, "background")}
+    return lights
+
+
+def to_mitsuba_dict(scene: dict, *, variant: str | None = None) -> dict:
+    """Convert a Lucent scene dict into a Mitsuba 3 scene dict (for ``mi.load_dict``).
+
+    Applies the documented defaults of the scene format. ``variant`` selects the Mitsuba variant
+    first (None: keep the current one, or :func:`default_variant` if none is set); inline meshes are
+    Mitsuba objects of that variant.
+
+    Raises ``NotImplementedError`` for materials Mitsuba 3 cannot express (phong, translucent
+    methods other than ``volumetric``) and ``ValueError`` naming the JSON path of a bad field.
+    """
+    mi = _use_variant(variant)
+    camera = scene["camera"]
+    film = scene["film"]
+    render = scene.get("render", {})
+
+    # Camera and film
+    cam_to_world = _camera_matrix(
+        _vec3(camera["position"], "camera.position"),
+        _vec3(camera["look_at"], "camera.look_at"),
+        _vec3(camera.get("up", [0.0, 1.0, 0.0]), "camera.up"),
+    )
+    sensor = {
+        "type": "perspective",
+        "fov_axis": "y",
+        "fov": float(camera.get("fov", 39.0)),
+        "to_world": mi.ScalarTransform4f(cam_to_world),
+        "sampler": {
+            "type": "independent",
+            "sample_count": int(render.get("spp", 64)),
+            "seed": int(render.get("seed", 0)),
+        },
+        "film": {
+            "type": "hdrfilm",
+            "width": int(film["width"]),
+            "height": int(film["height"]),
+            "rfilter": {"type": "box"},
+            "pixel_format": "rgb",
+            "component_format": "float32",
+        },
+    }
+
+    shapes, any_medium = _shapes(mi, scene)
+
+    # Integrator: Lucent counts scattering events, Mitsuba path segments.
+    max_depth = int(render.get("max_depth", -1))
+    if max_depth < -1:
+        raise ValueError("render.max_depth: must be >= -1")
+    integrator = {
+        "type": "volpath" if any_medium else "path",
+        "max_depth": -1 if max_depth == -1 else max_depth + 1,
+    }
+
+    out: dict[str, Any] = {"type": "scene", "integrator": integrator, "sensor": sensor}
+    out.update(shapes)
+    out.update(_lights(scene))
+    return out
+
+
+def _pass_seeds(seed: int, n_passes: int) -> list[int]:
+    """Seeds of the passes of one render: the seed itself for one pass, else hashed (seed, k)."""
+    if n_passes == 1:
+        return [seed]
+    states = [np.random.SeedSequence([seed, k]).generate_state(1)[0] for k in range(n_passes)]
+    return [int(s) for s in states]
+
+
+def render_mitsuba(
+    scene: dict, spp: int | None = None, seed: int = 0, variant: str | None = None
+) -> np.ndarray:
+    """Render a Lucent scene with Mitsuba 3; returns linear RGB, float32, shape (H, W, 3).
+
+    ``spp`` defaults to the scene's ``render.spp`` (64); ``variant`` to :func:`default_variant`.
+    With a JIT variant, more than ``_MAX_LANES_PER_PASS`` samples are split into equal passes with
+    seeds derived from ``seed`` and averaged (weighted by their spp), which is the same estimator.
+    """
+    mi = _use_variant(variant or default_variant())
+    if spp is None:
+        spp = int(scene.get("render", {}).get("spp", 64))
+    if spp < 1:
+        raise ValueError("spp: must be >= 1")
+    mi_scene = mi.load_dict(to_mitsuba_dict(scene, variant=mi.variant()))
+
+    pixels = int(scene["film"]["width"]) * int(scene["film"]["height"])
+    n_passes = 1
+    if not mi.variant().startswith("scalar"):
+        n_passes = max(1, math.ceil(spp * pixels / _MAX_LANES_PER_PASS))
+    spp_per_pass = [spp // n_passes + (k < spp % n_passes) for k in range(n_passes)]
+
+    total = None
+    for pass_spp, pass_seed in zip(spp_per_pass, _pass_seeds(seed, n_passes), strict=True):
+        img = np.array(mi.render(mi_scene, spp=pass_spp, seed=pass_seed), dtype=np.float64)
+        total = img * pass_spp if total is None else total + img * pass_spp
+    return (total / spp).astype(np.float32)

@@ -1,0 +1,517 @@
+"""Loading and validating scenes: JSON -> ``Scene``, or a ``SceneError`` naming every fault.
+
+Validation runs in three rounds, each only if the previous one passed:
+
+1. size guard: counts of objects, lights, materials and inline triangles against ``Limits``, on
+   the raw document, so that an oversized scene is refused before it is parsed;
+2. structure: the pydantic models (types, ranges, unknown fields, per-object checks);
+3. semantics, all collected before raising: material references, the film and render limits,
+   meshes (files read, index range, degenerate triangles, closedness) and the triangle budget.
+
+Every error carries the JSON path of the bad value (``objects[3].radius``) and a short message.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import re
+from collections.abc import Iterable, Mapping
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+from pydantic import ValidationError
+
+from renderer.scene.limits import Limits
+from renderer.scene.schema import (
+    LIGHT_TYPES,
+    MATERIAL_TYPES,
+    OBJECT_TYPES,
+    VOLUME_MATERIAL_TYPES,
+    Mesh,
+    Scene,
+)
+
+ROOT = "(root)"
+"""Path of errors about the document as a whole."""
+
+FILE = "(file)"
+"""Path of errors about a scene file that cannot be read or is not JSON."""
+
+# How many faulty triangles of one mesh are named before the rest are only counted.
+MAX_REPORTED = 5
+
+# A triangle is degenerate if |e1 x e2| <= EPS_DEGENERATE * (product of its two longest edges):
+# twice its area is negligible against its size, and its normal would be noise or NaN.
+EPS_DEGENERATE = 1e-10
+
+# Triangles per block in the area test: bounds the temporary arrays (about 200 MB at 4M).
+_BLOCK = 1 << 20
+
+
+class SceneError(ValueError):
+    """A scene that cannot be rendered, with every problem found: ``errors`` is a list of
+    (JSON path, message); ``str()`` gives one ``path: message`` line per error.
+
+    ``SceneError("film.width", "must be >= 1")`` or ``SceneError([(path, message), ...])``.
+    """
+
+    def __init__(self, errors: str | Iterable[tuple[str, str]], message: str | None = None):
+        if isinstance(errors, str):
+            if message is None:
+                raise TypeError("SceneError(path, message) needs a message")
+            items = [(errors, message)]
+        else:
+            items = [(str(path), str(msg)) for path, msg in errors]
+        # args = (errors,) so that the exception pickles and unpickles as itself.
+        super().__init__(items)
+        self.errors: list[tuple[str, str]] = items
+
+    def __str__(self) -> str:
+        return "\n".join(f"{path}: {message}" for path, message in self.errors)
+
+    def as_dicts(self) -> list[dict[str, str]]:
+        """``[{"path": ..., "message": ...}, ...]``, e.g. for an HTTP 422 body."""
+        return [{"path": path, "message": message} for path, message in self.errors]
+
+
+# --- Entry points ---------------------------------------------------------------------------------
+
+
+def load_scene(
+    data: Any,
+    *,
+    limits: Limits | None = None,
+    allow_paths: bool = False,
+    base_dir: Path | None = None,
+) -> Scene:
+    """Validate a scene document (a dict as from ``json.loads``) and return the ``Scene``.
+
+    ``limits``: resource limits, ``Limits()`` (from the environment) if None. ``allow_paths``:
+    accept meshes given by a file ``path`` (the CLI only: a server must never read a path that a
+    request names); relative paths are resolved against ``base_dir`` (else the working directory).
+    Meshes read from files are held as arrays (``Mesh.arrays()``) and their ``path`` is cleared.
+
+    Raises ``SceneError`` listing every problem found.
+    """
+    if limits is None:
+        limits = Limits()
+    if not isinstance(data, Mapping):
+        raise SceneError(ROOT, "a scene must be a JSON object")
+
+    # Round 1: refuse a scene too large to be worth parsing.
+    guard = _size_guard(data, limits)
+    if guard:
+        raise SceneError(guard)
+
+    # Round 2: structure.
+    try:
+        scene = Scene.model_validate(data, context={"allow_paths": allow_paths})
+    except ValidationError as exc:
+        raise SceneError(_convert_validation_error(exc)) from None
+
+    # Round 3: semantics.
+    errors: list[tuple[str, str]] = []
+    errors += _check_render_limits(scene, limits)
+    errors += _check_material_references(scene)
+    total_triangles = 0
+    for i, obj in enumerate(scene.objects):
+        if isinstance(obj, Mesh):
+            errors += _check_mesh(scene, i, obj, base_dir)
+            total_triangles += obj.num_triangles
+    errors += _check_count("objects", total_triangles, limits, "max_triangles", "triangles")
+    if errors:
+        raise SceneError(errors)
+    return scene
+
+
+def load_scene_file(path: str | os.PathLike[str], *, limits: Limits | None = None) -> Scene:
+    """Read and validate a scene file (the CLI): mesh ``path``s are allowed, relative to it."""
+    path = Path(path)
+    try:
+        raw = path.read_bytes()
+    except OSError as exc:
+        raise SceneError(FILE, f"cannot read {str(path)!r}: {exc.strerror or exc}") from None
+
+    # Python's json accepts NaN and Infinity, which JSON does not: parse them to a marker that
+    # no field accepts, so that the error names the field they were in.
+    markers: list[NonFiniteJSON] = []
+
+    def parse_constant(token: str) -> NonFiniteJSON:
+        markers.append(NonFiniteJSON(token))
+        return markers[-1]
+
+    try:
+        data = json.loads(raw, parse_constant=parse_constant)
+    except json.JSONDecodeError as exc:
+        raise SceneError(
+            FILE, f"invalid JSON at line {exc.lineno}, column {exc.colno}: {exc.msg}"
+        ) from None
+    except UnicodeDecodeError as exc:
+        raise SceneError(FILE, f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
+
+    scene = load_scene(data, limits=limits, allow_paths=True, base_dir=path.resolve().parent)
+    if markers:  # unreachable (every field refuses the marker); kept as a backstop
+        raise SceneError(ROOT, f"{markers[0].token} is not valid JSON: numbers must be finite")
+    return scene
+
+
+class NonFiniteJSON:
+    """Stands for a ``NaN``/``Infinity``/``-Infinity`` token in a scene file (not valid JSON)."""
+
+    __slots__ = ("token",)
+
+    def __init__(self, token: str):
+        self.token = token
+
+    def __repr__(self) -> str:
+        return self.token
+
+
+# --- Round 1: size guard --------------------------------------------------------------------------
+
+
+def _size_guard(data: Mapping[str, Any], limits: Limits) -> list[tuple[str, str]]:
+    """Count limits on the raw document (whatever is not a list or dict here, pydantic reports)."""
+    errors: list[tuple[str, str]] = []
+    objects = data.get("objects")
+    if isinstance(objects, list):
+        errors += _check_count("objects", len(objects), limits, "max_objects", "objects")
+        triangles = sum(
+            len(obj["triangles"])
+            for obj in objects
+            if isinstance(obj, dict) and isinstance(obj.get("triangles"), list)
+        )
+        errors += _check_count("objects", triangles, limits, "max_triangles", "triangles")
+    lights = data.get("lights")
+    if isinstance(lights, list):
+        errors += _check_count("lights", len(lights), limits, "max_lights", "lights")
+    materials = data.get("materials")
+    if isinstance(materials, dict):
+        errors += _check_count("materials", len(materials), limits, "max_materials", "materials")
+    return errors
+
+
+def _check_count(
+    path: str, count: int, limits: Limits, field: str, noun: str
+) -> list[tuple[str, str]]:
+    limit = getattr(limits, field)
+    if count <= limit:
+        return []
+    where = " over all meshes" if noun == "triangles" else ""
+    return [(path, f"{count} {noun}{where} exceed the limit {limit} ({Limits.env_name(field)})")]
+
+
+# --- Round 2: pydantic errors -> (path, message) --------------------------------------------------
+
+_UNION_TAGS = {"objects": OBJECT_TYPES, "lights": LIGHT_TYPES, "materials": MATERIAL_TYPES}
+_IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
+
+
+def format_path(loc: Iterable[int | str]) -> str:
+    """``('objects', 3, 'radius')`` -> ``objects[3].radius``; odd keys are quoted (``x["a b"]``)."""
+    out = ""
+    for part in loc:
+        if isinstance(part, int):
+            out += f"[{part}]"
+        elif _IDENTIFIER.fullmatch(part):
+            out += f".{part}" if out else part
+        else:
+            out += f"[{json.dumps(part)}]"
+    return out or ROOT
+
+
+def _strip_union_tag(loc: tuple[int | str, ...]) -> tuple[int | str, ...]:
+    # pydantic puts the tag of a discriminated union in the location:
+    # ('objects', 3, 'sphere', 'radius'); users wrote objects[3].radius.
+    if len(loc) >= 3 and loc[0] in _UNION_TAGS and loc[2] in _UNION_TAGS[loc[0]]:
+        return loc[:2] + loc[3:]
+    return loc
+
+
+def _number(x: Any) -> str:
+    if isinstance(x, float) and x.is_integer():
+        return str(int(x))
+    return str(x)
+
+
+def _quoted_names(expected: str) -> str:
+    """``"'a', 'b' or 'c'"`` (pydantic's ctx) -> ``a, b, c``."""
+    return ", ".join(re.findall(r"'([^']*)'", expected))
+
+
+def _convert_validation_error(exc: ValidationError) -> list[tuple[str, str]]:
+    errors: list[tuple[str, str]] = []
+    short_tuples: set[str] = set()
+    for err in exc.errors(include_url=False):
+        loc = _strip_union_tag(tuple(err["loc"]))
+        kind = err["type"]
+        ctx = err.get("ctx") or {}
+        value = err.get("input")
+
+        if kind == "missing" and loc and isinstance(loc[-1], int):
+            # A short tuple: pydantic names each missing element; report the list once.
+            parent = format_path(loc[:-1])
+            if parent not in short_tuples:
+                short_tuples.add(parent)
+                errors.append((parent, f"must have exactly 3 elements, not {loc[-1]}"))
+            continue
+        if kind == "union_tag_not_found":
+            names = ", ".join(_UNION_TAGS.get(str(loc[0]), ()))
+            errors.append((format_path(loc + ("type",)), f"required field is missing ({names})"))
+            continue
+        errors.append((format_path(loc), _message(kind, err["msg"], ctx, value, loc)))
+    return errors
+
+
+def _message(
+    kind: str, msg: str, ctx: dict[str, Any], value: Any, loc: tuple[int | str, ...]
+) -> str:
+    """A short, human message for one pydantic error (``msg``: pydantic's own)."""
+    if isinstance(value, NonFiniteJSON) and kind != "extra_forbidden":
+        return f"must be a finite number ({value.token} is not valid JSON)"
+    simple = {
+        "missing": "required field is missing",
+        "extra_forbidden": "unknown field",
+        "finite_number": "must be a finite number",
+        "float_type": "must be a number",
+        "float_parsing": "must be a number",
+        "int_type": "must be an integer",
+        "int_parsing": "must be an integer",
+        "int_from_float": "must be an integer",
+        "string_type": "must be a string",
+        "list_type": "must be a list",
+        "dict_type": "must be a JSON object",
+        "model_type": "must be a JSON object",
+        "model_attributes_type": "must be a JSON object",
+    }
+    if kind in simple:
+        return simple[kind]
+    bounds = {
+        "greater_than": ("gt", ">"),
+        "greater_than_equal": ("ge", ">="),
+        "less_than": ("lt", "<"),
+        "less_than_equal": ("le", "<="),
+    }
+    if kind in bounds:
+        key, op = bounds[kind]
+        return f"must be {op} {_number(ctx[key])}"
+    if kind == "tuple_type":
+        what = "vertex indices" if "triangles" in loc else "numbers"
+        return f"must be a list of 3 {what}"
+    if kind in ("too_short", "too_long"):
+        n, actual = ctx.get("min_length", ctx.get("max_length")), ctx.get("actual_length")
+        if ctx.get("field_type") == "Tuple":
+            return f"must have exactly 3 elements, not {actual}"
+        if kind == "too_short":
+            return f"must have at least {n} element{'s' if n != 1 else ''}"
+        return f"must have at most {n} elements, not {actual}"
+    if kind == "union_tag_invalid":
+        names = ", ".join(_UNION_TAGS.get(str(loc[0]), ())) or _quoted_names(ctx["expected_tags"])
+        return f"unknown type {ctx['tag']!r} (expected one of: {names})"
+    if kind == "literal_error":
+        return f"unknown value {value!r} (expected one of: {_quoted_names(ctx['expected'])})"
+    if kind == "scene":
+        return str(ctx["message"])
+    # Anything else: pydantic's own message, lower-cased to match ours.
+    return msg[:1].lower() + msg[1:]
+
+
+# --- Round 3: semantics ---------------------------------------------------------------------------
+
+
+def _check_render_limits(scene: Scene, limits: Limits) -> list[tuple[str, str]]:
+    errors: list[tuple[str, str]] = []
+    width, height = scene.film.width, scene.film.height
+
+    def over(path: str, value: int, field: str) -> None:
+        limit = getattr(limits, field)
+        if value > limit:
+            errors.append((path, f"{value} exceeds the limit {limit} ({Limits.env_name(field)})"))
+
+    over("film.width", width, "max_width")
+    over("film.height", height, "max_height")
+    if width * height > limits.max_pixels:
+        errors.append(
+            (
+                "film",
+                f"{width}x{height} = {width * height} pixels exceeds the limit {limits.max_pixels} "
+                f"({Limits.env_name('max_pixels')})",
+            )
+        )
+    over("render.spp", scene.render.spp, "max_spp")
+    # -1 (unlimited, ended by Russian roulette) is always allowed.
+    over("render.max_depth", scene.render.max_depth, "max_depth")
+    return errors
+
+
+def _check_material_references(scene: Scene) -> list[tuple[str, str]]:
+    errors: list[tuple[str, str]] = []
+    defined = ", ".join(sorted(scene.materials)) or "none"
+    for i, obj in enumerate(scene.objects):
+        if obj.material not in scene.materials:
+            errors.append(
+                (
+                    f"objects[{i}].material",
+                    f"unknown material {obj.material!r} (defined: {defined})",
+                )
+            )
+    return errors
+
+
+def _check_mesh(scene: Scene, i: int, mesh: Mesh, base_dir: Path | None) -> list[tuple[str, str]]:
+    """Read a file mesh, then check index range, degenerate triangles and closedness."""
+    where = f"objects[{i}]"
+    from_file = mesh.path is not None
+    if from_file:
+        loaded = _read_mesh_file(where, mesh, base_dir)
+        if isinstance(loaded, list):
+            return loaded
+        vertices, triangles, source = loaded
+    else:
+        vertices, triangles = mesh.arrays()
+        source = None
+
+    # Index range: a bad index would read outside the vertex array in the kernels.
+    n_vertices = vertices.shape[0]
+    bad = np.flatnonzero(((triangles < 0) | (triangles >= n_vertices)).any(axis=1))
+    if bad.size:
+        errors = []
+        for t in bad[:MAX_REPORTED]:
+            row = triangles[t]
+            index = int(row[(row < 0) | (row >= n_vertices)][0])
+            message = f"vertex index {index} out of range (the mesh has {n_vertices} vertices)"
+            if from_file:
+                errors.append((f"{where}.path", f"triangle {t}: {message}"))
+            else:
+                errors.append((f"{where}.triangles[{t}]", message))
+        if bad.size > MAX_REPORTED:
+            errors.append(
+                (
+                    f"{where}.path" if from_file else f"{where}.triangles",
+                    f"{bad.size - MAX_REPORTED} more triangles with out-of-range vertex indices",
+                )
+            )
+        return errors
+
+    # Degenerate triangles: errors inline (the user wrote them), dropped from files (real OBJ
+    # files have a few, and they cannot be hit anyway).
+    degenerate = degenerate_triangles(vertices, triangles)
+    dropped = 0
+    if degenerate.any():
+        bad = np.flatnonzero(degenerate)
+        if not from_file:
+            errors = [
+                (f"{where}.triangles[{t}]", "degenerate triangle (zero area)")
+                for t in bad[:MAX_REPORTED]
+            ]
+            if bad.size > MAX_REPORTED:
+                errors.append(
+                    (f"{where}.triangles", f"{bad.size - MAX_REPORTED} more degenerate triangles")
+                )
+            return errors
+        dropped = int(bad.size)
+        triangles = triangles[~degenerate]
+        if triangles.shape[0] == 0:
+            return [(f"{where}.path", f"all {dropped} triangles are degenerate (zero area)")]
+
+    if from_file:
+        mesh._attach_arrays(vertices, triangles, dropped_degenerate=dropped, source_path=source)
+        mesh.path = None
+
+    # A medium needs an inside: every edge must be shared by exactly two triangles that run it
+    # in opposite directions (closed, consistently oriented 2-manifold).
+    material = scene.materials.get(mesh.material)
+    if material is not None and material.type in VOLUME_MATERIAL_TYPES:
+        problem = find_open_edge(triangles)
+        if problem is not None:
+            return [(where, f"a {material.type} mesh must be {problem}")]
+    return []
+
+
+def _read_mesh_file(
+    where: str, mesh: Mesh, base_dir: Path | None
+) -> list[tuple[str, str]] | tuple[np.ndarray, np.ndarray, Path]:
+    """(vertices, triangles, resolved path), or the errors."""
+    assert mesh.path is not None
+    path = Path(mesh.path).expanduser()
+    if not path.is_absolute():
+        path = (base_dir if base_dir is not None else Path.cwd()) / path
+    try:
+        # Lazily: the mesh reader is needed only by the CLI, and only for scenes that use it.
+        from renderer.geometry.meshio import read_mesh
+    except ImportError as exc:
+        return [(f"{where}.path", f"mesh files cannot be read here ({exc})")]
+    try:
+        vertices, triangles = read_mesh(path)
+    except OSError as exc:
+        return [(f"{where}.path", f"cannot read {str(path)!r}: {exc.strerror or exc}")]
+    except Exception as exc:  # a malformed file: report it, whatever the reader raised
+        text = str(exc)
+        return [(f"{where}.path", text if str(path) in text else f"{str(path)!r}: {text}")]
+
+    vertices = np.asarray(vertices, dtype=np.float64)
+    triangles = np.asarray(triangles)
+    if vertices.ndim != 2 or vertices.shape[1] != 3:
+        return [(f"{where}.path", f"{str(path)!r}: vertices must have shape (V, 3)")]
+    if triangles.ndim != 2 or triangles.shape[1] != 3 or triangles.shape[0] == 0:
+        return [(f"{where}.path", f"{str(path)!r}: no triangles")]
+    if not np.isfinite(vertices).all():
+        return [(f"{where}.path", f"{str(path)!r}: vertex coordinates must be finite numbers")]
+    return vertices, triangles.astype(np.int64, copy=False), path.resolve()
+
+
+# --- Mesh checks (vectorized) ---------------------------------------------------------------------
+
+
+def degenerate_triangles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
+    """Boolean mask (T,) of zero-area triangles: |e1 x e2| <= eps * (two longest edges)."""
+    mask = np.empty(triangles.shape[0], dtype=bool)
+    for start in range(0, triangles.shape[0], _BLOCK):
+        p = vertices[triangles[start : start + _BLOCK]]  # (n, 3 corners, xyz)
+        e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 2] - p[:, 1]
+        # Squared on both sides: no square roots. |e1 x e2|² = (2 area)².
+        cx = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
+        cy = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
+        cz = e1[:, 0] * e2[:, 1] - e1[:, 1] * e2[:, 0]
+        twice_area_sq = cx * cx + cy * cy + cz * cz
+        a, b, c = (np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3))
+        longest_pair_sq = np.maximum(np.maximum(a * b, a * c), b * c)
+        mask[start : start + p.shape[0]] = twice_area_sq <= EPS_DEGENERATE**2 * longest_pair_sq
+    return mask
+
+
+def find_open_edge(triangles: np.ndarray) -> str | None:
+    """None if the mesh is closed and consistently oriented, else what is wrong (first edge in
+    (lo, hi) order): "closed (edge (3, 7) is used by 1 triangle)" or "consistently oriented ..."."""
+    # Directed edges a->b of every triangle, keyed by their undirected edge lo * n + hi.
+    edges = np.concatenate([triangles[:, [0, 1]], triangles[:, [1, 2]], triangles[:, [2, 0]]])
+    lo, hi = edges.min(axis=1), edges.max(axis=1)
+    n = int(hi.max()) + 1
+    key = lo * n + hi  # < n² <= (3 * 4M)² < 2**63
+    forward = edges[:, 0] < edges[:, 1]
+    order = np.argsort(key, kind="stable")
+    key, forward = key[order], forward[order]
+
+    # Runs of equal keys: one run per undirected edge.
+    start = np.flatnonzero(np.r_[True, key[1:] != key[:-1]])
+    count = np.diff(np.r_[start, key.size])
+    wrong_count = count != 2
+    # Used twice, but in the same direction: neighbours disagree on the winding.
+    same_way = np.zeros_like(wrong_count)
+    two = np.flatnonzero(count == 2)
+    same_way[two] = forward[start[two]] == forward[start[two] + 1]
+
+    bad = wrong_count | same_way
+    if not bad.any():
+        return None
+    first = int(np.flatnonzero(bad)[0])
+    edge = f"edge ({int(key[start[first]] // n)}, {int(key[start[first]] % n)})"
+    if wrong_count[first]:
+        used = int(count[first])
+        return f"closed ({edge} is used by {used} triangle{'s' if used != 1 else ''})"
+    return (
+        f"consistently oriented ({edge} runs the same way in both of its triangles: "
+        "flip one so that neighbours agree)"
+    )

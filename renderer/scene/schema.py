@@ -1,0 +1,445 @@
+"""Scene format v1: the pydantic models of a scene document.
+
+The names and meanings follow the public contract (``SCENE_FORMAT.md``); ``docs/scene-format.md``
+is the user's reference to every field, default and range. These models check what each part of a
+scene can check about itself (types, ranges, a camera whose ``up`` is not the viewing direction, a
+quad that is not degenerate, ...). What needs the whole scene or bulk arrays (material
+references, mesh indices and closedness, resource limits, reading mesh files) is checked by
+``renderer.scene.load.load_scene``: always load scenes through it, never with
+``Scene.model_validate`` alone.
+
+==================  ===========================================================================
+Model               JSON
+==================  ===========================================================================
+``Camera``          ``camera``: ``position``, ``look_at``, ``up`` = [0, 1, 0], ``fov`` = 39
+``Film``            ``film``: ``width``, ``height``
+``RenderSettings``  ``render``: ``spp`` = 64, ``max_depth`` = -1, ``seed`` = 0
+``Material``        ``materials.NAME``: diffuse | phong | mirror | dielectric | translucent
+``Object``          ``objects[i]``: sphere | quad | box | mesh
+``Light``           ``lights[i]``: point | directional
+``Scene``           the document
+==================  ===========================================================================
+"""
+
+from __future__ import annotations
+
+import math
+from itertools import chain
+from pathlib import Path
+from typing import Annotated, Literal
+
+import numpy as np
+from pydantic import (
+    BaseModel,
+    ConfigDict,
+    Field,
+    PrivateAttr,
+    SerializerFunctionWrapHandler,
+    Strict,
+    ValidationInfo,
+    field_validator,
+    model_serializer,
+    model_validator,
+)
+from pydantic_core import PydanticCustomError
+
+# Numbers are strict: a JSON string ("1.5") or a boolean is not a number, and an integer field
+# refuses 2.5 and 2.0 alike. Integers are accepted where a float is expected.
+Float = Annotated[float, Strict()]
+Int = Annotated[int, Strict()]
+
+Vec3 = tuple[Float, Float, Float]
+"""A point or a direction, in scene units."""
+
+NonNegative = Annotated[float, Strict(), Field(ge=0)]
+UnitInterval = Annotated[float, Strict(), Field(ge=0, le=1)]
+
+Colour = tuple[NonNegative, NonNegative, NonNegative]
+"""Linear RGB, each channel >= 0 (radiance, intensity, absorption, ...)."""
+
+Albedo = tuple[UnitInterval, UnitInterval, UnitInterval]
+"""Linear RGB reflectance-like colour, each channel in [0, 1]."""
+
+VertexIndex = Annotated[int, Strict(), Field(ge=0)]
+
+CHANNELS = ("red", "green", "blue")
+AXES = ("x", "y", "z")
+
+# Relative tolerance under which two directions count as parallel: |a x b| <= EPS_PARALLEL |a||b|,
+# i.e. the sine of the angle between them is below 1e-10. Far below any intended geometry, far
+# above float64 rounding (about 1e-16), so that exactly collinear input computed with rounding
+# errors is still caught.
+EPS_PARALLEL = 1e-10
+
+
+def scene_error(message: str) -> PydanticCustomError:
+    """A validation error whose message reaches the user unchanged (no "Value error, " prefix)."""
+    return PydanticCustomError("scene", "{message}", {"message": message})
+
+
+def format_vec(v: tuple[float, ...] | list[float]) -> str:
+    """``[0, 1, 0.5]``: compact, for error messages."""
+    return "[" + ", ".join(f"{x:g}" for x in v) + "]"
+
+
+def _cross(a: tuple[float, ...], b: tuple[float, ...]) -> tuple[float, float, float]:
+    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
+
+
+def _norm(a: tuple[float, ...]) -> float:
+    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
+
+
+def nearly_parallel(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
+    """True if a and b are parallel (or either is zero) to within ``EPS_PARALLEL``."""
+    return _norm(_cross(a, b)) <= EPS_PARALLEL * _norm(a) * _norm(b)
+
+
+def _require_nonzero(v: Vec3) -> Vec3:
+    if not any(v):
+        raise scene_error("must be a non-zero vector")
+    return v
+
+
+class SceneModel(BaseModel):
+    """Base of every scene model: unknown fields and non-finite numbers are errors."""
+
+    model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=False)
+
+
+# --- Camera, film and render settings -------------------------------------------------------------
+
+
+class Camera(SceneModel):
+    """A pinhole camera. ``fov`` is the vertical field of view in degrees."""
+
+    position: Vec3
+    look_at: Vec3
+    up: Vec3 = (0.0, 1.0, 0.0)
+    fov: Float = Field(default=39.0, gt=0, lt=180)
+
+    _check_up = field_validator("up")(_require_nonzero)
+
+    @model_validator(mode="after")
+    def _check_frame(self) -> Camera:
+        forward = tuple(t - p for t, p in zip(self.look_at, self.position, strict=True))
+        if not any(forward):
+            raise scene_error("look_at must differ from position")
+        # right = normalize(cross(forward, up)) would be NaN: no image orientation.
+        if nearly_parallel(forward, self.up):
+            raise scene_error(
+                f"up {format_vec(self.up)} is parallel to the viewing direction "
+                f"{format_vec(forward)} (look_at - position)"
+            )
+        return self
+
+
+class Film(SceneModel):
+    """The image size in pixels (upper bounds: ``Limits``)."""
+
+    width: Int = Field(ge=1)
+    height: Int = Field(ge=1)
+
+
+class RenderSettings(SceneModel):
+    """Sampling settings: JSON key ``render``."""
+
+    spp: Int = Field(default=64, ge=1)
+    """Samples per pixel."""
+    max_depth: Int = Field(default=-1, ge=-1)
+    """Largest number of scattering events on a path; -1: unlimited (Russian roulette only)."""
+    seed: Int = Field(default=0, ge=0, le=2**63 - 1)
+    """Same scene, same seed: same image, however it is split into tiles and passes."""
+
+
+# --- Materials ------------------------------------------------------------------------------------
+
+
+class DiffuseMaterial(SceneModel):
+    """Lambertian reflection."""
+
+    type: Literal["diffuse"] = "diffuse"
+    albedo: Albedo = (0.5, 0.5, 0.5)
+
+
+class PhongMaterial(SceneModel):
+    """Energy-conserving (normalized) Phong: a Lambertian lobe plus a glossy lobe."""
+
+    type: Literal["phong"] = "phong"
+    diffuse: Albedo = (0.5, 0.5, 0.5)
+    specular: Albedo = (0.2, 0.2, 0.2)
+    exponent: Float = Field(default=30.0, gt=0)
+
+    @model_validator(mode="after")
+    def _check_energy(self) -> PhongMaterial:
+        # Each lobe is normalized, so the two weights must not sum above 1: the material would
+        # reflect more than it receives (a small slack absorbs rounding, e.g. 0.7 + 0.3).
+        for c, (kd, ks) in enumerate(zip(self.diffuse, self.specular, strict=True)):
+            if kd + ks > 1.0 + 1e-9:
+                raise scene_error(
+                    f"diffuse + specular must be <= 1 in every channel (energy conservation): "
+                    f"{CHANNELS[c]} is {kd:g} + {ks:g} = {kd + ks:g}"
+                )
+        return self
+
+
+class MirrorMaterial(SceneModel):
+    """Perfect specular reflection."""
+
+    type: Literal["mirror"] = "mirror"
+    reflectance: Albedo = (1.0, 1.0, 1.0)
+
+
+class DielectricMaterial(SceneModel):
+    """Smooth glass: Fresnel reflection and Snell refraction, Beer-Lambert absorption inside."""
+
+    type: Literal["dielectric"] = "dielectric"
+    ior: Float = Field(default=1.5, gt=0)
+    absorption: Colour = (0.0, 0.0, 0.0)
+    """Absorption coefficient per unit length: transmittance exp(-absorption * distance)."""
+
+
+TranslucentMethod = Literal[
+    "volumetric", "single_scatter", "diffuse_entry", "backlight", "diffusion", "auto"
+]
+
+
+class TranslucentMaterial(SceneModel):
+    """Subsurface scattering in a homogeneous medium behind a dielectric boundary."""
+
+    type: Literal["translucent"] = "translucent"
+    method: TranslucentMethod = "volumetric"
+    ior: Float = Field(default=1.3, ge=1.0)
+    albedo: Albedo = (0.8, 0.8, 0.8)
+    """Single-scattering albedo per channel."""
+    density: Float = Field(default=1.0, gt=0)
+    """Extinction coefficient sigma_t per unit length (mean free path 1 / density)."""
+    g: Float = Field(default=0.0, gt=-1, lt=1)
+    """Henyey-Greenstein anisotropy: > 0 forward, < 0 backward."""
+
+
+Material = Annotated[
+    DiffuseMaterial | PhongMaterial | MirrorMaterial | DielectricMaterial | TranslucentMaterial,
+    Field(discriminator="type"),
+]
+
+MATERIAL_TYPES = ("diffuse", "phong", "mirror", "dielectric", "translucent")
+
+# Materials with an inside: the objects that carry them must enclose a volume.
+VOLUME_MATERIAL_TYPES = ("dielectric", "translucent")
+
+
+# --- Objects --------------------------------------------------------------------------------------
+
+
+class ObjectBase(SceneModel):
+    """What every object has: a material by name and an optional emitted radiance."""
+
+    material: str
+    emission: Colour | None = None
+
+
+class Sphere(ObjectBase):
+    type: Literal["sphere"] = "sphere"
+    center: Vec3
+    radius: Float = Field(gt=0)
+
+
+class Quad(ObjectBase):
+    """The parallelogram origin + s edge1 + t edge2, s, t in [0, 1]; normal along edge1 x edge2."""
+
+    type: Literal["quad"] = "quad"
+    origin: Vec3
+    edge1: Vec3
+    edge2: Vec3
+
+    @model_validator(mode="after")
+    def _check_area(self) -> Quad:
+        if nearly_parallel(self.edge1, self.edge2):
+            raise scene_error("degenerate quad: edge1 and edge2 are parallel or zero")
+        return self
+
+
+class Rotation(SceneModel):
+    """A right-handed rotation by ``angle`` degrees about ``axis`` through the world origin."""
+
+    axis: Vec3
+    angle: Float
+
+    _check_axis = field_validator("axis")(_require_nonzero)
+
+
+class Box(ObjectBase):
+    """The box [min, max], then rotated about the world origin, then translated."""
+
+    type: Literal["box"] = "box"
+    min: Vec3
+    max: Vec3
+    rotate: Rotation | None = None
+    translate: Vec3 = (0.0, 0.0, 0.0)
+
+    @model_validator(mode="after")
+    def _check_extent(self) -> Box:
+        for k in range(3):
+            if not self.min[k] < self.max[k]:
+                raise scene_error(
+                    f"min must be < max in every component: {AXES[k]} has "
+                    f"min {self.min[k]:g} >= max {self.max[k]:g}"
+                )
+        return self
+
+
+class Mesh(ObjectBase):
+    """A triangle mesh, inline (``vertices`` + ``triangles``) or, from the CLI only, a file.
+
+    Triangles are counter-clockwise seen from outside. Numeric checks (index range, degenerate
+    triangles, closedness) are vectorized in ``load_scene``; use ``arrays()`` for the numbers: a
+    million triangles stay as two numpy arrays, never as Python lists. A mesh read from ``path``
+    keeps ``vertices``/``triangles`` at None and its ``path`` is cleared once loaded.
+    """
+
+    type: Literal["mesh"] = "mesh"
+    vertices: list[Vec3] | None = Field(default=None, min_length=1)
+    triangles: list[tuple[VertexIndex, VertexIndex, VertexIndex]] | None = Field(
+        default=None, min_length=1
+    )
+    path: str | None = None
+
+    _vertices_array: np.ndarray | None = PrivateAttr(default=None)
+    _triangles_array: np.ndarray | None = PrivateAttr(default=None)
+    _dropped_degenerate: int = PrivateAttr(default=0)
+    _source_path: Path | None = PrivateAttr(default=None)
+
+    @field_validator("path")
+    @classmethod
+    def _check_path_allowed(cls, path: str | None, info: ValidationInfo) -> str | None:
+        # Only the CLI reads files; a server must never open a path that a request names.
+        allow = bool(info.context and info.context.get("allow_paths", False))
+        if path is not None and not allow:
+            raise scene_error(
+                "file paths are accepted only by the command line; "
+                "send vertices and triangles inline"
+            )
+        return path
+
+    @model_validator(mode="after")
+    def _check_source(self) -> Mesh:
+        inline = self.vertices is not None or self.triangles is not None
+        if inline and self.path is not None:
+            raise scene_error("give either vertices and triangles, or path, not both")
+        if self.path is None:
+            if self.vertices is None and self.triangles is None:
+                raise scene_error("a mesh needs vertices and triangles (or, from the CLI, path)")
+            if self.vertices is None:
+                raise scene_error("triangles given without vertices")
+            if self.triangles is None:
+                raise scene_error("vertices given without triangles")
+        return self
+
+    @model_serializer(mode="wrap")
+    def _serialize(self, handler: SerializerFunctionWrapHandler):  # no return annotation: keeps
+        # the serialization JSON schema that of the model instead of "any".
+        # A mesh read from a file serializes inline, so that the CLI can send a loaded scene to
+        # the farm (whose API accepts no paths).
+        data = handler(self)
+        if self.vertices is None and self._vertices_array is not None and isinstance(data, dict):
+            data["vertices"] = self._vertices_array.tolist()
+            data["triangles"] = self._triangles_array.tolist()
+            data.pop("path", None)
+        return data
+
+    def arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """(vertices float64 (V, 3), triangles int64 (T, 3)), read-only and built once."""
+        if self._vertices_array is None:
+            if self.vertices is None or self.triangles is None:
+                raise ValueError("mesh has no geometry: load the scene with load_scene")
+            # fromiter over the flattened tuples: 2-3x faster than np.asarray on a list of tuples.
+            vertices = np.fromiter(
+                chain.from_iterable(self.vertices), np.float64, 3 * len(self.vertices)
+            )
+            triangles = np.fromiter(
+                chain.from_iterable(self.triangles), np.int64, 3 * len(self.triangles)
+            )
+            self._attach_arrays(vertices, triangles)
+        return self._vertices_array, self._triangles_array
+
+    def _attach_arrays(
+        self,
+        vertices: np.ndarray,
+        triangles: np.ndarray,
+        *,
+        dropped_degenerate: int = 0,
+        source_path: Path | None = None,
+    ) -> None:
+        """Keep the numeric arrays (load_scene calls this for meshes read from files)."""
+        vertices = np.ascontiguousarray(vertices, dtype=np.float64).reshape(-1, 3)
+        triangles = np.ascontiguousarray(triangles, dtype=np.int64).reshape(-1, 3)
+        vertices.flags.writeable = False
+        triangles.flags.writeable = False
+        self._vertices_array = vertices
+        self._triangles_array = triangles
+        self._dropped_degenerate = dropped_degenerate
+        if source_path is not None:
+            self._source_path = source_path
+
+    @property
+    def dropped_degenerate(self) -> int:
+        """Degenerate (zero-area) triangles dropped when the mesh was read from a file."""
+        return self._dropped_degenerate
+
+    @property
+    def source_path(self) -> Path | None:
+        """The file the mesh was read from, resolved; None for an inline mesh."""
+        return self._source_path
+
+    @property
+    def num_triangles(self) -> int:
+        if self._triangles_array is not None:
+            return int(self._triangles_array.shape[0])
+        return len(self.triangles or ())
+
+
+Object = Annotated[Sphere | Quad | Box | Mesh, Field(discriminator="type")]
+
+OBJECT_TYPES = ("sphere", "quad", "box", "mesh")
+
+
+# --- Lights ---------------------------------------------------------------------------------------
+
+
+class PointLight(SceneModel):
+    type: Literal["point"] = "point"
+    position: Vec3
+    intensity: Colour
+    """Radiant intensity, W/sr per channel."""
+
+
+class DirectionalLight(SceneModel):
+    type: Literal["directional"] = "directional"
+    direction: Vec3
+    """The direction the light travels (from the light towards the scene)."""
+    irradiance: Colour
+    """W/m² on a surface facing the light."""
+
+    _check_direction = field_validator("direction")(_require_nonzero)
+
+
+Light = Annotated[PointLight | DirectionalLight, Field(discriminator="type")]
+
+LIGHT_TYPES = ("point", "directional")
+
+
+# --- Scene ----------------------------------------------------------------------------------------
+
+
+class Scene(SceneModel):
+    """A whole scene document. Load it with ``load_scene``, which adds the cross-checks."""
+
+    camera: Camera
+    film: Film
+    render: RenderSettings = Field(default_factory=RenderSettings)
+    background: Colour = (0.0, 0.0, 0.0)
+    """Constant radiance of rays that escape; it lights the scene."""
+    materials: dict[str, Material]
+    objects: list[Object] = Field(min_length=1)
+    lights: list[Light] = Field(default_factory=list)

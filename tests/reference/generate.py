@@ -1,0 +1,96 @@
+"""Render the Mitsuba 3 reference images that the accuracy tests compare Lucent against.
+
+Not a test module (pytest collects ``test_*.py`` only). Run from the repository root::
+
+    DRJIT_LIBLLVM_PATH=/usr/lib/x86_64-linux-gnu/libLLVM-19.so \\
+        .venv/bin/python -m tests.reference.generate
+
+For each of ``examples/cornell_box.json`` and ``examples/glass_sphere.json``, at a reduced film of
+64×48 (same camera, same vertical fov, same 4:3 aspect) and the scene's own ``max_depth``, it writes
+to ``tests/data/`` (float32, H×W×3, linear RGB):
+
+- ``<name>_ref.npy`` — the converged reference at 16384 spp (seed 0). Its noise standard deviation
+  is √(64/16384) = 1/16 of a 64-spp image's (variance 1/256), so it inflates an RMSE measured
+  against it at 64 spp by only √(1 + 1/256) − 1 ≈ 0.2 %.
+- ``<name>_spp64_seed{k}.npy`` for k = 1..4 — independent 64-spp images, so that a test can measure
+  Mitsuba's own error at 64 spp (e.g. RMSE against ``_ref``) and hold Lucent to the same bar.
+
+Measured on the development container (2 CPU cores shared with other jobs, ``llvm_ad_rgb``,
+Mitsuba 3.9.1, LLVM 19), after a 1-spp warm-up render of each scene; two runs:
+
+==============  ===============  ====================  ==========
+scene           16384 spp ref    each 64 spp image     integrator
+==============  ===============  ====================  ==========
+cornell_box     11.7 s / 15.6 s  0.05 s / 0.10 s       path
+glass_sphere    26.2 s / 33.7 s  0.35 s                volpath
+==============  ===============  ====================  ==========
+
+The whole script takes 40–52 s. The glass sphere needs ``volpath`` for its Beer–Lambert
+interior, hence slower. The scalar_rgb variant works too but is several times slower; the script
+prints its own timings either way. The 64-spp images are bitwise reproducible; the references are
+reproducible only to float rounding (several passes accumulate into the film with parallel atomic
+adds, whose order varies).
+"""
+
+from __future__ import annotations
+
+import argparse
+import copy
+import json
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[2]
+SCENES = ("cornell_box", "glass_sphere")
+FILM = {"width": 64, "height": 48}
+NOISY_SEEDS = (1, 2, 3, 4)
+REF_SEED = 0
+
+
+def _reduced(name: str) -> dict:
+    """The example scene at the reference film size; everything else (max_depth too) unchanged."""
+    scene = json.loads((ROOT / "examples" / f"{name}.json").read_text())
+    scene = copy.deepcopy(scene)
+    scene["film"] = dict(FILM)
+    return scene
+
+
+def main(argv: list[str] | None = None) -> int:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--ref-spp", type=int, default=16384, help="spp of the converged reference")
+    parser.add_argument("--spp", type=int, default=64, help="spp of the independent noisy images")
+    parser.add_argument("--variant", default=None, help="Mitsuba variant (default: llvm if found)")
+    parser.add_argument("--out", type=Path, default=ROOT / "tests" / "data")
+    args = parser.parse_args(argv)
+
+    if str(ROOT) not in sys.path:  # also runnable as a plain script
+        sys.path.insert(0, str(ROOT))
+    from renderer.mitsuba_bridge import default_variant, render_mitsuba
+
+    variant = args.variant or default_variant()
+    args.out.mkdir(parents=True, exist_ok=True)
+    print(f"variant {variant}, film {FILM['width']}x{FILM['height']}, output {args.out}")
+    print(f"{'scene':<14} {'image':<30} {'spp':>6} {'seconds':>8}  mean RGB")
+    for name in SCENES:
+        scene = _reduced(name)
+        # Warm-up: the first render of a scene JIT-compiles its kernels; keep that out of timings.
+        render_mitsuba(scene, spp=1, seed=REF_SEED, variant=variant)
+        jobs = [(f"{name}_ref.npy", args.ref_spp, REF_SEED)]
+        jobs += [(f"{name}_spp{args.spp}_seed{k}.npy", args.spp, k) for k in NOISY_SEEDS]
+        for filename, spp, seed in jobs:
+            start = time.perf_counter()
+            img = render_mitsuba(scene, spp=spp, seed=seed, variant=variant)
+            seconds = time.perf_counter() - start
+            if not np.all(np.isfinite(img)):
+                raise RuntimeError(f"{filename}: non-finite pixels")
+            np.save(args.out / filename, img.astype(np.float32))
+            mean = ", ".join(f"{c:.4f}" for c in img.reshape(-1, 3).mean(axis=0))
+            print(f"{name:<14} {filename:<30} {spp:>6} {seconds:>8.2f}  ({mean})")
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
