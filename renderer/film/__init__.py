@@ -1,0 +1,1 @@
+"""Sample buffers, tone mapping and image files."""
