@@ -10,9 +10,17 @@ an unlimited ``max_depth`` (-1) stays unbiased.
 ``max_depth`` counts scattering events (scene format v1): 0 shows only what the camera sees
 directly, 1 adds direct lighting. Mitsuba's ``max_depth`` counts path segments, one more.
 
-Random numbers: dimensions 0 and 1 jitter the pixel; each scattering event then uses the
-``DIMS_PER_BOUNCE`` dimensions that follow, always the same ones for the same role, so one
-sample's path is a pure function of (seed, pixel, sample index) — see ``renderer.rng``.
+Translucent materials with ``method: volumetric`` are homogeneous media behind a dielectric (or,
+at ior 1, index-matched) boundary: inside, free flights are sampled from exp(−σt·s) with the grey
+σt = density, each scattering event weights the path by the albedo and samples the
+Henyey–Greenstein phase function (Mitsuba 3's volpath, analogue sampling). Behind an
+index-matched boundary, scattering events also take a light sample, whose shadow ray carries the
+medium's transmittance; behind a refracting boundary they cannot (the boundary is a delta BSDF).
+
+Random numbers: dimensions 0 and 1 jitter the pixel; each path segment then uses the
+``DIMS_PER_BOUNCE`` dimensions that follow, always the same ones for the same role (0–2 light
+sample, 3–5 BSDF or phase sample, 6 roulette, 7 free flight), so one sample's path is a pure
+function of (seed, pixel, sample index) — see ``renderer.rng``.
 """
 
 from __future__ import annotations
@@ -26,20 +34,55 @@ from renderer.geometry.bvh import intersect_closest, occluded
 from renderer.geometry.shapes import SPAWN_EPSILON, spawn_offset, surface_point
 from renderer.jit import kernel, parallel_kernel
 from renderer.lights import area_light_pdf, sample_light
-from renderer.materials.bsdf import DIELECTRIC, bsdf_eval, bsdf_pdf, bsdf_sample, is_delta
+from renderer.materials.bsdf import (
+    DIELECTRIC,
+    TRANSLUCENT,
+    bsdf_eval,
+    bsdf_pdf,
+    bsdf_sample,
+    is_delta,
+)
+from renderer.materials.phase import hg_pdf, hg_sample
 from renderer.rng import sample_key, uniform
 from renderer.sampling import INV_4PI, power_heuristic
 
 RR_DEPTH = 5
+RR_MAX = 0.95
 DIMS_PER_BOUNCE = 8
 # A guard against a path that never ends (a ray trapped between two perfect mirrors with
-# roulette surviving at 0.95 still ends, but only with probability one); 2¹⁶ events survive
-# roulette with probability 0.95^65531 ≈ 10⁻¹⁴⁶⁰, so the cap never biases an image.
-MAX_EVENTS = 1 << 16
+# roulette surviving at 0.95 still ends, but only with probability one). Every scattering event
+# past RR_DEPTH survives with probability ≤ 0.95, so a path of 2¹⁸ segments (scattering events
+# and index-matched boundary crossings) has probability ~10⁻¹⁰⁰⁰: the cap never biases an image.
+MAX_SEGMENTS = 1 << 18
 # A shadow ray stops this fraction of its length (plus SPAWN_EPSILON of the light point's
 # coordinates) short of the light point it aims at, so it does not hit the light's own surface;
 # sampled points are exact to ~1e-15 relative.
 SHADOW_SLACK = 1e-7
+
+
+@kernel
+def transmittance(S, o, d, t_max, medium, stack):
+    """Fraction of light that travels from o to o + t_max·d: 0 when a surface blocks it, else
+    exp(−σt·length) over the stretches inside index-matched translucent media (their boundaries
+    neither reflect nor refract, so a shadow ray may cross them). ``medium`` is the material of
+    the medium at o (−1: vacuum)."""
+    tr = 1.0
+    for _ in range(64):
+        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count,
+                                          S.bvh_axis, S.prim_kind, S.prim_geo, o, d, t_max, stack)
+        if medium >= 0:
+            tr *= math.exp(-S.mat_param[medium, 4] * min(t, t_max))
+        if prim < 0:
+            return tr
+        mat = S.prim_material[prim]
+        if S.mat_kind[mat] != TRANSLUCENT or S.mat_param[mat, 0] != 1.0 or tr == 0.0:
+            return 0.0
+        p, n = surface_point(S.prim_kind[prim], S.prim_geo[prim], o, d, t, u, v)
+        medium = mat if d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0 else -1
+        o2 = spawn_offset(p, n, d, S.prim_scale[prim])
+        t_max -= (o2[0] - o[0]) * d[0] + (o2[1] - o[1]) * d[1] + (o2[2] - o[2]) * d[2]
+        o = o2
+    return 0.0
 
 
 @kernel
@@ -48,22 +91,77 @@ def trace_path(S, o, d, key, stack, max_depth):
     lr = lg = lb = 0.0  # radiance gathered so far
     br = bg = bb = 1.0  # throughput β
     depth = 0  # scattering events so far
-    specular = True  # no MIS for emission hit after the camera or a delta event
+    # True when the previous vertex took no light sample (the camera, a delta BSDF, a medium
+    # behind a refracting boundary): an emitter found next then counts in full, without MIS.
+    unweighted = True
     prev_pdf = 0.0
     prev_p = o
+    medium = -1  # material whose medium the ray travels in (−1: vacuum)
     dim = 2
     n_lights = S.light_kind.shape[0]
     env = S.env_light[0]
-    while depth < MAX_EVENTS:
+    null_media = S.null_media[0]
+    for _ in range(MAX_SEGMENTS):
         # Find the closest surface along the ray
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count,
                                           S.bvh_axis, S.prim_kind, S.prim_geo, o, d, math.inf,
                                           stack)
+
+        # Inside a translucent medium: a free flight from exp(−σt·s) may end before the surface
+        if medium >= 0:
+            mm = S.mat_param[medium]
+            s_flight = -math.log(1.0 - uniform(key, dim + 7)) / mm[4]
+            if s_flight < t:
+                if max_depth >= 0 and depth >= max_depth:
+                    break
+                p = (o[0] + s_flight * d[0], o[1] + s_flight * d[1], o[2] + s_flight * d[2])
+                # σs/σt = albedo: the grey free flight leaves only the albedo as weight
+                br *= mm[1]
+                bg *= mm[2]
+                bb *= mm[3]
+                g = mm[5]
+                if mm[0] == 1.0 and n_lights > 0:
+                    # Index-matched boundary: light sampling from inside the medium
+                    wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
+                        S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf,
+                        S.prim_kind, S.prim_geo, p, uniform(key, dim), uniform(key, dim + 1),
+                        uniform(key, dim + 2))
+                    if pdf_l > 0.0:
+                        if t_max < math.inf:
+                            t_max *= 1.0 - SHADOW_SLACK
+                        tr = transmittance(S, p, wi, t_max, medium, stack)
+                        if tr > 0.0:
+                            ph = hg_pdf(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2], g)
+                            w = tr * ph / pdf_l
+                            if not delta_l:
+                                w *= power_heuristic(pdf_l, ph)
+                            lr += br * li_rgb[0] * w
+                            lg += bg * li_rgb[1] * w
+                            lb += bb * li_rgb[2] * w
+                    unweighted = False
+                else:
+                    unweighted = True
+                wi, prev_pdf = hg_sample(d, g, uniform(key, dim + 3), uniform(key, dim + 4))
+                prev_p = p
+                o = p
+                d = wi
+                depth += 1
+                if depth >= RR_DEPTH:
+                    q = min(max(br, bg, bb), RR_MAX)
+                    if uniform(key, dim + 6) >= q:
+                        break
+                    br /= q
+                    bg /= q
+                    bb /= q
+                dim += DIMS_PER_BOUNCE
+                continue
+            # Otherwise the flight reaches the surface: P(s ≥ t) = exp(−σt t) = Tr(t), weight 1
+
         if prim < 0:
             # Escaped: the constant background, MIS-weighted against its light sample
             if env >= 0:
                 w = 1.0
-                if not specular:
+                if not unweighted:
                     w = power_heuristic(prev_pdf, S.light_pmf[env] * INV_4PI)
                 lr += br * S.background[0] * w
                 lg += bg * S.background[1] * w
@@ -78,6 +176,7 @@ def trace_path(S, o, d, key, stack, max_depth):
         mat = S.prim_material[prim]
         mk = S.mat_kind[mat]
         mp = S.mat_param[mat]
+        scale = S.prim_scale[prim]
 
         # Beer–Lambert: a ray reaching a dielectric from inside crossed t of its medium
         if mk == DIELECTRIC and cos_o < 0.0:
@@ -89,19 +188,27 @@ def trace_path(S, o, d, key, stack, max_depth):
         li = S.prim_light[prim]
         if li >= 0 and cos_o > 0.0:
             w = 1.0
-            if not specular:
+            if not unweighted:
                 w = power_heuristic(prev_pdf,
                                     area_light_pdf(S.light_pmf, li, kind, geo, prev_p, p, n))
             lr += br * S.light_data[li, 3] * w
             lg += bg * S.light_data[li, 4] * w
             lb += bb * S.light_data[li, 5] * w
 
+        if mk == TRANSLUCENT and mp[0] == 1.0:
+            # Index-matched boundary: the ray goes on unchanged into or out of the medium; this
+            # is no scattering event (Mitsuba's null BSDF does not count towards depth either)
+            medium = mat if d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0 else -1
+            o = spawn_offset(p, n, d, scale)
+            dim += DIMS_PER_BOUNCE
+            continue
+
         if max_depth >= 0 and depth >= max_depth:
             break
-        scale = S.prim_scale[prim]
 
         # Next-event estimation: one light sample, MIS-weighted against the BSDF
-        if n_lights > 0 and not is_delta(mk):
+        delta = is_delta(mk)
+        if n_lights > 0 and not delta:
             wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
                 S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf, S.prim_kind,
                 S.prim_geo, p, uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
@@ -117,9 +224,15 @@ def trace_path(S, o, d, key, stack, max_depth):
                                   + (origin[2] - p[2]) * wi[2])
                         t_max = t_max * (1.0 - SHADOW_SLACK) - SPAWN_EPSILON * max(
                             abs(q[0]), abs(q[1]), abs(q[2]))
-                    if not occluded(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count, S.bvh_axis,
-                                    S.prim_kind, S.prim_geo, origin, wi, t_max, stack):
-                        w = 1.0 / pdf_l
+                    if null_media:
+                        tr = transmittance(S, origin, wi, t_max, medium, stack)
+                    elif occluded(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count, S.bvh_axis,
+                                  S.prim_kind, S.prim_geo, origin, wi, t_max, stack):
+                        tr = 0.0
+                    else:
+                        tr = 1.0
+                    if tr > 0.0:
+                        w = tr / pdf_l
                         if not delta_l:
                             w *= power_heuristic(pdf_l, bsdf_pdf(mk, mp, wo, wi, n))
                         lr += br * f[0] * li_rgb[0] * w
@@ -136,7 +249,10 @@ def trace_path(S, o, d, key, stack, max_depth):
         bb *= weight[2]
         if br == 0.0 and bg == 0.0 and bb == 0.0:
             break
-        specular = is_delta(mk)
+        if mk == TRANSLUCENT:
+            # Refracted in or out, or reflected: the side wi leaves on decides the medium
+            medium = mat if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0 else -1
+        unweighted = delta
         prev_pdf = pdf
         prev_p = p
         depth += 1
@@ -145,7 +261,7 @@ def trace_path(S, o, d, key, stack, max_depth):
 
         # Russian roulette
         if depth >= RR_DEPTH:
-            q = min(max(br, bg, bb), 0.95)
+            q = min(max(br, bg, bb), RR_MAX)
             if uniform(key, dim + 6) >= q:
                 break
             br /= q

@@ -24,7 +24,8 @@ N_PARAMS = 12
 
 @kernel
 def is_delta(kind):
-    return kind == MIRROR or kind == DIELECTRIC
+    # A translucent material's boundary is a smooth dielectric (its volume is the integrator's)
+    return kind == MIRROR or kind == DIELECTRIC or kind == TRANSLUCENT
 
 
 @kernel
@@ -58,7 +59,8 @@ def bsdf_pdf(kind, param, wo, wi, n):
 @kernel
 def bsdf_sample(kind, param, wo, n, uc, u1, u2):
     """(wi, f·|cos|/pdf, pdf, ok); pdf is 0 for the delta materials."""
-    if kind == DIELECTRIC:
+    if kind == DIELECTRIC or kind == TRANSLUCENT:
+        # both keep the boundary's ior in param[0]
         wi, w = dielectric_sample(param, wo, n, uc)
         return wi, (w, w, w), 0.0, True
     ns = _facing(wo, n)

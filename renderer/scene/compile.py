@@ -17,7 +17,7 @@ import numpy as np
 from renderer.geometry.bvh import build_bvh, bvh_depth
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
-from renderer.materials.bsdf import DIELECTRIC, DIFFUSE, MIRROR, N_PARAMS, PHONG
+from renderer.materials.bsdf import DIELECTRIC, DIFFUSE, MIRROR, N_PARAMS, PHONG, TRANSLUCENT
 
 SceneArrays = namedtuple(
     "SceneArrays",
@@ -32,6 +32,8 @@ SceneArrays = namedtuple(
         "light_kind", "light_prim", "light_data", "light_cdf", "light_pmf", "env_light",
         # camera: position, forward, right, up (unit), tan(fov/2), aspect; background radiance
         "camera", "background",
+        # [1] when an index-matched translucent medium exists: shadow rays must cross it
+        "null_media",
     ],
 )
 
@@ -104,9 +106,15 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         p[0] = m.ior
         p[1:4] = m.absorption
         return DIELECTRIC, p
+    if m.method == "volumetric":
+        p[0] = m.ior
+        p[1:4] = m.albedo
+        p[4] = m.density
+        p[5] = m.g
+        return TRANSLUCENT, p
     raise CompileError(
         f"materials.{name}: the translucent method {m.method!r} is not implemented in this "
-        "version of the renderer"
+        "version of the renderer (volumetric is)"
     )
 
 
@@ -250,6 +258,7 @@ def compile_scene(scene) -> CompiledScene:
         light_cdf=light_cdf, light_pmf=light_pmf, env_light=np.array([env_light], np.int64),
         camera=_camera(scene.camera, scene.film.width, scene.film.height),
         background=background,
+        null_media=np.array([bool(np.any((mat_kind == TRANSLUCENT) & (mat_param[:, 0] == 1.0)))]),
     )
     return CompiledScene(
         arrays=arrays,

@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
-SCENES = ("cornell_box", "glass_sphere")
+SCENES = ("cornell_box", "glass_sphere", "translucent_sphere", "backlit_slab")
 FILM = {"width": 64, "height": 48}
 NOISY_SEEDS = (1, 2, 3, 4)
 REF_SEED = 0
@@ -64,6 +64,8 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--spp", type=int, default=64, help="spp of the independent noisy images")
     parser.add_argument("--variant", default=None, help="Mitsuba variant (default: llvm if found)")
     parser.add_argument("--out", type=Path, default=ROOT / "tests" / "data")
+    parser.add_argument("--scenes", nargs="+", default=list(SCENES), choices=SCENES,
+                        help="which examples (default: all)")
     args = parser.parse_args(argv)
 
     if str(ROOT) not in sys.path:  # also runnable as a plain script
@@ -74,7 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     args.out.mkdir(parents=True, exist_ok=True)
     print(f"variant {variant}, film {FILM['width']}x{FILM['height']}, output {args.out}")
     print(f"{'scene':<14} {'image':<30} {'spp':>6} {'seconds':>8}  mean RGB")
-    for name in SCENES:
+    for name in args.scenes:
         scene = _reduced(name)
         # Warm-up: the first render of a scene JIT-compiles its kernels; keep that out of timings.
         render_mitsuba(scene, spp=1, seed=REF_SEED, variant=variant)
