@@ -68,7 +68,8 @@ def main() -> int:
     buf = render_buffer(compiled, 4)
     render = time.perf_counter() - start
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
-    print(f"{len(t):,} triangles: write + read + validate PLY {load:.2f} s; compile_scene (packing + SAH BVH) {build:.2f} s, "
+    print(f"{len(t):,} triangles: write + read + validate PLY {load:.2f} s; "
+          f"compile_scene (packing + SAH BVH) {build:.2f} s, "
           f"{compiled.info['bvh_nodes']:,} nodes, traversal stack {compiled.stack_size}; "
           f"64x48x4 spp render {render:.2f} s, mean {float(np.mean(buf.mean())):.4f}; "
           f"peak RSS {rss:,.0f} MiB")

@@ -4,8 +4,8 @@
   second process, a test run or a farm worker starts warm.
 - ``fastmath=False``: the renderer depends on IEEE semantics (inf for parallel rays in slab tests,
   NaN checks on samples); fastmath would let LLVM assume neither exists.
-- ``error_model="numpy"``: division by zero gives inf/NaN instead of raising, as the slab test and the
-  dropped-sample accounting expect.
+- ``error_model="numpy"``: division by zero gives inf/NaN instead of raising, as the slab test and
+  the dropped-sample accounting expect.
 """
 
 from __future__ import annotations

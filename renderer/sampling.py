@@ -58,7 +58,8 @@ def uniform_cone_pdf(one_minus_cos_max):
 
 @kernel
 def phong_lobe(u1, u2, exponent):
-    """Direction about +z with density ∝ cosⁿα: pdf = (n + 1)/(2π) cosⁿα (Lafortune & Willems 1994)."""
+    """Direction about +z with density ∝ cosⁿα: pdf = (n + 1)/(2π) cosⁿα (Lafortune & Willems
+    1994)."""
     cos_alpha = u1 ** (1.0 / (exponent + 1.0))
     sin_alpha = math.sqrt(max(0.0, 1.0 - cos_alpha * cos_alpha))
     phi = 2.0 * math.pi * u2

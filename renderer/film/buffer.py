@@ -69,7 +69,8 @@ class SampleBuffer:
         return (self.sum / n).astype(np.float32)
 
     def variance_of_mean(self) -> np.ndarray:
-        """Unbiased estimate of the variance of each pixel's mean, (h, w, 3); inf below 2 samples."""
+        """Unbiased estimate of the variance of each pixel's mean, (h, w, 3); inf below 2
+        samples."""
         n = self.count[..., None].astype(np.float64)
         with np.errstate(divide="ignore", invalid="ignore"):
             mean = self.sum / n

@@ -51,11 +51,10 @@ def build_bvh(lo, hi):
     stack_start = np.empty(256, np.int64)
     stack_end = np.empty(256, np.int64)
     stack_parent = np.empty(256, np.int64)
-    sp = 0
     stack_start[0] = 0
     stack_end[0] = n
     stack_parent[0] = -1
-    sp = 1
+    sp = 1 if n > 0 else 0  # no primitives, no nodes: the traversal treats that as a miss
     n_nodes = 0
     b_count = np.zeros(N_BUCKETS, np.int64)
     b_lo = np.empty((N_BUCKETS, 3))

@@ -132,7 +132,8 @@ SPAWN_EPSILON = 1e-9
 
 @kernel
 def spawn_offset(p, n, w, prim_scale):
-    """Origin for a ray leaving ``p`` in direction ``w``: pushed to the side of the normal w lies on."""
+    """Origin for a ray leaving ``p`` in direction ``w``, pushed to the side of the normal that w
+    lies on."""
     eps = SPAWN_EPSILON * max(prim_scale, max(abs(p[0]), abs(p[1]), abs(p[2])))
     if w[0] * n[0] + w[1] * n[1] + w[2] * n[2] < 0.0:
         eps = -eps

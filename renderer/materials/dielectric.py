@@ -18,7 +18,7 @@ from renderer.materials.fresnel import fresnel_dielectric, reflect, refract
 
 @kernel
 def dielectric_sample(param, wo, n, uc):
-    """Returns (wi, weight, entering_side_sign): n is the outward normal of the closed shape."""
+    """Returns (wi, weight): n is the outward normal of the closed shape."""
     ior = param[0]
     cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
     if cos_o >= 0.0:

@@ -1,0 +1,256 @@
+"""Shared test helpers: Pearson's chi² goodness-of-fit test for sampling routines.
+
+This is Mitsuba 3's ``chi2`` test (``mitsuba.chi2.ChiSquareTest``) cut down to what Lucent needs:
+
+1. draw N samples from the routine under test;
+2. bin them into a fixed grid — (cos θ, φ) cells about an axis for directions, a rectangle's cells
+   for 2D points — and integrate the density the routine *claims* over every cell to get the
+   expected counts;
+3. pool the cells expected to hold fewer than ``MIN_EXPECTED`` samples (Pearson's statistic is only
+   χ²-distributed when every expected count is large enough) and run Pearson's test.
+
+Samples a routine fails to produce (rows of NaN) and samples outside the grid land in one extra
+"rest" cell, expected to hold N·(1 − ∫ pdf over the grid): a pdf that integrates to more than one,
+or a sampler that drops more samples than its pdf says, fails the test too.
+
+The numba cache is shared by the whole suite without anything done here: importing ``renderer``
+points ``NUMBA_CACHE_DIR`` at a folder keyed by the renderer's source (``renderer/__init__.py``).
+"""
+
+from __future__ import annotations
+
+import zlib
+from collections.abc import Callable
+
+import numpy as np
+import pytest
+from scipy import stats
+
+# Significance, Bonferroni-corrected: the suite runs at most CHI2_TESTS chi² checks (27 today, in
+# tests/renderer/test_sampling.py and test_rng.py; raise CHI2_TESTS if new tests take the count
+# past it), and each must reach p > ALPHA / CHI2_TESTS. A correct sampler then fails *some* check
+# of the suite by chance with probability at most ALPHA = 1 % (union bound). The threshold costs
+# little power: a density wrong by 3 % over the whole sphere gives p ~ 1e-15 at the sample counts
+# used (see tests/renderer/test_sampling.py).
+ALPHA = 0.01
+CHI2_TESTS = 60
+P_THRESHOLD = ALPHA / CHI2_TESTS
+
+# The share of samples that may fall in cells whose quadrature integral is 0 (see chi2_directions):
+# 1e-4 is 40 samples of 400 000, where the slivers of a light's outline collect a handful.
+ZERO_CELL_FRACTION = 1e-4
+
+# Cells expected to hold fewer samples than this are pooled before the test (the usual rule of
+# thumb for Pearson's statistic, and Mitsuba's default).
+MIN_EXPECTED = 5.0
+
+
+def chi2_gof(observed: np.ndarray, expected: np.ndarray,
+             max_zero_fraction: float = 0.0) -> tuple[float, int, float]:
+    """Pearson's statistic, degrees of freedom and p-value, after pooling small cells.
+
+    ``observed`` and ``expected`` are counts over the same cells and should have (nearly) the same
+    total. Cells with an expected count below ``MIN_EXPECTED`` are merged into one pooled cell; if
+    the pool is still too small it is merged into the smallest regular cell. Samples in cells of
+    zero expected count make the statistic infinite (p = 0), as they must, once they are more than
+    ``max_zero_fraction`` of all samples (see ``chi2_directions`` for why that may be non-zero).
+    """
+    observed = np.asarray(observed, dtype=np.float64).ravel()
+    expected = np.asarray(expected, dtype=np.float64).ravel()
+    if observed.shape != expected.shape:
+        raise ValueError("observed and expected must have the same number of cells")
+    if np.any(expected < 0.0):
+        raise ValueError("negative expected count")
+    if observed[expected == 0.0].sum() > max_zero_fraction * observed.sum():
+        return np.inf, 0, 0.0
+    small = expected < MIN_EXPECTED
+    obs = list(observed[~small])
+    exp = list(expected[~small])
+    pool_obs = observed[small].sum()
+    pool_exp = expected[small].sum()
+    if pool_exp >= MIN_EXPECTED:
+        obs.append(pool_obs)
+        exp.append(pool_exp)
+    elif pool_exp > 0.0 or pool_obs > 0.0:
+        if not exp:
+            raise ValueError("too few samples: every cell expects fewer than MIN_EXPECTED")
+        k = int(np.argmin(exp))
+        obs[k] += pool_obs
+        exp[k] += pool_exp
+    obs_a = np.array(obs)
+    exp_a = np.array(exp)
+    if len(exp_a) < 2:
+        raise ValueError("the chi² test needs at least two cells")
+    stat = float(np.sum((obs_a - exp_a) ** 2 / exp_a))
+    dof = len(exp_a) - 1
+    return stat, dof, float(stats.chi2.sf(stat, dof))
+
+
+def assert_chi2(observed: np.ndarray, expected: np.ndarray, what: str = "",
+                max_zero_fraction: float = 0.0) -> float:
+    """Fail unless Pearson's test accepts ``observed`` as drawn from ``expected`` (see P_THRESHOLD).
+
+    Returns the p-value.
+    """
+    stat, dof, p = chi2_gof(observed, expected, max_zero_fraction)
+    assert p > P_THRESHOLD, (
+        f"chi² test rejects {what or 'the sampler'}: statistic {stat:.1f} on {dof} degrees of "
+        f"freedom, p = {p:.3g} <= {P_THRESHOLD:.3g}"
+    )
+    return p
+
+
+def frame(axis) -> np.ndarray:
+    """Rows (t, b, axis): a right-handed orthonormal basis about ``axis`` (test-side, plain NumPy,
+    deliberately not the renderer's ``onb``)."""
+    a = np.asarray(axis, dtype=np.float64)
+    a = a / np.linalg.norm(a)
+    helper = np.array([1.0, 0.0, 0.0]) if abs(a[0]) < 0.9 else np.array([0.0, 1.0, 0.0])
+    t = np.cross(helper, a)
+    t /= np.linalg.norm(t)
+    b = np.cross(a, t)
+    return np.stack([t, b, a])
+
+
+def _with_rest_cell(counts: np.ndarray, rest_obs: float, probs: np.ndarray, n: int,
+                     what: str) -> tuple[np.ndarray, np.ndarray]:
+    """Observed and expected counts over the grid cells plus the rest cell."""
+    total = float(probs.sum())
+    # The quadrature errs by far less than 1e-4 in total for the densities tested; more than that
+    # above one means the claimed pdf integrates to more than one, which no sampler can match.
+    assert total <= 1.0 + 1e-4, f"{what}: the pdf integrates to {total:.6f} > 1 over the grid"
+    rest_exp = max(0.0, 1.0 - total) * n
+    observed = np.append(counts.ravel(), rest_obs)
+    expected = np.append(probs.ravel() * n, rest_exp)
+    return observed, expected
+
+
+def chi2_directions(
+    sampler: Callable[[int], np.ndarray],
+    pdf: Callable[[np.ndarray], np.ndarray],
+    n: int,
+    *,
+    axis=(0.0, 0.0, 1.0),
+    cos_edges: np.ndarray | None = None,
+    n_cos: int = 20,
+    n_phi: int = 40,
+    sub: int = 12,
+    what: str = "",
+) -> float:
+    """Chi² test of a direction sampler against the density it claims (per unit solid angle).
+
+    ``sampler(n)`` returns an (n, 3) array of unit directions (rows of NaN for samples the routine
+    failed to produce); ``pdf(w)`` takes an (m, 3) array of unit directions and returns their
+    densities. Cells are ``cos_edges`` (default: ``n_cos`` equal steps over [−1, 1]) × ``n_phi``
+    equal steps of φ in the frame about ``axis``; as dω = d(cos θ) dφ, each cell's probability is
+    the mean of the pdf over a ``sub`` × ``sub`` midpoint grid times the cell's (cos θ, φ) area.
+    Directions outside the cos θ range go to the rest cell. Returns the p-value.
+
+    Where the pdf's support has an edge that is not a cell edge (the outline of a light seen from
+    a point), a cell the support cuts in a sliver thinner than the ``sub`` grid has a quadrature
+    integral of 0 yet may receive a sample or two. Such cells are pooled like any other small cell,
+    and they may hold at most ``ZERO_CELL_FRACTION`` of the samples; a sampler that really puts
+    samples where its pdf is zero puts far more there.
+    """
+    f = frame(axis)
+    if cos_edges is None:
+        cos_edges = np.linspace(-1.0, 1.0, n_cos + 1)
+    cos_edges = np.asarray(cos_edges, dtype=np.float64)
+    assert np.all(np.diff(cos_edges) > 0.0), "cos_edges must increase"
+    phi_edges = np.linspace(0.0, 2.0 * np.pi, n_phi + 1)
+
+    # Observed counts
+    w = np.asarray(sampler(n), dtype=np.float64)
+    assert w.shape == (n, 3), f"the sampler returned shape {w.shape}, not ({n}, 3)"
+    valid = ~np.isnan(w).any(axis=1)
+    local = w[valid] @ f.T
+    norm = np.linalg.norm(local, axis=1)
+    assert np.all(np.abs(norm - 1.0) < 1e-9), "the sampler returned directions that are not unit"
+    cos_t = np.clip(local[:, 2] / norm, -1.0, 1.0)
+    phi = np.mod(np.arctan2(local[:, 1], local[:, 0]), 2.0 * np.pi)
+    inside = (cos_t >= cos_edges[0]) & (cos_t <= cos_edges[-1])
+    counts, _, _ = np.histogram2d(cos_t[inside], phi[inside], bins=[cos_edges, phi_edges])
+    rest_obs = float(n - counts.sum())
+
+    # Expected probabilities: midpoint quadrature of the pdf over every cell, in (cos θ, φ)
+    frac = (np.arange(sub) + 0.5) / sub
+    c_lo, c_hi = cos_edges[:-1], cos_edges[1:]
+    p_lo, p_hi = phi_edges[:-1], phi_edges[1:]
+    c = (c_lo[:, None] + frac[None, :] * (c_hi - c_lo)[:, None]).ravel()  # (n_c·sub)
+    p = (p_lo[:, None] + frac[None, :] * (p_hi - p_lo)[:, None]).ravel()  # (n_phi·sub)
+    cc, pp = np.meshgrid(c, p, indexing="ij")
+    s = np.sqrt(np.maximum(0.0, 1.0 - cc * cc))
+    loc = np.stack([s * np.cos(pp), s * np.sin(pp), cc], axis=-1).reshape(-1, 3)
+    dens = np.asarray(pdf(loc @ f), dtype=np.float64).reshape(len(c_lo), sub, len(p_lo), sub)
+    area = (c_hi - c_lo)[:, None] * (p_hi - p_lo)[None, :]
+    probs = dens.mean(axis=(1, 3)) * area
+
+    observed, expected = _with_rest_cell(counts, rest_obs, probs, n, what)
+    return assert_chi2(observed, expected, what, ZERO_CELL_FRACTION)
+
+
+def chi2_points(
+    sampler: Callable[[int], np.ndarray],
+    pdf: Callable[[np.ndarray], np.ndarray],
+    n: int,
+    *,
+    bounds=((0.0, 1.0), (0.0, 1.0)),
+    shape=(20, 20),
+    sub: int = 12,
+    what: str = "",
+) -> float:
+    """Chi² test of a 2D point sampler against its density per unit area, on a grid of ``bounds``.
+
+    ``sampler(n)`` returns an (n, 2) array (rows of NaN for failed samples), ``pdf(x)`` the density
+    of an (m, 2) array. Points outside ``bounds`` go to the rest cell. Returns the p-value.
+    """
+    (x0, x1), (y0, y1) = bounds
+    xe = np.linspace(x0, x1, shape[0] + 1)
+    ye = np.linspace(y0, y1, shape[1] + 1)
+    x = np.asarray(sampler(n), dtype=np.float64)
+    assert x.shape == (n, 2), f"the sampler returned shape {x.shape}, not ({n}, 2)"
+    x = x[~np.isnan(x).any(axis=1)]
+    inside = (x[:, 0] >= x0) & (x[:, 0] <= x1) & (x[:, 1] >= y0) & (x[:, 1] <= y1)
+    counts, _, _ = np.histogram2d(x[inside, 0], x[inside, 1], bins=[xe, ye])
+    rest_obs = float(n - counts.sum())
+
+    frac = (np.arange(sub) + 0.5) / sub
+    xs = (xe[:-1, None] + frac[None, :] * np.diff(xe)[:, None]).ravel()
+    ys = (ye[:-1, None] + frac[None, :] * np.diff(ye)[:, None]).ravel()
+    gx, gy = np.meshgrid(xs, ys, indexing="ij")
+    dens = np.asarray(pdf(np.stack([gx.ravel(), gy.ravel()], axis=1)), dtype=np.float64)
+    dens = dens.reshape(shape[0], sub, shape[1], sub)
+    probs = dens.mean(axis=(1, 3)) * np.diff(xe)[:, None] * np.diff(ye)[None, :]
+
+    observed, expected = _with_rest_cell(counts, rest_obs, probs, n, what)
+    return assert_chi2(observed, expected, what, ZERO_CELL_FRACTION)
+
+
+# --- fixtures -------------------------------------------------------------------------------------
+# Test modules take the helpers as fixtures (test folders are not packages, so they cannot import
+# this module by name).
+
+
+@pytest.fixture
+def chi2_counts() -> Callable[..., float]:
+    """``chi2_counts(observed, expected, what)``: Pearson's test on counts, asserting p."""
+    return assert_chi2
+
+
+@pytest.fixture(name="chi2_directions")
+def _chi2_directions_fixture() -> Callable[..., float]:
+    """``chi2_directions(sampler, pdf, n, ...)``, see ``chi2_directions`` in tests/conftest.py."""
+    return chi2_directions
+
+
+@pytest.fixture(name="chi2_points")
+def _chi2_points_fixture() -> Callable[..., float]:
+    """``chi2_points(sampler, pdf, n, ...)``, see ``chi2_points`` in tests/conftest.py."""
+    return chi2_points
+
+
+@pytest.fixture
+def rng(request) -> np.random.Generator:
+    """A NumPy generator seeded by the test's name: reproducible, and different for every test
+    (so two tests never share the same "random" failure)."""
+    return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
