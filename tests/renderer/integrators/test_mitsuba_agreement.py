@@ -27,6 +27,10 @@ from renderer.render import render
 
 ROOT = Path(__file__).resolve().parents[3]
 DATA = ROOT / "tests" / "data"
+# The diffuse Cornell box, glass with absorption (Mitsuba `path`/`volpath`), and the volumetric
+# translucent method in a Cornell box and in a backlit slab (Mitsuba `volpath`, dielectric boundary,
+# homogeneous medium with the same albedo, σt and HG g).
+SCENES = ["cornell_box", "glass_sphere", "translucent_sphere", "backlit_slab"]
 
 
 def _scene(name: str, seed: int) -> dict:
@@ -36,7 +40,7 @@ def _scene(name: str, seed: int) -> dict:
     return data
 
 
-@pytest.mark.parametrize("name", ["cornell_box", "glass_sphere"])
+@pytest.mark.parametrize("name", SCENES)
 def test_equal_spp_error_no_larger_than_mitsuba(name):
     ref = np.load(DATA / f"{name}_ref.npy").astype(np.float64)
     mitsuba = np.mean([np.mean((np.load(DATA / f"{name}_spp64_seed{k}.npy") - ref) ** 2)
@@ -46,7 +50,7 @@ def test_equal_spp_error_no_larger_than_mitsuba(name):
 
 
 @pytest.mark.slow
-@pytest.mark.parametrize("name", ["cornell_box", "glass_sphere"])
+@pytest.mark.parametrize("name", SCENES)
 def test_converges_to_the_mitsuba_reference(name):
     ref = np.load(DATA / f"{name}_ref.npy").astype(np.float64)
     images = [render(_scene(name, seed)).astype(np.float64) for seed in range(1, 17)]
