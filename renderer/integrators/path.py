@@ -4,9 +4,10 @@ The structure is pbrt-v4's PathIntegrator::Li. At every non-delta vertex one lig
 (``renderer.lights``) and one BSDF sample are taken; where both strategies can reach the same
 light (area lights and the background), each is weighted by Veach's power heuristic, and delta
 lights (point, directional) take the light sample alone. Paths are ended by Russian roulette from
-``RR_DEPTH`` scattering events on, with survival probability min(max(β)·Πη², 0.95) as in Mitsuba 3
-(the η² undoes the radiance scaling of refraction), so an unlimited ``max_depth`` (-1) stays
-unbiased.
+``RR_DEPTH`` scattering events on, with survival probability min(max(β)·Πη², 0.95) at surfaces as
+in Mitsuba 3 (the η² undoes the radiance scaling of refraction) and min(max(β)·Πη², 1) at medium
+events (pbrt-v4's rule, so long walks in high-albedo media are not cut short), so an unlimited
+``max_depth`` (-1) stays unbiased.
 
 ``max_depth`` counts scattering events (scene format v1): 0 shows only what the camera sees
 directly, 1 adds direct lighting. Mitsuba's ``max_depth`` counts path segments, one more.
@@ -37,18 +38,22 @@ from renderer.jit import kernel, parallel_kernel
 from renderer.lights import area_light_pdf, sample_light
 from renderer.materials.bsdf import (
     DIELECTRIC,
+    DIFFUSE_ENTRY,
+    SINGLE_SCATTER,
     TRANSLUCENT,
     bsdf_eval,
     bsdf_pdf,
     bsdf_sample,
     is_delta,
 )
+from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.phase import hg_pdf, hg_sample
 from renderer.rng import sample_key, uniform
-from renderer.sampling import INV_4PI, power_heuristic
+from renderer.sampling import INV_4PI, phong_lobe, power_heuristic
+from renderer.vecmath import to_world
 
 RR_DEPTH = 5
-RR_MAX = 0.95
+RR_MAX = 0.95  # at surfaces; inside media the survival probability is not capped (see there)
 DIMS_PER_BOUNCE = 8
 # A guard against a path that never ends (a ray trapped between two perfect mirrors with
 # roulette surviving at 0.95 still ends, but only with probability one). Every scattering event
@@ -65,7 +70,8 @@ SHADOW_SLACK = 1e-7
 def transmittance(S, o, d, t_max, medium, stack):
     """Fraction of light that travels from o to o + t_max·d: 0 when a surface blocks it, else
     exp(−σt·length) over the stretches inside index-matched translucent media (their boundaries
-    neither reflect nor refract, so a shadow ray may cross them). ``medium`` is the material of
+    neither reflect nor refract, so a shadow ray may cross them) and single-scatter objects (whose
+    surface lets 1 − surface_fraction of the light in, straight on). ``medium`` is the material of
     the medium at o (−1: vacuum)."""
     tr = 1.0
     for _ in range(64):
@@ -76,10 +82,15 @@ def transmittance(S, o, d, t_max, medium, stack):
         if prim < 0:
             return tr
         mat = S.prim_material[prim]
-        if S.mat_kind[mat] != TRANSLUCENT or S.mat_param[mat, 0] != 1.0 or tr == 0.0:
+        kind = S.mat_kind[mat]
+        passable = (kind == TRANSLUCENT and S.mat_param[mat, 0] == 1.0) or kind == SINGLE_SCATTER
+        if not passable or tr == 0.0:
             return 0.0
         p, n = surface_point(S.prim_kind[prim], S.prim_geo[prim], o, d, t, u, v)
-        medium = mat if d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0 else -1
+        entering = d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0
+        if entering and kind == SINGLE_SCATTER:
+            tr *= 1.0 - S.mat_param[mat, 7]
+        medium = mat if entering else -1
         o2 = spawn_offset(p, n, d, S.prim_scale[prim])
         t_max -= (o2[0] - o[0]) * d[0] + (o2[1] - o[1]) * d[1] + (o2[2] - o[2]) * d[2]
         o = o2
@@ -102,6 +113,8 @@ def trace_path(S, o, d, key, stack, max_depth):
     # otherwise kill 60 % of the paths inside glass at every event (pbrt-v4's etaScale,
     # Mitsuba's `eta`).
     eta_scale = 1.0
+    single_done = False  # the single-scatter medium the ray is in has had its one event
+    skip_emission = False  # diffuse_entry with direct_light: this segment's light is counted apart
     dim = 2
     n_lights = S.light_kind.shape[0]
     env = S.env_light[0]
@@ -113,8 +126,14 @@ def trace_path(S, o, d, key, stack, max_depth):
                                           stack)
 
         # Inside a translucent medium: a free flight from exp(−σt·s) may end before the surface
-        if medium >= 0:
+        if medium >= 0 and single_done:
+            # After its one scattering event, single-scattered light only attenuates on its way out
+            br *= math.exp(-S.mat_param[medium, 4] * t)
+            bg *= math.exp(-S.mat_param[medium, 4] * t)
+            bb *= math.exp(-S.mat_param[medium, 4] * t)
+        elif medium >= 0:
             mm = S.mat_param[medium]
+            single = S.mat_kind[medium] == SINGLE_SCATTER
             s_flight = -math.log(1.0 - uniform(key, dim + 7)) / mm[4]
             if s_flight < t:
                 if max_depth >= 0 and depth >= max_depth:
@@ -125,7 +144,8 @@ def trace_path(S, o, d, key, stack, max_depth):
                 bg *= mm[2]
                 bb *= mm[3]
                 g = mm[5]
-                if mm[0] == 1.0 and n_lights > 0:
+                single_done = single
+                if (mm[0] == 1.0 or single) and n_lights > 0:
                     # Index-matched boundary: light sampling from inside the medium
                     wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
                         S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf,
@@ -152,7 +172,10 @@ def trace_path(S, o, d, key, stack, max_depth):
                 d = wi
                 depth += 1
                 if depth >= RR_DEPTH:
-                    q = min(max(br, bg, bb) * eta_scale, RR_MAX)
+                    # No cap below 1 in a medium: at albedo 0.999 a walk needs hundreds of events,
+                    # and a 0.95 cap would make their weight heavy-tailed (1/0.95^k) for nothing;
+                    # the albedo itself brings β and so the survival probability down.
+                    q = min(max(br, bg, bb) * eta_scale, 1.0)
                     if uniform(key, dim + 6) >= q:
                         break
                     br /= q
@@ -164,7 +187,7 @@ def trace_path(S, o, d, key, stack, max_depth):
 
         if prim < 0:
             # Escaped: the constant background, MIS-weighted against its light sample
-            if env >= 0:
+            if env >= 0 and not skip_emission:
                 w = 1.0
                 if not unweighted:
                     w = power_heuristic(prev_pdf, S.light_pmf[env] * INV_4PI)
@@ -191,7 +214,7 @@ def trace_path(S, o, d, key, stack, max_depth):
 
         # Emission from an area light's front side
         li = S.prim_light[prim]
-        if li >= 0 and cos_o > 0.0:
+        if li >= 0 and cos_o > 0.0 and not skip_emission:
             w = 1.0
             if not unweighted:
                 w = power_heuristic(prev_pdf,
@@ -204,6 +227,17 @@ def trace_path(S, o, d, key, stack, max_depth):
             # Index-matched boundary: the ray goes on unchanged into or out of the medium; this
             # is no scattering event (Mitsuba's null BSDF does not count towards depth either)
             medium = mat if d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0 else -1
+            o = spawn_offset(p, n, d, scale)
+            dim += DIMS_PER_BOUNCE
+            continue
+        skip_emission = False
+
+        if mk == SINGLE_SCATTER and (cos_o < 0.0 or uniform(key, dim + 3) >= mp[7]):
+            # The seed paper's model: 1 − surface_fraction of the hits go in, straight on (the
+            # paper does not refract), to scatter at most once inside; leaving is straight too.
+            # Shadow rays see the same surface (transmittance()), so MIS stays consistent.
+            medium = mat if cos_o > 0.0 else -1
+            single_done = False
             o = spawn_offset(p, n, d, scale)
             dim += DIMS_PER_BOUNCE
             continue
@@ -244,21 +278,67 @@ def trace_path(S, o, d, key, stack, max_depth):
                         lg += bg * f[1] * li_rgb[1] * w
                         lb += bb * f[2] * li_rgb[2] * w
 
+        if mk == DIFFUSE_ENTRY and mp[7] > 0.0 and cos_o > 0.0 and n_lights > 0:
+            # The student project's separate direct light: what enters here and comes back out
+            # is lit as a Lambertian surface of albedo (1 − F)·colour; the light that the walk
+            # below would carry straight out to a light is not counted again (skip_emission)
+            wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
+                S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf, S.prim_kind,
+                S.prim_geo, p, uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+            cos_l = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
+            if pdf_l > 0.0 and cos_l > 0.0:
+                origin = spawn_offset(p, n, wi, scale)
+                if t_max < math.inf:
+                    t_max *= 1.0 - SHADOW_SLACK
+                tr = transmittance(S, origin, wi, t_max, -1, stack)
+                if tr > 0.0:
+                    f_in, _ = fresnel_dielectric(cos_o, mp[0])
+                    w = tr * (1.0 - f_in) * cos_l / (math.pi * pdf_l)
+                    lr += br * mp[1] * li_rgb[0] * w
+                    lg += bg * mp[2] * li_rgb[1] * w
+                    lb += bb * mp[3] * li_rgb[2] * w
+
         # Sample the BSDF for the next direction
         wi, weight, pdf, ok = bsdf_sample(mk, mp, wo, n, uniform(key, dim + 3),
                                           uniform(key, dim + 4), uniform(key, dim + 5))
         if not ok:
             break
+        if mk == DIFFUSE_ENTRY:
+            into = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0
+            if cos_o > 0.0 and into:
+                # The student project's rule: a ray that enters scatters at once, just inside,
+                # about its refracted direction (g is the bias), multiplied by the colour
+                ws, _ = hg_sample(wi, mp[5], uniform(key, dim + 4), uniform(key, dim + 5))
+                c = ws[0] * n[0] + ws[1] * n[1] + ws[2] * n[2]
+                if c > 0.0:  # keep it inside: mirror it about the surface
+                    ws = (ws[0] - 2.0 * c * n[0], ws[1] - 2.0 * c * n[1], ws[2] - 2.0 * c * n[2])
+                wi = ws
+                weight = (weight[0] * mp[1], weight[1] * mp[2], weight[2] * mp[3])
+            elif cos_o > 0.0 and mp[8] > 0.0:
+                # Glossy coat: a normalized Phong lobe about the mirror direction, f·cos/pdf =
+                # (n + 2)/(n + 1)·cos θi
+                wg = to_world(phong_lobe(uniform(key, dim + 4), uniform(key, dim + 5), mp[8]), wi)
+                c = wg[0] * n[0] + wg[1] * n[1] + wg[2] * n[2]
+                if c <= 0.0:
+                    break
+                wi = wg
+                k = (mp[8] + 2.0) / (mp[8] + 1.0) * c
+                weight = (k, k, k)
+            elif cos_o < 0.0 and not into and mp[7] > 0.0:
+                skip_emission = True
         br *= weight[0]
         bg *= weight[1]
         bb *= weight[2]
         if br == 0.0 and bg == 0.0 and bb == 0.0:
             break
-        if mk == TRANSLUCENT:
+        if mk == TRANSLUCENT or mk == DIFFUSE_ENTRY:
             # Refracted in or out, or reflected: the side wi leaves on decides the medium
             medium = mat if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0 else -1
         if (mk == DIELECTRIC or mk == TRANSLUCENT) and weight[0] != 1.0:
             eta_scale /= weight[0]  # a refraction: the weight was (η_i/η_t)²
+        elif mk == DIFFUSE_ENTRY and (cos_o > 0.0) != (wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
+                                                         > 0.0):
+            eta_scale *= mp[0] * mp[0] if cos_o > 0.0 else 1.0 / (mp[0] * mp[0])
         unweighted = delta
         prev_pdf = pdf
         prev_p = p

@@ -17,7 +17,9 @@ DIFFUSE = 0
 PHONG = 1
 MIRROR = 2
 DIELECTRIC = 3
-TRANSLUCENT = 4
+TRANSLUCENT = 4  # method "volumetric": the boundary here, the medium in the integrator
+SINGLE_SCATTER = 5  # the seed paper's method: Lambertian at the surface or one scatter inside
+DIFFUSE_ENTRY = 6  # the seed student project's method: a random walk that starts at the surface
 
 N_PARAMS = 12
 
@@ -25,7 +27,7 @@ N_PARAMS = 12
 @kernel
 def is_delta(kind):
     # A translucent material's boundary is a smooth dielectric (its volume is the integrator's)
-    return kind == MIRROR or kind == DIELECTRIC or kind == TRANSLUCENT
+    return kind == MIRROR or kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY
 
 
 @kernel
@@ -41,6 +43,8 @@ def bsdf_eval(kind, param, wo, wi, n):
     ns = _facing(wo, n)
     if kind == DIFFUSE:
         return diffuse_eval(param, wo, wi, ns)
+    if kind == SINGLE_SCATTER:
+        return diffuse_eval(param[1:], wo, wi, ns)  # its albedo is in param[1:4]
     if kind == PHONG:
         return phong_eval(param, wo, wi, ns)
     return (0.0, 0.0, 0.0)
@@ -49,7 +53,7 @@ def bsdf_eval(kind, param, wo, wi, n):
 @kernel
 def bsdf_pdf(kind, param, wo, wi, n):
     ns = _facing(wo, n)
-    if kind == DIFFUSE:
+    if kind == DIFFUSE or kind == SINGLE_SCATTER:
         return diffuse_pdf(param, wo, wi, ns)
     if kind == PHONG:
         return phong_pdf(param, wo, wi, ns)
@@ -59,7 +63,7 @@ def bsdf_pdf(kind, param, wo, wi, n):
 @kernel
 def bsdf_sample(kind, param, wo, n, uc, u1, u2):
     """(wi, f·|cos|/pdf, pdf, ok); pdf is 0 for the delta materials."""
-    if kind == DIELECTRIC or kind == TRANSLUCENT:
+    if kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY:
         # both keep the boundary's ior in param[0]
         wi, w = dielectric_sample(param, wo, n, uc)
         return wi, (w, w, w), 0.0, True
@@ -69,4 +73,6 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
         return wi, weight, 0.0, True
     if kind == PHONG:
         return phong_sample(param, wo, ns, uc, u1, u2)
+    if kind == SINGLE_SCATTER:
+        return diffuse_sample(param[1:], wo, ns, u1, u2)
     return diffuse_sample(param, wo, ns, u1, u2)

@@ -17,7 +17,16 @@ import numpy as np
 from renderer.geometry.bvh import build_bvh, bvh_depth
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
-from renderer.materials.bsdf import DIELECTRIC, DIFFUSE, MIRROR, N_PARAMS, PHONG, TRANSLUCENT
+from renderer.materials.bsdf import (
+    DIELECTRIC,
+    DIFFUSE,
+    DIFFUSE_ENTRY,
+    MIRROR,
+    N_PARAMS,
+    PHONG,
+    SINGLE_SCATTER,
+    TRANSLUCENT,
+)
 
 SceneArrays = namedtuple(
     "SceneArrays",
@@ -32,7 +41,7 @@ SceneArrays = namedtuple(
         "light_kind", "light_prim", "light_data", "light_cdf", "light_pmf", "env_light",
         # camera: position, forward, right, up (unit), tan(fov/2), aspect; background radiance
         "camera", "background",
-        # [1] when an index-matched translucent medium exists: shadow rays must cross it
+        # [1] when shadow rays may cross a surface: index-matched media, single-scatter objects
         "null_media",
     ],
 )
@@ -106,15 +115,23 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         p[0] = m.ior
         p[1:4] = m.absorption
         return DIELECTRIC, p
+    # Common translucent parameters, then each method's knobs (docs/methods/)
+    p[0] = m.ior
+    p[1:4] = m.albedo
+    p[4] = m.density
+    p[5] = m.g
     if m.method == "volumetric":
-        p[0] = m.ior
-        p[1:4] = m.albedo
-        p[4] = m.density
-        p[5] = m.g
         return TRANSLUCENT, p
+    if m.method == "single_scatter":
+        p[7] = 0.8 if m.surface_fraction is None else m.surface_fraction
+        return SINGLE_SCATTER, p
+    if m.method == "diffuse_entry":
+        p[7] = 1.0 if m.direct_light else 0.0
+        p[8] = 0.0 if m.specular_exponent is None else m.specular_exponent
+        return DIFFUSE_ENTRY, p
     raise CompileError(
         f"materials.{name}: the translucent method {m.method!r} is not implemented in this "
-        "version of the renderer (volumetric is)"
+        "version of the renderer (volumetric, single_scatter and diffuse_entry are)"
     )
 
 
@@ -258,7 +275,9 @@ def compile_scene(scene) -> CompiledScene:
         light_cdf=light_cdf, light_pmf=light_pmf, env_light=np.array([env_light], np.int64),
         camera=_camera(scene.camera, scene.film.width, scene.film.height),
         background=background,
-        null_media=np.array([bool(np.any((mat_kind == TRANSLUCENT) & (mat_param[:, 0] == 1.0)))]),
+        null_media=np.array([bool(np.any(
+            ((mat_kind == TRANSLUCENT) & (mat_param[:, 0] == 1.0)) | (mat_kind == SINGLE_SCATTER)
+        ))]),
     )
     return CompiledScene(
         arrays=arrays,

@@ -217,6 +217,42 @@ class TranslucentMaterial(SceneModel):
     g: Float = Field(default=0.0, gt=-1, lt=1)
     """Henyey-Greenstein anisotropy: > 0 forward, < 0 backward."""
 
+    # Method-specific knobs (docs/methods/*.md); each is an error with any other method.
+    surface_fraction: Float | None = Field(default=None, ge=0, le=1)
+    """single_scatter: fraction of hits that scatter as Lambertian at the surface (default 0.8)."""
+    direct_light: bool | None = None
+    """diffuse_entry: light the surface by a separate direct-light estimate (default false)."""
+    specular_exponent: Float | None = Field(default=None, gt=0)
+    """diffuse_entry: Phong exponent of the surface coat; unset = a smooth (mirror) coat."""
+    distortion: Float | None = Field(default=None, ge=0)
+    """backlight: how far the surface normal bends the light vector (default 0.2)."""
+    power: Float | None = Field(default=None, gt=0)
+    """backlight: exponent of the view-dependent transmission lobe (default 4)."""
+    scale: Float | None = Field(default=None, ge=0)
+    """backlight: strength of the transmitted term (default 1)."""
+
+    @model_validator(mode="after")
+    def _check_knobs(self) -> TranslucentMaterial:
+        for knob in sorted(self.model_fields_set):
+            owner = METHOD_KNOBS.get(knob)
+            if owner is not None and owner != self.method and getattr(self, knob) is not None:
+                raise scene_error(
+                    f"{knob} applies to method {owner!r} only (this material's method is "
+                    f"{self.method!r})"
+                )
+        return self
+
+
+# Which method each knob belongs to.
+METHOD_KNOBS = {
+    "surface_fraction": "single_scatter",
+    "direct_light": "diffuse_entry",
+    "specular_exponent": "diffuse_entry",
+    "distortion": "backlight",
+    "power": "backlight",
+    "scale": "backlight",
+}
+
 
 Material = Annotated[
     DiffuseMaterial | PhongMaterial | MirrorMaterial | DielectricMaterial | TranslucentMaterial,

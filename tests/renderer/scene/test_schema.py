@@ -244,7 +244,7 @@ STRUCTURAL_CASES = [
     (_set(("objects", 0, "radus"), 1), "objects[0].radus", "unknown field"),
     (_set(("camera", "fov_y"), 40), "camera.fov_y", "unknown field"),
     (_set(("colour",), [1, 1, 1]), "colour", "unknown field"),
-    (_set(("materials", "wax", "scale"), 2), "materials.wax.scale", "unknown field"),
+    (_set(("materials", "wax", "sigma"), 2), "materials.wax.sigma", "unknown field"),
     (_delete(("objects", 0, "radius")), "objects[0].radius", "required field is missing"),
     (_delete(("objects", 0, "material")), "objects[0].material", "required field is missing"),
     (_set(("objects", 0, "material"), 3), "objects[0].material", "must be a string"),
