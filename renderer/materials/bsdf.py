@@ -20,8 +20,11 @@ DIELECTRIC = 3
 TRANSLUCENT = 4  # method "volumetric": the boundary here, the medium in the integrator
 SINGLE_SCATTER = 5  # the seed paper's method: Lambertian at the surface or one scatter inside
 DIFFUSE_ENTRY = 6  # the seed student project's method: a random walk that starts at the surface
+BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo, kept in param[12:15],
+# plus the integrator's transmitted direct light (integrators/path.py, backlight_transmission),
+# which falls with thickness at the per-channel rate in param[16:19]
 
-N_PARAMS = 12
+N_PARAMS = 20
 
 
 @kernel
@@ -45,6 +48,8 @@ def bsdf_eval(kind, param, wo, wi, n):
         return diffuse_eval(param, wo, wi, ns)
     if kind == SINGLE_SCATTER:
         return diffuse_eval(param[1:], wo, wi, ns)  # its albedo is in param[1:4]
+    if kind == BACKLIGHT:
+        return diffuse_eval(param[12:], wo, wi, ns)
     if kind == PHONG:
         return phong_eval(param, wo, wi, ns)
     return (0.0, 0.0, 0.0)
@@ -53,7 +58,7 @@ def bsdf_eval(kind, param, wo, wi, n):
 @kernel
 def bsdf_pdf(kind, param, wo, wi, n):
     ns = _facing(wo, n)
-    if kind == DIFFUSE or kind == SINGLE_SCATTER:
+    if kind == DIFFUSE or kind == SINGLE_SCATTER or kind == BACKLIGHT:
         return diffuse_pdf(param, wo, wi, ns)
     if kind == PHONG:
         return phong_pdf(param, wo, wi, ns)
@@ -75,4 +80,6 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
         return phong_sample(param, wo, ns, uc, u1, u2)
     if kind == SINGLE_SCATTER:
         return diffuse_sample(param[1:], wo, ns, u1, u2)
+    if kind == BACKLIGHT:
+        return diffuse_sample(param[12:], wo, ns, u1, u2)
     return diffuse_sample(param, wo, ns, u1, u2)

@@ -18,6 +18,7 @@ from renderer.geometry.bvh import build_bvh, bvh_depth
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
 from renderer.materials.bsdf import (
+    BACKLIGHT,
     DIELECTRIC,
     DIFFUSE,
     DIFFUSE_ENTRY,
@@ -129,9 +130,22 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         p[7] = 1.0 if m.direct_light else 0.0
         p[8] = 0.0 if m.specular_exponent is None else m.specular_exponent
         return DIFFUSE_ENTRY, p
+    if m.method == "backlight":
+        p[7] = 0.2 if m.distortion is None else m.distortion
+        p[8] = 4.0 if m.power is None else m.power
+        p[9] = min(1.0, 0.5 if m.scale is None else m.scale)  # the transmitted share
+        p[12:15] = (1.0 - p[9]) * np.asarray(m.albedo)  # what the surface still reflects
+        # Diffuse light decays through a slab as e^{−σ_eff·d}, σ_eff = √(3σa(σa + σs')) with
+        # σs' = σs(1 − g) (diffusion theory, e.g. Jensen et al. 2001): not e^{−σt·d}, which is the
+        # unscattered part only and would make any dense material black from behind.
+        albedo = np.asarray(m.albedo)
+        sigma_a = m.density * (1.0 - albedo)
+        sigma_s_reduced = m.density * albedo * (1.0 - m.g)
+        p[16:19] = np.sqrt(3.0 * sigma_a * (sigma_a + sigma_s_reduced))
+        return BACKLIGHT, p
     raise CompileError(
         f"materials.{name}: the translucent method {m.method!r} is not implemented in this "
-        "version of the renderer (volumetric, single_scatter and diffuse_entry are)"
+        "version of the renderer (volumetric, single_scatter, diffuse_entry and backlight are)"
     )
 
 
