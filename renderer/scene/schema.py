@@ -229,7 +229,7 @@ class TranslucentMaterial(SceneModel):
     power: Float | None = Field(default=None, gt=0)
     """backlight: exponent of the view-dependent transmission lobe (default 4)."""
     scale: Float | None = Field(default=None, ge=0)
-    """backlight: share of the light transmitted instead of reflected, clamped to 1 (default 0.5)."""
+    """backlight: share of light transmitted instead of reflected, clamped to 1 (default 0.5)."""
 
     @model_validator(mode="after")
     def _check_knobs(self) -> TranslucentMaterial:
