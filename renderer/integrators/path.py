@@ -106,9 +106,10 @@ def backlight_transmission(S, mp, p, n, wo, wi, t_max, stack):
     by a ray from p into the object towards the light; the transmitted share
     scale·e^{−σ_eff·thickness} (σ_eff per channel, from the diffusion approximation: see
     compile.py) goes into a lobe about a = normalize(−wo − distortion·n) (the view direction
-    seen through the object, bent by the normal), (power + 1)/(2π)·max(0, wi·a)^power. The lobe is normalized over
-    the light directions, and the surface reflects only (1 − scale) of its albedo, so the
-    method never returns more energy than arrives (the GDC formula is not normalized: it can).
+    seen through the object, bent by the normal), (power + 1)/(2π)·max(0, wi·a)^power. The lobe
+    is normalized over the light directions, and the surface reflects only (1 − scale) of its
+    albedo, so the method never returns more energy than arrives (the GDC formula is not
+    normalized: it can).
     Light behind the object must still reach the far side: the rest of the way is a shadow ray.
     Returns the factors (per channel) that multiply albedo·Li (0 when nothing comes through).
     """
