@@ -17,10 +17,11 @@ $(STAMP): pyproject.toml
 	rm -f $(VENV)/.installed-*
 	touch $@
 
+# The main job, on the farm: an embedded Redis, worker processes and the API on a free port;
+# the Cornell box submitted, waited for and written out; everything stopped.
 demo: $(STAMP)
 	mkdir -p out
-	$(VENV)/bin/lucent render examples/cornell_box.json -o out/cornell_box.png
-	$(VENV)/bin/lucent render examples/cornell_box.json -o out/cornell_box.exr --spp 16 --quiet
+	$(VENV)/bin/lucent demo examples/cornell_box.json -o out/cornell_box.png -o out/cornell_box.exr
 	@echo "open out/cornell_box.png"
 
 test: $(STAMP)

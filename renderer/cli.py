@@ -2,6 +2,13 @@
 
     lucent render SCENE.json -o OUT.{exr,png,pfm,npy} [--spp N] [--seed S] [--threads N]
     lucent validate SCENE.json
+
+and run the farm (the code lives in ``services/`` and ``worker/``):
+
+    lucent up [--host 127.0.0.1] [--port 8000] [--workers N]
+    lucent worker --redis URL [--concurrency N] [--threads N]
+    lucent submit SCENE.json --server URL [--wait] [-o OUT.{exr,png,npy}]
+    lucent demo [SCENE.json] [-o OUT ...]
 """
 
 from __future__ import annotations
@@ -98,6 +105,67 @@ def cmd_render(args: argparse.Namespace) -> int:
     return 0
 
 
+def cmd_up(args: argparse.Namespace) -> int:
+    """The farm on this machine: Redis (embedded unless REDIS_URL), workers and the API."""
+    import os
+
+    from services.launcher import LocalFarm
+
+    farm = LocalFarm(args.host, args.port, args.workers, os.environ.get("REDIS_URL") or None,
+                     threads=args.threads)
+    try:
+        farm.start(serve_in_thread=False)
+        print(f"Lucent farm at {farm.url} (API docs {farm.url}/docs); Redis {farm.redis_url}"
+              f"{' (embedded)' if farm.redis else ''}; {farm.workers} worker processes. "
+              "Ctrl-C stops everything.", file=sys.stderr, flush=True)
+        farm.serve_forever()  # returns on SIGINT or SIGTERM
+    finally:
+        farm.stop()
+        print("Lucent farm stopped.", file=sys.stderr)
+    return 0
+
+
+def cmd_worker(args: argparse.Namespace) -> int:
+    """Join a farm: a Celery worker node (replaces this process)."""
+    import os
+
+    from services.launcher import worker_command, worker_env
+
+    env = worker_env(args.redis, args.threads)
+    cmd = worker_command(args.concurrency, args.name, args.loglevel)
+    os.execvpe(cmd[0], cmd, env)
+    return 0  # not reached
+
+
+def cmd_submit(args: argparse.Namespace) -> int:
+    import os
+
+    from services.client import submit_and_wait
+
+    options = {k: v for k, v in (("name", args.name), ("tile_size", args.tile_size),
+                                 ("spp_per_pass", args.spp_per_pass),
+                                 ("priority", args.priority)) if v is not None}
+    return submit_and_wait(args.scene, args.server, token=os.environ.get("LUCENT_API_TOKEN"),
+                           wait=args.wait, outputs=[args.output] if args.output else [],
+                           quiet=args.quiet,
+                           options=options)
+
+
+def cmd_demo(args: argparse.Namespace) -> int:
+    """``lucent up`` on a free port, one scene submitted and waited for, images written, stop."""
+    import os
+
+    from services.client import submit_and_wait
+    from services.launcher import LocalFarm, free_port
+
+    outputs = args.output or ["out/cornell_box.png", "out/cornell_box.exr"]
+    with LocalFarm(port=free_port(), workers=args.workers,
+                   redis_url=os.environ.get("REDIS_URL") or None, quiet=True) as farm:
+        print(f"Lucent farm at {farm.url} with {farm.workers} worker processes", file=sys.stderr)
+        return submit_and_wait(args.scene, farm.url, wait=True, outputs=outputs,
+                               quiet=args.quiet)
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lucent", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -118,6 +186,43 @@ def build_parser() -> argparse.ArgumentParser:
     p = sub.add_parser("validate", help="check a scene and print the errors to fix")
     p.add_argument("scene", help="scene JSON file")
     p.set_defaults(func=cmd_validate)
+
+    p = sub.add_parser("up", help="run a farm on this machine: Redis, workers and the API")
+    p.add_argument("--host", default="127.0.0.1", help="address the API listens on")
+    p.add_argument("--port", type=int, default=8000, help="port of the API (default 8000)")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: one per core, measured fastest)")
+    p.add_argument("--threads", type=int, default=1, help="numba threads per worker process")
+    p.set_defaults(func=cmd_up)
+
+    p = sub.add_parser("worker", help="join a farm as a Celery worker node")
+    p.add_argument("--redis", required=True, help="the farm's Redis, e.g. redis://host:6379/0")
+    p.add_argument("--concurrency", type=int, default=None,
+                   help="worker processes (default: one per core)")
+    p.add_argument("--threads", type=int, default=1, help="numba threads per worker process")
+    p.add_argument("--name", help="Celery node name (default celery@HOST)")
+    p.add_argument("--loglevel", default="INFO")
+    p.set_defaults(func=cmd_worker)
+
+    p = sub.add_parser("submit", help="submit a scene to a farm")
+    p.add_argument("scene", help="scene JSON file (mesh files are sent inline)")
+    p.add_argument("--server", required=True, help="the farm's URL, e.g. http://127.0.0.1:8000")
+    p.add_argument("--wait", action="store_true", help="wait for the job, with a progress bar")
+    p.add_argument("-o", "--output", help="write the image when done (.exr, .png or .npy)")
+    p.add_argument("--name")
+    p.add_argument("--tile-size", type=int)
+    p.add_argument("--spp-per-pass", type=int)
+    p.add_argument("--priority", type=int, help="0-9, 9 runs first")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
+    p.set_defaults(func=cmd_submit)
+
+    p = sub.add_parser("demo", help="start a farm, render one scene on it, write images, stop")
+    p.add_argument("scene", nargs="?", default="examples/cornell_box.json")
+    p.add_argument("-o", "--output", action="append",
+                   help="image to write (repeatable; default out/cornell_box.png and .exr)")
+    p.add_argument("--workers", type=int, default=None)
+    p.add_argument("-q", "--quiet", action="store_true")
+    p.set_defaults(func=cmd_demo)
     return parser
 
 

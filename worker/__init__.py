@@ -1,5 +1,6 @@
 """Lucent's Celery workers: thin tasks that call ``renderer.render.render_tile``.
 
-Not built yet: this package is the farm issue's. The renderer's interface it will call —
-``render_tile`` and ``SampleBuffer`` — is in ``renderer/``.
+``celery_app`` is the application, ``config`` its configuration, ``tasks`` the one task
+(``render_pass``), ``runtime`` what each worker process keeps: the compiled-scene cache, the JIT
+warm-up and the heartbeat.
 """

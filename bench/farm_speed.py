@@ -1,0 +1,109 @@
+"""The farm's speed on this machine, with warm workers: submission to first preview and to
+completion, per-task overhead, and prefork (N single-threaded processes) against one process
+with N numba threads.
+
+    .venv/bin/python -m bench.farm_speed [--scene examples/cornell_box.json] [--repeats 3]
+
+Each configuration starts an embedded Redis and one worker node, waits until its processes are
+warm (JIT loaded), renders the job once untimed (the scene compiled in every process), then
+times ``--repeats`` submissions of the same job. "First preview" is when pass 0 of every tile
+has merged (the whole frame at spp_per_pass samples).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import statistics
+import time
+from pathlib import Path
+
+import redis
+from fastapi.testclient import TestClient
+
+from services.launcher import EmbeddedRedis, start_worker, terminate
+from services.main import create_app
+from services.settings import Settings
+from services.store import JobStore
+
+
+def _wait(pred, timeout=600.0, interval=0.01):
+    deadline = time.monotonic() + timeout
+    while not pred():
+        if time.monotonic() > deadline:
+            raise TimeoutError
+        time.sleep(interval)
+
+
+def run_job(client: TestClient, body: dict) -> dict:
+    t0 = time.perf_counter()
+    job = client.post("/api/jobs", json=body).json()
+    preview = None
+    while True:
+        j = client.get(f"/api/jobs/{job['id']}").json()
+        if preview is None and j["tasks_merged"] >= j["tiles"]:
+            preview = time.perf_counter() - t0
+        if j["status"] in ("done", "failed", "cancelled"):
+            break
+        time.sleep(0.01)
+    assert j["status"] == "done", j
+    return {"preview": preview, "done": time.perf_counter() - t0, "tasks": j["tasks_total"],
+            "samples": j["samples_planned"]}
+
+
+def measure(name: str, concurrency: int, threads: int, body: dict, repeats: int) -> dict:
+    server = EmbeddedRedis().start()
+    settings = Settings(redis_url=server.url, key_prefix="bench")
+    proc = start_worker(server.url, concurrency, threads, log=open(os.devnull, "w"),
+                        extra_env={"LUCENT_KEY_PREFIX": "bench"})
+    store = JobStore(redis.Redis.from_url(server.url), "bench")
+    try:
+        _wait(lambda: sum(w.get("state") == "idle" for w in store.workers()) >= concurrency,
+              interval=0.2)
+        with TestClient(create_app(settings)) as client:
+            run_job(client, body)  # untimed: compiles the scene in every process
+            runs = []
+            for _ in range(repeats):
+                before = store.metrics()
+                r = run_job(client, body)
+                after = store.metrics()
+                d = {k: after.get(k, 0) - before.get(k, 0) for k in after}
+                r["render_s"] = d["render_seconds"]
+                r["overhead_ms"] = 1e3 * (d["task_seconds"] - d["render_seconds"]) / d["tasks_done"]
+                # Everything that is not rendering, per task, as the wall clock sees it
+                # (broker round trips and idle time included).
+                r["wall_overhead_ms"] = 1e3 * (r["done"] * concurrency - d["render_seconds"]) \
+                    / d["tasks_done"]
+                runs.append(r)
+    finally:
+        terminate(proc, 30)
+        store.r.close()
+        server.stop()
+    med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
+    print(f"{name:>34}: preview {med['preview']:.2f} s, done {med['done']:.2f} s "
+          f"({med['samples'] / med['done'] / 1e6:.2f} M samples/s), {int(med['tasks'])} tasks, "
+          f"task overhead {med['overhead_ms']:.1f} ms in-task / {med['wall_overhead_ms']:.1f} ms "
+          f"wall-clock per task", flush=True)
+    return med
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scene", default="examples/cornell_box.json")
+    parser.add_argument("--repeats", type=int, default=3)
+    args = parser.parse_args()
+    scene = json.loads(Path(args.scene).read_text())
+    cores = os.cpu_count() or 1
+    print(f"{args.scene}: {scene['film']['width']}x{scene['film']['height']}, "
+          f"{scene['render']['spp']} spp, {cores} cores; medians of {args.repeats} runs")
+    for tile, per_pass in [(32, 8), (64, 16)]:
+        body = {"scene": scene, "tile_size": tile, "spp_per_pass": per_pass}
+        measure(f"prefork {cores}x1 thread, tile {tile}/{per_pass} spp", cores, 1, body,
+                args.repeats)
+        measure(f"1 process x{cores} threads, tile {tile}/{per_pass} spp", 1, cores, body,
+                args.repeats)
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,45 @@
+"""Dependencies of the routes, as ``Annotated`` aliases (FastAPI template style)."""
+
+from __future__ import annotations
+
+import secrets
+from typing import Annotated
+
+from celery import Celery
+from fastapi import Depends, HTTPException, Request, status
+
+from services.settings import Settings
+from services.store import JobStore
+
+
+def get_settings_dep(request: Request) -> Settings:
+    return request.app.state.settings
+
+
+def get_store(request: Request) -> JobStore:
+    return request.app.state.store
+
+
+def get_celery(request: Request) -> Celery:
+    return request.app.state.celery
+
+
+SettingsDep = Annotated[Settings, Depends(get_settings_dep)]
+StoreDep = Annotated[JobStore, Depends(get_store)]
+CeleryDep = Annotated[Celery, Depends(get_celery)]
+
+
+def require_token(request: Request, settings: SettingsDep) -> None:
+    """With ``LUCENT_API_TOKEN`` set, ``Authorization: Bearer <token>`` (compared in constant
+    time); without it, the API is open (development on one machine)."""
+    if not settings.api_token:
+        return
+    scheme, _, given = request.headers.get("authorization", "").partition(" ")
+    if scheme.lower() != "bearer" or not secrets.compare_digest(
+        given.strip().encode(), settings.api_token.encode()
+    ):
+        raise HTTPException(
+            status.HTTP_401_UNAUTHORIZED,
+            detail="missing or wrong API token (Authorization: Bearer <LUCENT_API_TOKEN>)",
+            headers={"WWW-Authenticate": "Bearer"},
+        )

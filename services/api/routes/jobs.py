@@ -1,0 +1,189 @@
+"""``/api/jobs``: submit, list, inspect, fetch the image, cancel and retry jobs."""
+
+from __future__ import annotations
+
+import json
+import re
+import time
+import uuid
+from typing import Annotated, Literal
+
+from fastapi import APIRouter, HTTPException, Query, Request, Response, status
+from fastapi.responses import JSONResponse
+
+from renderer.scene import Limits, SceneError, load_scene
+from services.api.deps import CeleryDep, SettingsDep, StoreDep
+from services.merger import assemble
+from services.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
+from services.planner import Plan
+from services.queue import enqueue
+from services.store import ACTIVE, JobMeta, JobStore
+
+router = APIRouter(prefix="/jobs", tags=["jobs"])
+
+_PATH_TOKEN = re.compile(r'\.?([A-Za-z_][A-Za-z0-9_\-]*)|\[(\d+)\]|\[("(?:[^"\\]|\\.)*")\]')
+
+
+def scene_loc(path: str) -> list[str | int]:
+    """``objects[3].radius`` -> ``["body", "scene", "objects", 3, "radius"]``."""
+    loc: list[str | int] = ["body", "scene"]
+    for name, index, quoted in _PATH_TOKEN.findall(path):
+        loc.append(name if name else int(index) if index else json.loads(quoted))
+    return loc
+
+
+def _unprocessable(errors: list[tuple[list[str | int], str, str]]) -> JSONResponse:
+    return JSONResponse(
+        status_code=status.HTTP_422_UNPROCESSABLE_CONTENT,
+        content={"detail": [{"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in errors]},
+    )
+
+
+def to_public(meta: JobMeta) -> JobPublic:
+    plan = meta.plan
+    end = meta.finished_at or time.time()
+    rate = None
+    if meta.started_at and meta.samples_merged:
+        rate = meta.samples_merged / max(end - meta.started_at, 1e-6)
+    eta = None
+    if meta.status in ACTIVE and rate:
+        eta = (meta.samples_planned - meta.samples_merged) / rate
+    elif meta.status == "done":
+        eta = 0.0
+    return JobPublic(
+        id=meta.id, name=meta.name, status=meta.status, priority=meta.priority,  # type: ignore[arg-type]
+        width=plan.width, height=plan.height, spp=plan.spp, tile_size=plan.tile_size,
+        spp_per_pass=plan.spp_per_pass, tiles=plan.n_tiles, tasks_total=plan.n_tasks,
+        tasks_merged=meta.tasks_merged, samples_planned=meta.samples_planned,
+        samples_merged=meta.samples_merged,
+        progress=meta.samples_merged / meta.samples_planned if meta.samples_planned else 1.0,
+        samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
+        created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
+        error=meta.error, image_version=meta.version,
+    )
+
+
+def _get_or_404(store: JobStore, job_id: str) -> JobMeta:
+    meta = store.get_job(job_id)
+    if meta is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
+    return meta
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=JobPublic,
+             responses={422: {"description": "invalid or over-limit scene; `loc` names the field"}})
+def create_job(body: JobCreate, store: StoreDep, celery: CeleryDep, settings: SettingsDep):
+    """Validate the scene, plan tiles × passes and queue them. Nothing is queued if the scene is
+    invalid or over a limit."""
+    try:
+        scene = load_scene(body.scene, limits=Limits())  # mesh paths are refused
+    except SceneError as err:
+        return _unprocessable([(scene_loc(p), m, "scene") for p, m in err.errors])
+    plan = Plan(scene.film.width, scene.film.height, scene.render.spp,
+                body.tile_size or settings.default_tile_size,
+                min(body.spp_per_pass or settings.default_spp_per_pass, scene.render.spp))
+    if plan.n_tasks > settings.max_tasks_per_job:
+        msg = (f"{plan.n_tiles} tiles x {plan.n_passes} passes = {plan.n_tasks} tasks exceed the "
+               f"limit {settings.max_tasks_per_job} (LUCENT_MAX_TASKS_PER_JOB): use larger tiles "
+               "or passes")
+        return _unprocessable([(["body", "tile_size"], msg, "limit"),
+                               (["body", "spp_per_pass"], msg, "limit")])
+    job_id = uuid.uuid4().hex
+    meta = store.create_job(job_id, body.name, body.priority, plan, json.dumps(body.scene))
+    enqueue(celery, job_id, plan.order(), body.priority)
+    return to_public(meta)
+
+
+@router.get("", response_model=JobsPublic)
+def list_jobs(store: StoreDep,
+              status_: Annotated[JobStatus | None, Query(alias="status")] = None,
+              offset: Annotated[int, Query(ge=0)] = 0,
+              limit: Annotated[int, Query(ge=1, le=500)] = 50):
+    metas, total = store.list_jobs(status_, offset, limit)
+    return JobsPublic(data=[to_public(m) for m in metas], count=total, offset=offset, limit=limit)
+
+
+@router.get("/{job_id}", response_model=JobDetail)
+def get_job(job_id: str, store: StoreDep):
+    """Status, progress, per-tile state and samples: answered from Redis, no image touched."""
+    meta = _get_or_404(store, job_id)
+    states = store.tile_states(job_id)
+    samples = store.tile_samples(job_id)
+    errors = store.tile_errors(job_id)
+    tiles = []
+    for t in range(meta.plan.n_tiles):
+        x0, y0, w, h = meta.plan.tile_rect(t)
+        tiles.append(TilePublic(index=t, x0=x0, y0=y0, width=w, height=h,
+                                state=states.get(t, "queued"), samples=samples.get(t, 0),
+                                error=errors.get(t)))
+    all_errors = ([meta.error] if meta.error else []) + [
+        f"tile {t}: {e}" for t, e in sorted(errors.items())]
+    return JobDetail(**to_public(meta).model_dump(), tile_states=tiles, errors=all_errors)
+
+
+_MEDIA = {"png": "image/png", "exr": "image/x-exr", "npy": "application/octet-stream"}
+
+
+@router.get("/{job_id}/image.{fmt}", responses={
+    200: {"content": {m: {} for m in _MEDIA.values()}}, 304: {"description": "not modified"}})
+def get_image(job_id: str, fmt: Literal["png", "exr", "npy"], request: Request,
+              store: StoreDep, exposure: float = 0.0,
+              tonemap: Literal["clamp", "reinhard", "aces"] = "clamp"):
+    """The merged image as it stands (progressive while running). ``ETag`` changes with every
+    merge; send it back in ``If-None-Match`` to get 304 when nothing changed."""
+    meta = _get_or_404(store, job_id)
+    etag = f'"{job_id}-{meta.version}-{fmt}-{exposure:g}-{tonemap}"'
+    headers = {"ETag": etag, "Cache-Control": "no-cache"}
+    if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
+        return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
+    # The buffers are read after the version: the image is never older than its ETag says.
+    assembled = assemble(store, job_id)
+    if assembled is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
+    image = assembled[0].mean()
+    return Response(content=_encode(image, fmt, exposure, tonemap), media_type=_MEDIA[fmt],
+                    headers=headers)
+
+
+def _encode(image, fmt: str, exposure: float, tonemap: str) -> bytes:
+    import io
+
+    import numpy as np
+
+    if fmt == "npy":
+        out = io.BytesIO()
+        np.save(out, image, allow_pickle=False)
+        return out.getvalue()
+    if fmt == "exr":
+        from renderer.film.image_io import encode_exr
+
+        return encode_exr(image)
+    from PIL import Image
+
+    from renderer.film.tonemap import to_srgb8
+
+    out = io.BytesIO()
+    Image.fromarray(to_srgb8(image, exposure=exposure, tonemap=tonemap)).save(out, format="PNG")
+    return out.getvalue()
+
+
+@router.delete("/{job_id}", response_model=JobPublic)
+def cancel_job(job_id: str, store: StoreDep):
+    """Cancel: queued tasks do nothing when they come up; running ones finish their pass."""
+    _get_or_404(store, job_id)
+    store.cancel_job(job_id)
+    return to_public(_get_or_404(store, job_id))
+
+
+@router.post("/{job_id}/retry", response_model=JobPublic)
+def retry_job(job_id: str, store: StoreDep, celery: CeleryDep):
+    """Requeue every pass not merged yet of a failed or cancelled job (tries counted afresh)."""
+    meta = _get_or_404(store, job_id)
+    if meta.status not in ("failed", "cancelled"):
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            detail=f"job {job_id} is {meta.status}: only failed or cancelled "
+                                   "jobs can be retried")
+    todo = store.reopen_job(job_id)
+    enqueue(celery, job_id, todo, meta.priority)
+    store.finish_if_complete(job_id)
+    return to_public(_get_or_404(store, job_id))

@@ -1,0 +1,26 @@
+"""``/api/workers``: the farm's workers, from their heartbeats in Redis."""
+
+from __future__ import annotations
+
+from fastapi import APIRouter
+
+from services.api.deps import StoreDep
+from services.models import WorkerPublic, WorkersPublic
+
+router = APIRouter(prefix="/workers", tags=["workers"])
+
+
+@router.get("", response_model=WorkersPublic)
+def list_workers(store: StoreDep):
+    """Each worker process: host, state (``idle``, ``busy``, ``starting``; ``lost`` once its
+    heartbeat has expired), current task, passes done, paths/s, last heartbeat."""
+    out = []
+    for w in store.workers():
+        out.append(WorkerPublic(
+            id=w["id"], host=w.get("host"), pid=int(w["pid"]) if w.get("pid") else None,
+            state=w.get("state", "lost"), current_task=w.get("current_task") or None,
+            tiles_done=int(w.get("tiles_done", 0)),
+            paths_per_second=float(w.get("paths_per_second", 0.0)),
+            last_heartbeat=float(w["last_heartbeat"]) if w.get("last_heartbeat") else None,
+        ))
+    return WorkersPublic(data=out, count=len(out))

@@ -1,0 +1,59 @@
+"""The FastAPI application: ``uvicorn services.main:app`` or ``create_app(settings)``."""
+
+from __future__ import annotations
+
+from collections.abc import AsyncIterator
+from contextlib import asynccontextmanager
+
+from fastapi import Depends, FastAPI, Request
+from fastapi.responses import JSONResponse
+
+from services.api.deps import require_token
+from services.api.routes import health, jobs, workers
+from services.merger import Sweeper
+from services.queue import celery_client
+from services.settings import Settings, get_settings
+from services.store import JobStore
+
+
+def create_app(settings: Settings | None = None) -> FastAPI:
+    settings = settings or get_settings()
+
+    @asynccontextmanager
+    async def lifespan(app: FastAPI) -> AsyncIterator[None]:
+        store = JobStore.from_url(settings.redis_url, settings.key_prefix)
+        app.state.store = store
+        app.state.celery = celery_client(settings)
+        sweeper = Sweeper(store, settings.sweep_interval)
+        sweeper.start()  # merges what a previous run or a lost worker left behind
+        try:
+            yield
+        finally:
+            sweeper.stop()
+            store.r.close()
+
+    app = FastAPI(title="Lucent", version="0.1.0", lifespan=lifespan,
+                  description="A render farm for physically based images of translucent things.")
+    app.state.settings = settings
+
+    @app.middleware("http")
+    async def limit_body(request: Request, call_next):
+        length = request.headers.get("content-length")
+        if length is not None and length.isdigit() and int(length) > settings.max_body_bytes:
+            return JSONResponse(status_code=413, content={"detail": (
+                f"request body of {length} bytes exceeds the limit {settings.max_body_bytes} "
+                "(LUCENT_MAX_BODY_BYTES)")})
+        return await call_next(request)
+
+    api_deps = [Depends(require_token)]
+    app.include_router(jobs.router, prefix="/api", dependencies=api_deps)
+    app.include_router(workers.router, prefix="/api", dependencies=api_deps)
+    app.include_router(health.router)
+    return app
+
+
+def __getattr__(name: str) -> FastAPI:
+    # ``uvicorn services.main:app`` builds the app from the environment on first access.
+    if name == "app":
+        return create_app()
+    raise AttributeError(name)

@@ -1,0 +1,86 @@
+"""The API's schemas, one family per resource (FastAPI template style)."""
+
+from __future__ import annotations
+
+from typing import Any, Literal
+
+from pydantic import BaseModel, Field
+
+JobStatus = Literal["queued", "running", "done", "failed", "cancelled"]
+
+
+class JobCreate(BaseModel):
+    scene: dict[str, Any] = Field(description="a scene, format v1 (docs/scene-format.md)")
+    name: str = Field(default="", max_length=200)
+    tile_size: int | None = Field(default=None, ge=8, le=1024,
+                                  description="tile edge in pixels (default 32)")
+    spp_per_pass: int | None = Field(default=None, ge=1, le=65_536,
+                                     description="samples per pixel in one task")
+    priority: int = Field(default=0, ge=0, le=9, description="9 runs first")
+
+
+class TilePublic(BaseModel):
+    index: int
+    x0: int
+    y0: int
+    width: int
+    height: int
+    state: str
+    samples: int = Field(description="samples per pixel merged")
+    error: str | None = None
+
+
+class JobPublic(BaseModel):
+    id: str
+    name: str
+    status: JobStatus
+    priority: int
+    width: int
+    height: int
+    spp: int
+    tile_size: int
+    spp_per_pass: int
+    tiles: int
+    tasks_total: int
+    tasks_merged: int
+    samples_planned: int
+    samples_merged: int
+    progress: float = Field(description="samples merged / samples planned, 0–1")
+    samples_per_second: float | None
+    eta_seconds: float | None
+    dropped_samples: int = Field(description="non-finite samples left out")
+    created_at: float
+    started_at: float | None
+    finished_at: float | None
+    error: str | None
+    image_version: int = Field(description="merges so far: the preview's ETag")
+    methods: dict[str, str] = Field(default_factory=dict,
+                                    description="for translucent 'auto': the method chosen")
+
+
+class JobDetail(JobPublic):
+    tile_states: list[TilePublic]
+    errors: list[str]
+
+
+class JobsPublic(BaseModel):
+    data: list[JobPublic]
+    count: int
+    offset: int
+    limit: int
+
+
+class WorkerPublic(BaseModel):
+    id: str
+    host: str | None = None
+    pid: int | None = None
+    state: str
+    current_task: str | None = None
+    tiles_done: int = 0
+    paths_per_second: float = 0.0
+    last_heartbeat: float | None = None
+
+
+class WorkersPublic(BaseModel):
+    data: list[WorkerPublic]
+    count: int

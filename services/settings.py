@@ -1,0 +1,100 @@
+"""The farm's settings, one ``Settings`` for the service and the workers (FastAPI template style).
+
+Every field can be set from the environment: ``REDIS_URL`` as is, the others with the ``LUCENT_``
+prefix (``LUCENT_API_TOKEN``, ``LUCENT_VISIBILITY_TIMEOUT``, ...). Scene size limits are the
+renderer's own (``renderer.scene.Limits``, ``LUCENT_MAX_*``); the job limits here bound how a frame
+may be cut up.
+
+The timing settings must nest: a pass takes far less than ``task_soft_time_limit`` <
+``task_time_limit`` < ``visibility_timeout``. Celery on Redis hands a task that was delivered but
+not acknowledged to another worker once ``visibility_timeout`` has passed; with
+``task_acks_late`` that clock runs from delivery to the end of the task, so a visibility timeout
+shorter than the longest pass would deliver every long pass twice (harmless, as merging is exactly
+once, but wasted work).
+"""
+
+from __future__ import annotations
+
+from functools import lru_cache
+
+from pydantic import AliasChoices, Field, model_validator
+from pydantic_settings import BaseSettings, SettingsConfigDict
+
+
+class Settings(BaseSettings):
+    model_config = SettingsConfigDict(
+        env_prefix="LUCENT_", extra="ignore", use_attribute_docstrings=True, frozen=True,
+        populate_by_name=True,
+    )
+
+    environment: str = "development"
+    """``development`` or ``production``; production refuses to run without an API token."""
+
+    redis_url: str = Field(
+        default="redis://127.0.0.1:6379/0",
+        validation_alias=AliasChoices("REDIS_URL", "LUCENT_REDIS_URL"),
+    )
+    """Redis holds everything: the Celery broker, jobs, sample buffers and heartbeats."""
+
+    key_prefix: str = "lucent"
+    """Prefix of every key the farm writes (not Celery's own queue keys)."""
+
+    api_token: str | None = None
+    """When set, every ``/api`` route needs ``Authorization: Bearer <token>``."""
+
+    # --- Job limits -----------------------------------------------------------------------------
+    default_tile_size: int = 32
+    """Tile edge in pixels when a job does not say."""
+
+    default_spp_per_pass: int = 8
+    """Samples per pixel in one pass when a job does not say."""
+
+    max_tasks_per_job: int = Field(default=200_000, ge=1)
+    """The most (tile, pass) tasks one job may plan: bounds the queue and the bookkeeping."""
+
+    max_body_bytes: int = Field(default=64 * 1024 * 1024, ge=1024)
+    """The largest request body (HTTP 413 above it): inline meshes make scenes big."""
+
+    # --- Tasks ----------------------------------------------------------------------------------
+    max_attempts: int = Field(default=3, ge=1)
+    """Deliveries of one (tile, pass), redeliveries of a lost worker included, before the tile is
+    marked failed: a scene that crashes the tracer fails its job instead of looping."""
+
+    task_soft_time_limit: float = 300.0
+    """Seconds before a pass is interrupted (``SoftTimeLimitExceeded``, counted as a failed try)."""
+
+    task_time_limit: float = 360.0
+    """Seconds before the process running a pass is killed."""
+
+    visibility_timeout: float = 3600.0
+    """Seconds after which Redis redelivers an unacknowledged task (see the module docstring)."""
+
+    heartbeat_interval: float = 2.0
+    """Seconds between worker heartbeats; a worker silent for 3 intervals is shown as lost."""
+
+    pass_ttl: float = 7 * 24 * 3600.0
+    """Seconds a pass buffer that was never merged is kept (a job's other keys have no TTL)."""
+
+    compiled_cache_size: int = Field(default=4, ge=1)
+    """Compiled scenes each worker process keeps (LRU by job id)."""
+
+    sweep_interval: float = 1.0
+    """Seconds between the service's sweeps: pass buffers left unmerged, jobs left unfinished."""
+
+    @model_validator(mode="after")
+    def _check(self) -> Settings:
+        if self.environment != "development" and not self.api_token:
+            raise ValueError("LUCENT_API_TOKEN must be set outside development")
+        if not self.task_soft_time_limit < self.task_time_limit < self.visibility_timeout:
+            raise ValueError(
+                "need task_soft_time_limit < task_time_limit < visibility_timeout "
+                f"(got {self.task_soft_time_limit}, {self.task_time_limit}, "
+                f"{self.visibility_timeout})"
+            )
+        return self
+
+
+@lru_cache
+def get_settings() -> Settings:
+    """The process's settings, read from the environment once."""
+    return Settings()

@@ -1,0 +1,332 @@
+"""The job store: everything the farm knows lives in Redis, under ``{prefix}:`` keys.
+
+=================================  ======  =================================================
+Key                                Type    What
+=================================  ======  =================================================
+``{p}:jobs``                       zset    job id -> submission time (the job list)
+``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``
+``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
+``{p}:job:{id}:tile_state``        hash    tile -> queued / running / done / failed
+``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
+``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
+``{p}:job:{id}:attempts``          hash    ``tile:pass`` -> deliveries (the redelivery cap)
+``{p}:job:{id}:merged``            set     ``tile:pass`` merged into the accumulation
+``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (npz)
+``{p}:job:{id}:pass:{tile}:{pass}`` string a rendered pass, deleted once merged
+``{p}:pending``                    set     pass keys written and not merged (the sweeper's)
+``{p}:workers``                    zset    worker id -> last heartbeat time
+``{p}:worker:{id}``                hash    the last heartbeat (expires after 3 intervals)
+``{p}:metrics``                    hash    farm-wide counters for ``/metrics``
+=================================  ======  =================================================
+
+Memory is bounded by the frame: one accumulation per tile, plus at most one pass buffer per task in
+flight. ``version`` counts merges and is the preview image's ETag.
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass
+from typing import Any
+
+import redis
+
+from services.planner import Plan
+
+STATUSES = ("queued", "running", "done", "failed", "cancelled")
+ACTIVE = ("queued", "running")
+FINAL = ("done", "failed", "cancelled")
+
+# Move a job to a new status only from one of the listed ones (atomically, in Redis).
+# KEYS[1] job hash; ARGV[1] new status, ARGV[2] time, ARGV[3] time field or "", ARGV[4..] from.
+_TRANSITION = """
+local status = redis.call('HGET', KEYS[1], 'status')
+if not status then return 0 end
+for i = 4, #ARGV do
+  if status == ARGV[i] then
+    redis.call('HSET', KEYS[1], 'status', ARGV[1])
+    if ARGV[3] ~= '' then redis.call('HSET', KEYS[1], ARGV[3], ARGV[2]) end
+    redis.call('HINCRBY', KEYS[1], 'status_version', 1)
+    return 1
+  end
+end
+return 0
+"""
+
+
+def _s(value: bytes | str | None) -> str | None:
+    return value.decode() if isinstance(value, bytes) else value
+
+
+def pass_member(tile: int, pass_index: int) -> str:
+    return f"{tile}:{pass_index}"
+
+
+@dataclass
+class JobMeta:
+    """A job's hash, typed."""
+
+    id: str
+    name: str
+    status: str
+    priority: int
+    plan: Plan
+    tasks_merged: int
+    samples_merged: int
+    dropped: int
+    version: int
+    created_at: float
+    started_at: float | None
+    finished_at: float | None
+    error: str | None
+
+    @property
+    def samples_planned(self) -> int:
+        return self.plan.width * self.plan.height * self.plan.spp
+
+    @classmethod
+    def from_hash(cls, h: dict[bytes, bytes]) -> JobMeta:
+        d = {k.decode(): v.decode() for k, v in h.items()}
+
+        def opt_float(name: str) -> float | None:
+            return float(d[name]) if d.get(name) else None
+
+        return cls(
+            id=d["id"],
+            name=d.get("name", ""),
+            status=d["status"],
+            priority=int(d.get("priority", 0)),
+            plan=Plan(int(d["width"]), int(d["height"]), int(d["spp"]), int(d["tile_size"]),
+                      int(d["spp_per_pass"])),
+            tasks_merged=int(d.get("tasks_merged", 0)),
+            samples_merged=int(d.get("samples_merged", 0)),
+            dropped=int(d.get("dropped", 0)),
+            version=int(d.get("version", 0)),
+            created_at=float(d["created_at"]),
+            started_at=opt_float("started_at"),
+            finished_at=opt_float("finished_at"),
+            error=d.get("error") or None,
+        )
+
+
+class JobStore:
+    """Typed access to the keys above. Thread-safe (redis-py clients are)."""
+
+    def __init__(self, client: redis.Redis, prefix: str = "lucent"):
+        self.r = client
+        self.prefix = prefix
+        self._transition = client.register_script(_TRANSITION)
+
+    @classmethod
+    def from_url(cls, url: str, prefix: str = "lucent") -> JobStore:
+        return cls(redis.Redis.from_url(url, health_check_interval=30), prefix)
+
+    # --- keys -----------------------------------------------------------------------------------
+    def k(self, *parts: object) -> str:
+        return ":".join([self.prefix, *map(str, parts)])
+
+    def job_key(self, job_id: str) -> str:
+        return self.k("job", job_id)
+
+    def acc_key(self, job_id: str, tile: int) -> str:
+        return self.k("job", job_id, "acc", tile)
+
+    def pass_key(self, job_id: str, tile: int, pass_index: int) -> str:
+        return self.k("job", job_id, "pass", tile, pass_index)
+
+    # --- jobs -----------------------------------------------------------------------------------
+    def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
+                   scene_json: str) -> JobMeta:
+        now = time.time()
+        fields: dict[str, Any] = {
+            "id": job_id, "name": name, "status": "queued", "priority": priority,
+            "width": plan.width, "height": plan.height, "spp": plan.spp,
+            "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
+            "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
+            "version": 0, "status_version": 0, "created_at": now, "started_at": "",
+            "finished_at": "", "error": "",
+        }
+        pipe = self.r.pipeline()
+        pipe.hset(self.job_key(job_id), mapping=fields)
+        pipe.set(self.k("job", job_id, "scene"), scene_json)
+        pipe.hset(self.k("job", job_id, "tile_state"),
+                  mapping={str(t): "queued" for t in range(plan.n_tiles)})
+        pipe.zadd(self.k("jobs"), {job_id: now})
+        pipe.execute()
+        meta = self.get_job(job_id)
+        assert meta is not None
+        return meta
+
+    def get_job(self, job_id: str) -> JobMeta | None:
+        h = self.r.hgetall(self.job_key(job_id))
+        return JobMeta.from_hash(h) if h else None
+
+    def get_status(self, job_id: str) -> str | None:
+        return _s(self.r.hget(self.job_key(job_id), "status"))
+
+    def get_scene(self, job_id: str) -> dict | None:
+        raw = self.r.get(self.k("job", job_id, "scene"))
+        return json.loads(raw) if raw is not None else None
+
+    def list_jobs(self, status: str | None = None, offset: int = 0,
+                  limit: int = 50) -> tuple[list[JobMeta], int]:
+        """Jobs newest first, filtered by status; returns (page, total matching)."""
+        ids = [i.decode() for i in self.r.zrevrange(self.k("jobs"), 0, -1)]
+        pipe = self.r.pipeline()
+        for job_id in ids:
+            pipe.hgetall(self.job_key(job_id))
+        metas = [JobMeta.from_hash(h) for h in pipe.execute() if h]
+        if status is not None:
+            metas = [m for m in metas if m.status == status]
+        return metas[offset:offset + limit], len(metas)
+
+    def active_job_ids(self) -> list[str]:
+        ids = [i.decode() for i in self.r.zrange(self.k("jobs"), 0, -1)]
+        pipe = self.r.pipeline()
+        for job_id in ids:
+            pipe.hget(self.job_key(job_id), "status")
+        return [j for j, s in zip(ids, pipe.execute(), strict=True) if _s(s) in ACTIVE]
+
+    def transition(self, job_id: str, to: str, from_: tuple[str, ...],
+                   time_field: str = "") -> bool:
+        """Set the status to ``to`` if it is one of ``from_`` (atomic); True if it changed."""
+        return bool(self._transition(keys=[self.job_key(job_id)],
+                                     args=[to, time.time(), time_field, *from_]))
+
+    def mark_started(self, job_id: str) -> None:
+        self.transition(job_id, "running", ("queued",), "started_at")
+
+    def fail_job(self, job_id: str, reason: str) -> bool:
+        if self.transition(job_id, "failed", ACTIVE, "finished_at"):
+            self.r.hset(self.job_key(job_id), "error", reason)
+            return True
+        return False
+
+    def cancel_job(self, job_id: str) -> bool:
+        return self.transition(job_id, "cancelled", ACTIVE, "finished_at")
+
+    def finish_if_complete(self, job_id: str) -> bool:
+        """Mark the job done if every task has been merged."""
+        h = self.r.hmget(self.job_key(job_id), "tasks_merged", "tasks_total")
+        if h[0] is None or int(h[0]) < int(h[1]):
+            return False
+        return self.transition(job_id, "done", ACTIVE, "finished_at")
+
+    def reopen_job(self, job_id: str) -> list[tuple[int, int]]:
+        """For a retry: the job back to running, attempts and tile errors cleared; returns the
+        (tile, pass) pairs not merged yet, which the caller enqueues again."""
+        meta = self.get_job(job_id)
+        if meta is None:
+            return []
+        merged = {m.decode() for m in self.r.smembers(self.k("job", job_id, "merged"))}
+        todo = [(t, p) for t, p in meta.plan.order() if pass_member(t, p) not in merged]
+        states = self.tile_states(job_id)
+        pipe = self.r.pipeline()
+        pipe.delete(self.k("job", job_id, "attempts"), self.k("job", job_id, "tile_error"))
+        for t in {t for t, _ in todo}:
+            if states.get(t) != "done":
+                pipe.hset(self.k("job", job_id, "tile_state"), str(t), "queued")
+        pipe.hset(self.job_key(job_id), mapping={"error": "", "finished_at": ""})
+        pipe.execute()
+        self.transition(job_id, "running", ("failed", "cancelled"))
+        return todo
+
+    # --- tiles ----------------------------------------------------------------------------------
+    def tile_states(self, job_id: str) -> dict[int, str]:
+        h = self.r.hgetall(self.k("job", job_id, "tile_state"))
+        return {int(k): v.decode() for k, v in h.items()}
+
+    def tile_samples(self, job_id: str) -> dict[int, int]:
+        h = self.r.hgetall(self.k("job", job_id, "tile_samples"))
+        return {int(k): int(v) for k, v in h.items()}
+
+    def tile_errors(self, job_id: str) -> dict[int, str]:
+        h = self.r.hgetall(self.k("job", job_id, "tile_error"))
+        return {int(k): v.decode() for k, v in h.items()}
+
+    def set_tile_state(self, job_id: str, tile: int, state: str) -> None:
+        self.r.hset(self.k("job", job_id, "tile_state"), str(tile), state)
+
+    def set_tile_running(self, job_id: str, tile: int) -> None:
+        # Only a queued tile becomes running: a done tile stays done when a late duplicate runs.
+        key = self.k("job", job_id, "tile_state")
+        if _s(self.r.hget(key, str(tile))) == "queued":
+            self.r.hset(key, str(tile), "running")
+
+    def fail_tile(self, job_id: str, tile: int, reason: str) -> None:
+        pipe = self.r.pipeline()
+        pipe.hset(self.k("job", job_id, "tile_state"), str(tile), "failed")
+        pipe.hset(self.k("job", job_id, "tile_error"), str(tile), reason)
+        pipe.execute()
+        self.fail_job(job_id, f"tile {tile}: {reason}")
+
+    def note_tile_error(self, job_id: str, tile: int, reason: str) -> None:
+        self.r.hset(self.k("job", job_id, "tile_error"), str(tile), reason)
+
+    def add_attempt(self, job_id: str, tile: int, pass_index: int) -> int:
+        return int(self.r.hincrby(self.k("job", job_id, "attempts"),
+                                  pass_member(tile, pass_index), 1))
+
+    def is_merged(self, job_id: str, tile: int, pass_index: int) -> bool:
+        return bool(self.r.sismember(self.k("job", job_id, "merged"),
+                                     pass_member(tile, pass_index)))
+
+    # --- sample buffers -------------------------------------------------------------------------
+    def put_pass(self, job_id: str, tile: int, pass_index: int, data: bytes, ttl: float) -> str:
+        """Store a rendered pass (deterministic key: a second delivery overwrites it with the same
+        bytes) and list it as pending for the sweeper."""
+        key = self.pass_key(job_id, tile, pass_index)
+        pipe = self.r.pipeline()
+        pipe.set(key, data, px=int(ttl * 1000))
+        pipe.sadd(self.k("pending"), key)
+        pipe.execute()
+        return key
+
+    def tile_buffers(self, job_id: str, n_tiles: int) -> list[bytes | None]:
+        pipe = self.r.pipeline()
+        for t in range(n_tiles):
+            pipe.get(self.acc_key(job_id, t))
+        return pipe.execute()
+
+    # --- workers --------------------------------------------------------------------------------
+    def heartbeat(self, worker_id: str, fields: dict[str, Any], ttl: float) -> None:
+        now = time.time()
+        key = self.k("worker", worker_id)
+        pipe = self.r.pipeline()
+        pipe.hset(key, mapping={**fields, "last_heartbeat": now})
+        pipe.pexpire(key, int(ttl * 1000))
+        pipe.zadd(self.k("workers"), {worker_id: now})
+        pipe.execute()
+
+    def remove_worker(self, worker_id: str) -> None:
+        self.r.delete(self.k("worker", worker_id))
+        self.r.zrem(self.k("workers"), worker_id)
+
+    def workers(self, forget_after: float = 300.0) -> list[dict[str, str]]:
+        """Workers seen in the last ``forget_after`` seconds; those whose heartbeat expired come
+        back with ``state = lost``."""
+        now = time.time()
+        self.r.zremrangebyscore(self.k("workers"), 0, now - forget_after)
+        entries = self.r.zrevrange(self.k("workers"), 0, -1, withscores=True)
+        pipe = self.r.pipeline()
+        for worker_id, _ in entries:
+            pipe.hgetall(self.k("worker", worker_id.decode()))
+        out = []
+        for (worker_id, seen), h in zip(entries, pipe.execute(), strict=True):
+            d = {k.decode(): v.decode() for k, v in h.items()}
+            if not d:
+                d = {"state": "lost", "last_heartbeat": str(seen)}
+            d["id"] = worker_id.decode()
+            out.append(d)
+        return out
+
+    # --- metrics --------------------------------------------------------------------------------
+    def count(self, **increments: float) -> None:
+        pipe = self.r.pipeline()
+        for name, value in increments.items():
+            pipe.hincrbyfloat(self.k("metrics"), name, value)
+        pipe.execute()
+
+    def metrics(self) -> dict[str, float]:
+        return {k.decode(): float(v) for k, v in self.r.hgetall(self.k("metrics")).items()}

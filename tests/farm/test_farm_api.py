@@ -1,0 +1,201 @@
+"""The API without workers: validation, limits, 404s, the token, planning and exactly-once merging
+against a real Redis."""
+
+from __future__ import annotations
+
+import threading
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from renderer.film.buffer import SampleBuffer
+from services.main import create_app
+from services.merger import assemble, merge_pass, sweep
+from services.planner import Plan, celery_priority
+from services.settings import Settings
+
+# --- validation and limits ----------------------------------------------------------------------
+
+
+def test_invalid_scene_is_422_naming_the_field(client, tiny_scene):
+    tiny_scene["objects"][0]["edge1"] = [2, 0]
+    tiny_scene["render"]["spp"] = 0
+    r = client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 422
+    locs = [d["loc"] for d in r.json()["detail"]]
+    assert ["body", "scene", "objects", 0, "edge1"] in locs
+    assert ["body", "scene", "render", "spp"] in locs
+    assert client.get("/api/jobs").json()["count"] == 0  # nothing queued
+
+
+def test_missing_scene_is_422(client):
+    r = client.post("/api/jobs", json={"name": "no scene"})
+    assert r.status_code == 422
+    assert r.json()["detail"][0]["loc"] == ["body", "scene"]
+
+
+def test_over_limit_scene_is_refused(client, tiny_scene, monkeypatch):
+    monkeypatch.setenv("LUCENT_MAX_SPP", "64")
+    tiny_scene["render"]["spp"] = 1000
+    r = client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 422
+    (err,) = r.json()["detail"]
+    assert err["loc"] == ["body", "scene", "render", "spp"]
+    assert "LUCENT_MAX_SPP" in err["msg"]
+
+
+def test_too_many_tasks_is_refused(redis_base_url, tiny_scene):
+    settings = Settings(redis_url=redis_base_url, key_prefix="lucent-test-tasks",
+                        max_tasks_per_job=10)
+    with TestClient(create_app(settings)) as c:
+        r = c.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 8, "spp_per_pass": 1})
+        assert r.status_code == 422
+        assert r.json()["detail"][0]["loc"] == ["body", "tile_size"]
+
+
+def test_oversized_body_is_413(redis_base_url, tiny_scene):
+    settings = Settings(redis_url=redis_base_url, key_prefix="lucent-test-413",
+                        max_body_bytes=2048)
+    tiny_scene["name_padding"] = "x" * 4000
+    with TestClient(create_app(settings)) as c:
+        assert c.post("/api/jobs", json={"scene": tiny_scene}).status_code == 413
+
+
+def test_mesh_paths_are_refused(client, tiny_scene):
+    tiny_scene["objects"].append({"type": "mesh", "path": "/etc/passwd", "material": "white"})
+    r = client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 422
+    assert any(d["loc"][:4] == ["body", "scene", "objects", 8] for d in r.json()["detail"])
+
+
+def test_unknown_job_is_404(client):
+    for method, path in [("GET", "/api/jobs/nope"), ("GET", "/api/jobs/nope/image.png"),
+                         ("DELETE", "/api/jobs/nope"), ("POST", "/api/jobs/nope/retry")]:
+        assert client.request(method, path).status_code == 404, (method, path)
+
+
+def test_api_token_is_enforced_when_set(redis_base_url):
+    settings = Settings(redis_url=redis_base_url, key_prefix="lucent-test-token",
+                        api_token="s3cret")
+    with TestClient(create_app(settings)) as c:
+        assert c.get("/api/jobs").status_code == 401
+        assert c.get("/api/jobs", headers={"Authorization": "Bearer wrong"}).status_code == 401
+        assert c.get("/api/jobs", headers={"Authorization": "Bearer s3cret"}).status_code == 200
+        assert c.get("/api/workers").status_code == 401
+        assert c.get("/healthz").status_code == 200  # probes stay open
+
+
+def test_production_needs_a_token():
+    with pytest.raises(ValueError, match="LUCENT_API_TOKEN"):
+        Settings(environment="production")
+
+
+def test_health_ready_and_metrics(client):
+    assert client.get("/healthz").json() == {"status": "ok"}
+    assert client.get("/readyz").json() == {"status": "ok"}
+    text = client.get("/metrics").text
+    assert 'lucent_jobs{status="done"} 0' in text
+    assert "# TYPE lucent_tasks_done_total counter" in text
+
+
+def test_submission_is_planned_and_listed(client, tiny_scene):
+    r = client.post("/api/jobs", json={"scene": tiny_scene, "name": "box", "tile_size": 16,
+                                       "spp_per_pass": 8, "priority": 3})
+    assert r.status_code == 201
+    job = r.json()
+    assert (job["status"], job["tiles"], job["tasks_total"]) == ("queued", 4, 8)
+    detail = client.get(f"/api/jobs/{job['id']}").json()
+    assert [t["state"] for t in detail["tile_states"]] == ["queued"] * 4
+    listed = client.get("/api/jobs", params={"status": "queued"}).json()
+    assert [j["id"] for j in listed["data"]] == [job["id"]]
+    assert client.get("/api/jobs", params={"status": "done"}).json()["count"] == 0
+    assert client.get("/api/jobs", params={"status": "bogus"}).status_code == 422
+    # Cancel, then retry brings it back.
+    assert client.delete(f"/api/jobs/{job['id']}").json()["status"] == "cancelled"
+    assert client.post(f"/api/jobs/{job['id']}/retry").json()["status"] == "running"
+
+
+# --- planning -----------------------------------------------------------------------------------
+
+
+def test_plan_covers_the_frame_once_and_goes_centre_first():
+    plan = Plan(width=50, height=30, spp=20, tile_size=16, spp_per_pass=8)
+    cover = np.zeros((30, 50), int)
+    for t in range(plan.n_tiles):
+        x0, y0, w, h = plan.tile_rect(t)
+        cover[y0:y0 + h, x0:x0 + w] += 1
+    assert (cover == 1).all()
+    assert [plan.sample_range(p) for p in range(plan.n_passes)] == [(0, 8), (8, 8), (16, 4)]
+    order = plan.order()
+    assert len(order) == len(set(order)) == plan.n_tasks
+    # Pass 0 of every tile before any pass 1; the first tile is one of the central ones.
+    assert {p for _, p in order[:plan.n_tiles]} == {0}
+    x0, y0, w, h = plan.tile_rect(order[0][0])
+    assert x0 <= 25 <= x0 + w and y0 <= 15 <= y0 + h
+    assert celery_priority(9) == 0 and celery_priority(0) == 9
+
+
+# --- exactly-once merging -----------------------------------------------------------------------
+
+
+def _pass_buffer(x0, y0, w, h, samples, value):
+    buf = SampleBuffer.empty(x0, y0, w, h)
+    buf.sum[:] = value * samples
+    buf.sum_sq[:] = value * value * samples
+    buf.count[:] = samples
+    return buf
+
+
+def _job(store, spp=16, per_pass=8):
+    plan = Plan(width=16, height=8, spp=spp, tile_size=8, spp_per_pass=per_pass)
+    store.create_job("j1", "", 0, plan, "{}")
+    return plan
+
+
+def test_a_pass_written_twice_is_merged_once(store):
+    plan = _job(store)
+    buf = _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes()
+    store.put_pass("j1", 0, 0, buf, ttl=60)
+    assert merge_pass(store, "j1", 0, 0)
+    store.put_pass("j1", 0, 0, buf, ttl=60)  # a redelivered task writes the same pass again
+    assert not merge_pass(store, "j1", 0, 0)
+    assert not merge_pass(store, "j1", 0, 0)
+    frame, version = assemble(store, "j1")
+    assert version == 1
+    assert (frame.count[:, :8] == 8).all() and (frame.count[:, 8:] == 0).all()
+    assert store.r.get(store.pass_key("j1", 0, 0)) is None  # pass buffers are freed
+    assert store.get_job("j1").tasks_merged == 1
+    assert plan.n_tasks == 4
+
+
+def test_concurrent_merges_count_each_pass_once(store):
+    _job(store, spp=32, per_pass=4)
+    for p in range(8):
+        store.put_pass("j1", 1, p, _pass_buffer(8, 0, 8, 8, 4, float(p)).to_bytes(), ttl=60)
+    # 4 threads race to merge every pass of the same tile (the same accumulation key).
+    threads = [threading.Thread(target=lambda: [merge_pass(store, "j1", 1, p) for p in range(8)])
+               for _ in range(4)]
+    for t in threads:
+        t.start()
+    for t in threads:
+        t.join()
+    frame, _ = assemble(store, "j1")
+    assert (frame.count[:, 8:] == 32).all()
+    np.testing.assert_allclose(frame.sum[:, 8:], 4 * sum(range(8)))
+    assert store.get_job("j1").tasks_merged == 8
+    assert store.tile_samples("j1") == {1: 32}
+    assert store.tile_states("j1")[1] == "done"
+
+
+def test_the_last_merge_finishes_the_job_and_the_sweeper_merges_leftovers(store, settings):
+    _job(store, spp=8, per_pass=8)
+    store.put_pass("j1", 0, 0, _pass_buffer(0, 0, 8, 8, 8, 1.0).to_bytes(), ttl=60)
+    # A worker died after writing its pass, before merging it: the service merges it on start.
+    with TestClient(create_app(settings)) as c:
+        assert c.get("/api/jobs/j1").json()["tasks_merged"] == 1
+    store.put_pass("j1", 1, 0, _pass_buffer(8, 0, 8, 8, 8, 2.0).to_bytes(), ttl=60)
+    assert sweep(store) == 1
+    assert sweep(store) == 0
+    assert store.get_job("j1").status == "done"
+    assert store.r.scard(store.k("pending")) == 0

@@ -1,0 +1,161 @@
+"""The farm end to end: real Redis, real Celery worker processes, the API in-process."""
+
+from __future__ import annotations
+
+import copy
+import io
+import os
+import signal
+
+import numpy as np
+import pytest
+from fastapi.testclient import TestClient
+
+from renderer.render import render
+from services.main import create_app
+from services.merger import assemble
+from services.planner import Plan
+from services.queue import enqueue
+
+
+def _uncompilable(scene: dict) -> dict:
+    """The scene with a translucent method this renderer validates but cannot render yet (the
+    translucency issue adds methods one by one: take one that still raises CompileError)."""
+    from renderer.scene import load_scene
+    from renderer.scene.compile import CompileError, compile_scene
+
+    for method in ("diffusion", "backlight", "single_scatter", "diffuse_entry", "auto"):
+        bad = copy.deepcopy(scene)
+        bad["materials"]["white"] = {"type": "translucent", "method": method}
+        try:
+            compile_scene(load_scene(bad))
+        except CompileError:
+            return bad
+    pytest.skip("every translucent method compiles now: no scene left that fails to compile")
+
+
+def _image(client, job_id) -> np.ndarray:
+    r = client.get(f"/api/jobs/{job_id}/image.npy")
+    assert r.status_code == 200
+    return np.load(io.BytesIO(r.content))
+
+
+def _assert_complete(farm, job_id, scene, image):
+    """Every pixel holds exactly spp samples, and the image is the local render's."""
+    store = farm.store()
+    frame, _ = assemble(store, job_id)
+    assert (frame.count + frame.dropped == scene["render"]["spp"]).all()
+    assert store.r.scard(store.k("pending")) == 0
+    np.testing.assert_allclose(image, render(scene), rtol=1e-5, atol=1e-7)
+
+
+@pytest.mark.parametrize(("tile_size", "spp_per_pass"), [(16, 8), (10, 3)])
+def test_job_equals_the_local_render(farm, farm_client, wait_for_job, tiny_scene, tile_size,
+                                     spp_per_pass):
+    r = farm_client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": tile_size,
+                                            "spp_per_pass": spp_per_pass})
+    assert r.status_code == 201, r.text
+    job = wait_for_job(farm_client, r.json()["id"])
+    assert job["status"] == "done", job
+    assert job["progress"] == 1.0 and job["tasks_merged"] == job["tasks_total"]
+    assert {t["state"] for t in job["tile_states"]} == {"done"}
+    assert {t["samples"] for t in job["tile_states"]} == {16}
+    _assert_complete(farm, job["id"], tiny_scene, _image(farm_client, job["id"]))
+    # ETag: a poller gets 304 while nothing changes.
+    png = farm_client.get(f"/api/jobs/{job['id']}/image.png")
+    assert png.headers["content-type"] == "image/png" and png.content[:4] == b"\x89PNG"
+    again = farm_client.get(f"/api/jobs/{job['id']}/image.png",
+                            headers={"If-None-Match": png.headers["etag"]})
+    assert again.status_code == 304
+    assert farm_client.get(f"/api/jobs/{job['id']}/image.exr").content[:4] == b"\x76\x2f\x31\x01"
+
+
+def test_a_task_delivered_twice_is_merged_once(farm, farm_client, wait_for_job, tiny_scene):
+    r = farm_client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 16,
+                                            "spp_per_pass": 4})
+    job_id = r.json()["id"]
+    # Every (tile, pass) delivered a second time, as Redis does after a visibility timeout.
+    plan = Plan(32, 24, 16, 16, 4)
+    enqueue(farm_client.app.state.celery, job_id, plan.order(), 0)
+    job = wait_for_job(farm_client, job_id)
+    assert job["status"] == "done"
+    assert job["tasks_merged"] == plan.n_tasks
+    _assert_complete(farm, job_id, tiny_scene, _image(farm_client, job_id))
+
+
+def test_cancel_mid_job(farm, farm_client, wait_for_job, wait_until, tiny_scene):
+    scene = copy.deepcopy(tiny_scene)
+    scene["film"] = {"width": 64, "height": 48}
+    scene["render"]["spp"] = 1024
+    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 16, "spp_per_pass": 2})
+    job_id = r.json()["id"]
+    wait_until(lambda: farm_client.get(f"/api/jobs/{job_id}").json()["tasks_merged"] > 0,
+               120, "the first merged pass")
+    assert farm_client.delete(f"/api/jobs/{job_id}").json()["status"] == "cancelled"
+    job = wait_for_job(farm_client, job_id, statuses=("cancelled",))
+    merged = job["tasks_merged"]
+    assert merged < job["tasks_total"]
+    # The queue drains quickly (cancelled tasks do nothing) and nothing more is merged after at
+    # most the passes that were running.
+    store = farm.store()
+    wait_until(lambda: store.r.llen("celery") == 0, 60, "the queue to drain", interval=0.2)
+    wait_until(lambda: not [w for w in store.workers() if w.get("state") == "busy"], 30,
+               "idle workers", interval=0.2)
+    assert farm_client.get(f"/api/jobs/{job_id}").json()["tasks_merged"] <= merged + 2
+    assert _image(farm_client, job_id).any()  # the partial image stays available
+
+
+def test_worker_process_killed_mid_job(farm, farm_client, wait_for_job, wait_until, tiny_scene):
+    psutil = pytest.importorskip("psutil")
+    scene = copy.deepcopy(tiny_scene)
+    scene["film"] = {"width": 48, "height": 32}
+    scene["render"]["spp"] = 256
+    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 16, "spp_per_pass": 4})
+    job_id = r.json()["id"]
+    wait_until(lambda: farm_client.get(f"/api/jobs/{job_id}").json()["tasks_merged"] > 4,
+               120, "passes merging")
+    children = psutil.Process(farm.proc.pid).children()
+    assert children, "no pool processes"
+    for child in children:  # both pool processes, mid-task: SIGKILL, as the OOM killer would
+        os.kill(child.pid, signal.SIGKILL)
+    job = wait_for_job(farm_client, job_id)
+    assert job["status"] == "done", job
+    assert farm.proc.poll() is None
+    _assert_complete(farm, job_id, scene, _image(farm_client, job_id))
+
+
+def test_service_restarted_mid_job(farm, wait_for_job, wait_until, tiny_scene):
+    scene = copy.deepcopy(tiny_scene)
+    scene["film"] = {"width": 48, "height": 32}
+    scene["render"]["spp"] = 128
+    with TestClient(create_app(farm.settings)) as first:
+        job_id = first.post("/api/jobs", json={"scene": scene, "tile_size": 16,
+                                               "spp_per_pass": 4}).json()["id"]
+        wait_until(lambda: first.get(f"/api/jobs/{job_id}").json()["tasks_merged"] > 0, 120,
+                   "passes merging")
+    # The service is gone (its sweeper stopped); a new one carries on from Redis.
+    with TestClient(create_app(farm.settings)) as second:
+        job = wait_for_job(second, job_id)
+        assert job["status"] == "done"
+        _assert_complete(farm, job_id, scene, _image(second, job_id))
+
+
+def test_scene_that_fails_to_compile_fails_the_job_not_the_worker(farm, farm_client,
+                                                                   wait_for_job, tiny_scene):
+    bad = _uncompilable(tiny_scene)
+    r = farm_client.post("/api/jobs", json={"scene": bad, "tile_size": 16})
+    assert r.status_code == 201  # valid, but not renderable by this version
+    job = wait_for_job(farm_client, r.json()["id"])
+    assert job["status"] == "failed"
+    assert "not implemented" in job["error"] and "materials.white" in job["error"]
+    assert farm.proc.poll() is None
+    # The workers still render.
+    ok = farm_client.post("/api/jobs", json={"scene": tiny_scene}).json()
+    assert wait_for_job(farm_client, ok["id"])["status"] == "done"
+
+
+def test_workers_report_heartbeats(farm, farm_client):
+    workers = farm_client.get("/api/workers").json()["data"]
+    live = [w for w in workers if w["state"] in ("idle", "busy")]
+    assert len(live) >= 2
+    assert all(w["host"] and w["pid"] and w["last_heartbeat"] for w in live)

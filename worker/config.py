@@ -1,0 +1,65 @@
+"""Celery configuration, in one module (Celery's docs' practice); values come from ``Settings``.
+
+- JSON only: pickle would let anyone who can write to Redis run code on every worker.
+- ``task_acks_late`` + ``worker_prefetch_multiplier = 1``: a task is acknowledged when it ends, and
+  a worker holds one task at a time, so a worker that dies loses at most the pass it was rendering,
+  and Redis hands that pass to another worker.
+- ``task_reject_on_worker_lost``: a pool process killed mid-task (SIGKILL, out of memory) puts the
+  task back at once. Celery itself does not cap how often; ``worker.tasks`` does, counting the
+  deliveries of each (job, tile, pass) in Redis (``Settings.max_attempts``), so a scene that kills
+  the tracer fails its job instead of looping.
+- Time limits: soft (``SoftTimeLimitExceeded`` in the task, a failed try) then hard (the process is
+  killed). ``visibility_timeout`` must exceed the hard limit (see ``services.settings``).
+- Priorities: Redis emulates them with one list per level; 0 is served first.
+  ``services.planner.celery_priority`` maps a job's priority 0–9 (9 most urgent) onto them.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+from services.settings import Settings, get_settings
+
+
+def celery_config(settings: Settings) -> dict[str, Any]:
+    """The settings below, for a given ``Settings`` (the service sends with the same ones)."""
+    return {
+        "broker_url": settings.redis_url,
+        "broker_transport_options": {
+            "visibility_timeout": settings.visibility_timeout,
+            "priority_steps": list(range(10)),
+            "sep": ":",
+            "queue_order_strategy": "priority",
+        },
+        "task_soft_time_limit": settings.task_soft_time_limit,
+        "task_time_limit": settings.task_time_limit,
+    }
+
+
+_conf = celery_config(get_settings())
+broker_url = _conf["broker_url"]
+broker_transport_options = _conf["broker_transport_options"]
+task_soft_time_limit = _conf["task_soft_time_limit"]
+task_time_limit = _conf["task_time_limit"]
+
+broker_connection_retry_on_startup = True
+
+# Results are written by the tasks themselves under deterministic keys: no result backend.
+task_ignore_result = True
+
+task_serializer = "json"
+result_serializer = "json"
+accept_content = ["json"]
+event_serializer = "json"
+
+task_acks_late = True
+worker_prefetch_multiplier = 1
+task_reject_on_worker_lost = True
+task_default_priority = 9
+task_queue_max_priority = 10
+
+# Pool processes warm the JIT in worker_process_init (a cached kernel loads in ~1 s, compiling it
+# afresh takes ~15 s); Celery's default 4 s would kill them while they do.
+worker_proc_alive_timeout = 120.0
+worker_hijack_root_logger = False
+worker_send_task_events = False

@@ -1,0 +1,136 @@
+"""What each worker process keeps: its store connection, compiled scenes, JIT warm-up, heartbeat.
+
+Celery's prefork pool forks after importing the app, so everything here is created lazily in the
+pool process (``worker_process_init``), never in the parent: Redis connections and numba's thread
+pool must not cross a fork.
+"""
+
+from __future__ import annotations
+
+import os
+import socket
+import threading
+import time
+from collections import OrderedDict
+from typing import Any
+
+from services.settings import get_settings
+from services.store import JobStore
+
+# A scene small enough to render in milliseconds that still runs every kernel the tile renderer
+# calls (a quad light over a diffuse sphere), to load numba's cached machine code before the
+# first real task.
+WARM_UP_SCENE = {
+    "camera": {"position": [0, 0, 3], "look_at": [0, 0, 0], "fov": 40},
+    "film": {"width": 4, "height": 4},
+    "render": {"spp": 1, "max_depth": 2, "seed": 1},
+    "materials": {"white": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "objects": [
+        {"type": "sphere", "center": [0, 0, 0], "radius": 0.5, "material": "white"},
+        {"type": "quad", "origin": [-0.5, 1, -0.5], "edge1": [1, 0, 0], "edge2": [0, 0, 1],
+         "material": "white", "emission": [4, 4, 4]},
+    ],
+}
+
+
+class WorkerState:
+    """Per-process state; ``STATE`` below is this process's."""
+
+    def __init__(self) -> None:
+        self.settings = get_settings()
+        self._store: JobStore | None = None
+        self._compiled: OrderedDict[str, Any] = OrderedDict()
+        self.worker_id = f"{socket.gethostname()}:{os.getpid()}"
+        self.state = "starting"
+        self.current_task = ""
+        self.tiles_done = 0
+        self.paths = 0
+        self.render_seconds = 0.0
+        self.started = time.time()
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._beat: threading.Thread | None = None
+
+    @property
+    def store(self) -> JobStore:
+        if self._store is None:
+            self._store = JobStore.from_url(self.settings.redis_url, self.settings.key_prefix)
+        return self._store
+
+    # --- compiled scenes (LRU by job id) --------------------------------------------------------
+    def compiled(self, job_id: str, scene_json: dict):
+        """The job's ``CompiledScene``, compiled once per process. Raises ``SceneError`` or
+        ``CompileError`` for a scene that cannot be rendered."""
+        with self._lock:
+            if job_id in self._compiled:
+                self._compiled.move_to_end(job_id)
+                return self._compiled[job_id]
+        from renderer.scene import load_scene
+        from renderer.scene.compile import compile_scene
+
+        compiled = compile_scene(load_scene(scene_json))
+        with self._lock:
+            self._compiled[job_id] = compiled
+            while len(self._compiled) > self.settings.compiled_cache_size:
+                self._compiled.popitem(last=False)
+        return compiled
+
+    # --- JIT warm-up ----------------------------------------------------------------------------
+    def warm_up(self) -> float:
+        """Render the warm-up scene once (loads or compiles the kernels); returns seconds."""
+        from renderer.render import render_tile
+        from renderer.scene import load_scene
+        from renderer.scene.compile import compile_scene
+
+        t0 = time.perf_counter()
+        render_tile(compile_scene(load_scene(WARM_UP_SCENE)), 0, 0, 4, 4, 0, 1)
+        return time.perf_counter() - t0
+
+    # --- heartbeat ------------------------------------------------------------------------------
+    def start_heartbeat(self) -> None:
+        self._beat = threading.Thread(target=self._beat_loop, name="lucent-heartbeat",
+                                      daemon=True)
+        self._beat.start()
+
+    def stop_heartbeat(self) -> None:
+        self._stop.set()
+        try:
+            self.store.remove_worker(self.worker_id)
+        except Exception:  # Redis may be gone already at shutdown
+            pass
+
+    def beat(self) -> None:
+        with self._lock:
+            fields = {
+                "host": socket.gethostname(),
+                "pid": os.getpid(),
+                "state": self.state,
+                "current_task": self.current_task,
+                "tiles_done": self.tiles_done,
+                "paths_per_second": self.paths / self.render_seconds if self.render_seconds else 0,
+                "started_at": self.started,
+            }
+        self.store.heartbeat(self.worker_id, fields, ttl=3 * self.settings.heartbeat_interval)
+
+    def _beat_loop(self) -> None:
+        while True:
+            try:
+                self.beat()
+            except Exception:  # Redis down for a moment: try again next interval
+                pass
+            if self._stop.wait(self.settings.heartbeat_interval):
+                return
+
+    def set_task(self, task: str) -> None:
+        with self._lock:
+            self.state = "busy" if task else "idle"
+            self.current_task = task
+
+    def count_pass(self, paths: int, seconds: float) -> None:
+        with self._lock:
+            self.tiles_done += 1
+            self.paths += paths
+            self.render_seconds += seconds
+
+
+STATE = WorkerState()

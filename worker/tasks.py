@@ -1,0 +1,120 @@
+"""The one task: render one pass of one tile of a job, store it, merge it.
+
+``render_pass(job_id, tile, pass_index)`` is thin and idempotent: it takes ids, re-fetches the
+scene from Redis (compiled once per process), renders the pass's sample range with
+``renderer.render.render_tile``, writes the ``SampleBuffer`` under the deterministic key
+``{prefix}:job:{id}:pass:{tile}:{pass}`` and merges it (``services.merger.merge_pass``, exactly
+once however often the task runs). Running it twice costs a render, never a double count.
+"""
+
+from __future__ import annotations
+
+import logging
+import time
+
+from celery import signals
+from celery.exceptions import SoftTimeLimitExceeded
+
+from services.merger import merge_pass
+from services.planner import celery_priority
+from services.store import FINAL
+from worker import runtime
+from worker.celery_app import app
+
+log = logging.getLogger(__name__)
+
+
+@signals.worker_process_init.connect
+def _init_process(**_: object) -> None:
+    """In each pool process, after the fork: fresh state, numba threads, JIT warm-up, heartbeat."""
+    import numba
+
+    runtime.STATE = state = runtime.WorkerState()
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    state.start_heartbeat()
+    seconds = state.warm_up()
+    state.set_task("")
+    log.info("worker process %s warm in %.2f s", state.worker_id, seconds)
+
+
+@signals.worker_process_shutdown.connect
+def _shutdown_process(**_: object) -> None:
+    runtime.STATE.stop_heartbeat()
+
+
+@app.task(name="worker.tasks.render_pass", bind=True)
+def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
+    """Render, store and merge pass ``pass_index`` of tile ``tile`` of job ``job_id``.
+
+    Returns what happened (``merged``, ``duplicate``, ``skipped: <status>``, ``failed``), for logs.
+    """
+    t_task = time.perf_counter()
+    state = runtime.STATE
+    store = state.store
+    settings = state.settings
+
+    # Cancelled, failed, done or deleted: queued tasks of such a job do nothing.
+    meta = store.get_job(job_id)
+    if meta is None or meta.status in FINAL:
+        return f"skipped: {meta.status if meta else 'no such job'}"
+    # Delivered again after it was merged (a redelivery): nothing to do.
+    if store.is_merged(job_id, tile, pass_index):
+        return "duplicate"
+    # Count every delivery, so that a pass that keeps killing its worker stops being retried.
+    attempt = store.add_attempt(job_id, tile, pass_index)
+    if attempt > settings.max_attempts:
+        store.fail_tile(job_id, tile, f"pass {pass_index} gave up after {attempt - 1} tries "
+                        "(its worker was lost or timed out each time)")
+        return "failed"
+
+    store.mark_started(job_id)
+    store.set_tile_running(job_id, tile)
+    state.set_task(f"{job_id}/{tile}/{pass_index}")
+    try:
+        return _render_and_merge(state, meta, tile, pass_index, t_task)
+    except Exception as err:  # every failure is recorded on the tile
+        reason = ("timed out" if isinstance(err, SoftTimeLimitExceeded)
+                  else f"{type(err).__name__}: {err}")
+        if attempt >= settings.max_attempts:
+            store.fail_tile(job_id, tile, f"pass {pass_index}: {reason} "
+                            f"(after {attempt} tries)")
+            return "failed"
+        store.note_tile_error(job_id, tile, f"pass {pass_index}, try {attempt}: {reason}")
+        render_pass.apply_async((job_id, tile, pass_index), countdown=1.0,
+                                priority=celery_priority(meta.priority))
+        return "retrying"
+    finally:
+        state.set_task("")
+
+
+def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: int,
+                      t_task: float) -> str:
+    from renderer.render import render_tile
+    from renderer.scene import SceneError
+    from renderer.scene.compile import CompileError
+
+    store = state.store
+    job_id = meta.id
+    scene_json = store.get_scene(job_id)
+    if scene_json is None:
+        return "skipped: no scene"
+    try:
+        compiled = state.compiled(job_id, scene_json)
+    except (SceneError, CompileError) as err:
+        # Not renderable, whichever tile asks: fail the job with the reason, keep the worker.
+        store.fail_job(job_id, str(err))
+        return "failed"
+
+    x0, y0, w, h = meta.plan.tile_rect(tile)
+    start, count = meta.plan.sample_range(pass_index)
+    t0 = time.perf_counter()
+    buf = render_tile(compiled, x0, y0, w, h, start, count)
+    seconds = time.perf_counter() - t0
+    state.count_pass(w * h * count, seconds)
+
+    store.put_pass(job_id, tile, pass_index, buf.to_bytes(), ttl=state.settings.pass_ttl)
+    merged = merge_pass(store, job_id, tile, pass_index)
+    # task_seconds - render_seconds: the per-task overhead (Redis, buffers, merge, bookkeeping).
+    store.count(tasks_done=1, render_seconds=seconds, paths=w * h * count,
+                task_seconds=time.perf_counter() - t_task)
+    return "merged" if merged else "duplicate"
