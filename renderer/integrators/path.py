@@ -40,6 +40,8 @@ from renderer.materials.bsdf import (
     BACKLIGHT,
     DIELECTRIC,
     DIFFUSE_ENTRY,
+    DIFFUSION,
+    DIFFUSION_EXIT,
     SINGLE_SCATTER,
     TRANSLUCENT,
     bsdf_eval,
@@ -47,11 +49,17 @@ from renderer.materials.bsdf import (
     bsdf_sample,
     is_delta,
 )
-from renderer.materials.fresnel import fresnel_dielectric
+from renderer.materials.burley import (
+    burley_pdf_area,
+    burley_profile,
+    burley_r_max,
+    burley_sample_radius,
+)
+from renderer.materials.fresnel import fresnel_dielectric, reflect
 from renderer.materials.phase import hg_pdf, hg_sample
-from renderer.rng import sample_key, uniform
+from renderer.rng import mix64, sample_key, uniform
 from renderer.sampling import INV_4PI, phong_lobe, power_heuristic
-from renderer.vecmath import to_world
+from renderer.vecmath import onb, to_world
 
 RR_DEPTH = 5
 RR_MAX = 0.95  # at surfaces; inside media the survival probability is not capped (see there)
@@ -143,6 +151,89 @@ def backlight_transmission(S, mp, p, n, wo, wi, t_max, stack):
         return 0.0, 0.0, 0.0
     k = mp[9] * lobe
     return k * math.exp(-mp[16] * t), k * math.exp(-mp[17] * t), k * math.exp(-mp[18] * t)
+
+
+@kernel
+def diffusion_probe(S, mat, p, n, mp, key, stack):
+    """Find where light that entered at p leaves a ``diffusion`` material, by a probe ray.
+
+    One of 9 strategies (axis: the normal with probability 1/2, each tangent 1/4; channel: 1/3
+    each) picks a radius from that channel's Burley profile and an angle; a probe segment along
+    the axis through that point finds the material's surfaces, and one of the k hits is chosen
+    uniformly. The exit's weight is S_p(r)/pdf with pdf the sum over all 9 strategies of their
+    densities at this point (one-sample MIS, balance heuristic). pbrt divides that density by k
+    too, which counts the profile's energy once per surface the probe meets: in a part thinner
+    than the profile (a shell, a slab of a few mean free paths) that returns up to k·A > 1 of the
+    light. Lucent shares it among the k exits instead, so the model, made for a semi-infinite
+    medium, darkens thin parts rather than creating energy (docs/methods/diffusion.md).
+    Returns (ok, p_o, n_o, prim_o, weight rgb).
+    """
+    key2 = mix64(key ^ np.uint64(0xD1F5E))
+    t_axis, b_axis = onb(n)
+    u_axis = uniform(key2, 0)
+    if u_axis < 0.5:
+        axis, a1, a2 = n, t_axis, b_axis
+    elif u_axis < 0.75:
+        axis, a1, a2 = t_axis, b_axis, n
+    else:
+        axis, a1, a2 = b_axis, n, t_axis
+    ch = min(2, int(3.0 * uniform(key2, 1)))
+    d_ch = mp[16 + ch]
+    r = burley_sample_radius(uniform(key2, 2), d_ch)
+    r_max = burley_r_max(d_ch, 0.999)
+    none = (0.0, 0.0, 0.0)
+    if not r < r_max:
+        return False, p, n, -1, none
+    phi = 2.0 * math.pi * uniform(key2, 3)
+    half = math.sqrt(r_max * r_max - r * r)
+    cx, sx = r * math.cos(phi), r * math.sin(phi)
+    start = (p[0] + cx * a1[0] + sx * a2[0] + half * axis[0],
+             p[1] + cx * a1[1] + sx * a2[1] + half * axis[1],
+             p[2] + cx * a1[2] + sx * a2[2] + half * axis[2])
+    dirn = (-axis[0], -axis[1], -axis[2])
+    # Walk the segment, choosing one of the material's hits uniformly (reservoir sampling)
+    k = 0
+    chosen_p = p
+    chosen_n = n
+    chosen_prim = -1
+    o = start
+    remaining = 2.0 * half
+    for _ in range(32):
+        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count,
+                                          S.bvh_axis, S.prim_kind, S.prim_geo, o, dirn,
+                                          remaining, stack)
+        if prim < 0:
+            break
+        q, nq = surface_point(S.prim_kind[prim], S.prim_geo[prim], o, dirn, t, u, v)
+        if S.prim_material[prim] == mat:
+            k += 1
+            if uniform(key2, 3 + k) * k < 1.0:
+                chosen_p, chosen_n, chosen_prim = q, nq, prim
+        o2 = spawn_offset(q, nq, dirn, S.prim_scale[prim])
+        remaining -= (o2[0] - o[0]) * dirn[0] + (o2[1] - o[1]) * dirn[1] + (o2[2] - o[2]) * dirn[2]
+        o = o2
+        if remaining <= 0.0:
+            break
+    if k == 0:
+        return False, p, n, -1, none
+    dx, dy, dz = chosen_p[0] - p[0], chosen_p[1] - p[1], chosen_p[2] - p[2]
+    r2 = dx * dx + dy * dy + dz * dz
+    pdf = 0.0
+    for a in range(3):
+        ax = n if a == 0 else (t_axis if a == 1 else b_axis)
+        prob = 0.5 if a == 0 else 0.25
+        along = dx * ax[0] + dy * ax[1] + dz * ax[2]
+        r_proj = math.sqrt(max(0.0, r2 - along * along))
+        cos_n = abs(chosen_n[0] * ax[0] + chosen_n[1] * ax[1] + chosen_n[2] * ax[2])
+        for c in range(3):
+            pdf += prob / 3.0 * burley_pdf_area(r_proj, mp[16 + c]) * cos_n
+    if not pdf > 0.0:
+        return False, p, n, -1, none
+    r_true = math.sqrt(r2)
+    w = (mp[12] * burley_profile(r_true, mp[16]) / pdf,
+         mp[13] * burley_profile(r_true, mp[17]) / pdf,
+         mp[14] * burley_profile(r_true, mp[18]) / pdf)
+    return True, chosen_p, chosen_n, chosen_prim, w
 
 
 @kernel
@@ -292,6 +383,48 @@ def trace_path(S, o, d, key, stack, max_depth):
 
         if max_depth >= 0 and depth >= max_depth:
             break
+
+        if mk == DIFFUSION:
+            if cos_o <= 0.0:
+                # Reached from inside (the camera in the object): leave straight, no event
+                o = spawn_offset(p, n, d, scale)
+                dim += DIMS_PER_BOUNCE
+                continue
+            f_o, _ = fresnel_dielectric(cos_o, mp[0])
+            if uniform(key, dim + 3) < f_o:
+                # The smooth coat reflects F of the light (weight 1 when chosen with prob. F)
+                wi = reflect(wo, n)
+                unweighted = True
+                prev_p = p
+                depth += 1
+                o = spawn_offset(p, n, wi, scale)
+                d = wi
+                if depth >= RR_DEPTH:
+                    q = min(max(br, bg, bb) * eta_scale, RR_MAX)
+                    if uniform(key, dim + 6) >= q:
+                        break
+                    br /= q
+                    bg /= q
+                    bb /= q
+                dim += DIMS_PER_BOUNCE
+                continue
+            # The rest (1 − F, cancelled by its probability) goes under the surface: find its exit
+            ok, p_o, n_o, prim_o, w = diffusion_probe(S, mat, p, n, mp, key ^ np.uint64(dim),
+                                                      stack)
+            if not ok:
+                break
+            br *= w[0]
+            bg *= w[1]
+            bb *= w[2]
+            depth += 1
+            if max_depth >= 0 and depth >= max_depth:
+                break
+            # Carry on from the exit vertex, lit through S_w (a diffuse-like lobe)
+            p = p_o
+            n = n_o
+            wo = n_o
+            mk = DIFFUSION_EXIT
+            scale = S.prim_scale[prim_o]
 
         # Next-event estimation: one light sample, MIS-weighted against the BSDF
         delta = is_delta(mk)

@@ -7,9 +7,12 @@ to the side ``wo`` lies on before the model is asked.
 
 from __future__ import annotations
 
+import math
+
 from renderer.jit import kernel
 from renderer.materials.dielectric import dielectric_sample
 from renderer.materials.diffuse import diffuse_eval, diffuse_pdf, diffuse_sample
+from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.mirror import mirror_sample
 from renderer.materials.phong import phong_eval, phong_pdf, phong_sample
 
@@ -20,6 +23,8 @@ DIELECTRIC = 3
 TRANSLUCENT = 4  # method "volumetric": the boundary here, the medium in the integrator
 SINGLE_SCATTER = 5  # the seed paper's method: Lambertian at the surface or one scatter inside
 DIFFUSE_ENTRY = 6  # the seed student project's method: a random walk that starts at the surface
+DIFFUSION = 8  # a BSSRDF: the integrator probes for the exit point (materials/diffusion.py)
+DIFFUSION_EXIT = 9  # the exit vertex of DIFFUSION: S_w(wi) = (1 − F(cos θi))/(cπ)
 BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo, kept in param[12:15],
 # plus the integrator's transmitted direct light (integrators/path.py, backlight_transmission),
 # which falls with thickness at the per-channel rate in param[16:19]
@@ -30,7 +35,8 @@ N_PARAMS = 20
 @kernel
 def is_delta(kind):
     # A translucent material's boundary is a smooth dielectric (its volume is the integrator's)
-    return kind == MIRROR or kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY
+    return (kind == MIRROR or kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY
+            or kind == DIFFUSION)
 
 
 @kernel
@@ -50,6 +56,13 @@ def bsdf_eval(kind, param, wo, wi, n):
         return diffuse_eval(param[1:], wo, wi, ns)  # its albedo is in param[1:4]
     if kind == BACKLIGHT:
         return diffuse_eval(param[12:], wo, wi, ns)
+    if kind == DIFFUSION_EXIT:
+        cos_i = wi[0] * ns[0] + wi[1] * ns[1] + wi[2] * ns[2]
+        if cos_i <= 0.0:
+            return (0.0, 0.0, 0.0)
+        f, _ = fresnel_dielectric(cos_i, param[0])
+        s = (1.0 - f) / (param[7] * math.pi) * cos_i
+        return (s, s, s)
     if kind == PHONG:
         return phong_eval(param, wo, wi, ns)
     return (0.0, 0.0, 0.0)
@@ -58,7 +71,7 @@ def bsdf_eval(kind, param, wo, wi, n):
 @kernel
 def bsdf_pdf(kind, param, wo, wi, n):
     ns = _facing(wo, n)
-    if kind == DIFFUSE or kind == SINGLE_SCATTER or kind == BACKLIGHT:
+    if kind == DIFFUSE or kind == SINGLE_SCATTER or kind == BACKLIGHT or kind == DIFFUSION_EXIT:
         return diffuse_pdf(param, wo, wi, ns)
     if kind == PHONG:
         return phong_pdf(param, wo, wi, ns)
@@ -68,7 +81,7 @@ def bsdf_pdf(kind, param, wo, wi, n):
 @kernel
 def bsdf_sample(kind, param, wo, n, uc, u1, u2):
     """(wi, f·|cos|/pdf, pdf, ok); pdf is 0 for the delta materials."""
-    if kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY:
+    if kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY or kind == DIFFUSION:
         # both keep the boundary's ior in param[0]
         wi, w = dielectric_sample(param, wo, n, uc)
         return wi, (w, w, w), 0.0, True
@@ -82,4 +95,10 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
         return diffuse_sample(param[1:], wo, ns, u1, u2)
     if kind == BACKLIGHT:
         return diffuse_sample(param[12:], wo, ns, u1, u2)
+    if kind == DIFFUSION_EXIT:
+        wi, _, pdf, ok = diffuse_sample(param, wo, ns, u1, u2)
+        f, _ = fresnel_dielectric(max(0.0, wi[0] * ns[0] + wi[1] * ns[1] + wi[2] * ns[2]),
+                                  param[0])
+        w = (1.0 - f) / param[7]  # S_w·cos/pdf = (1 − F)/(cπ)·cos / (cos/π)
+        return wi, (w, w, w), pdf, ok
     return diffuse_sample(param, wo, ns, u1, u2)

@@ -22,12 +22,14 @@ from renderer.materials.bsdf import (
     DIELECTRIC,
     DIFFUSE,
     DIFFUSE_ENTRY,
+    DIFFUSION,
     MIRROR,
     N_PARAMS,
     PHONG,
     SINGLE_SCATTER,
     TRANSLUCENT,
 )
+from renderer.materials.diffusion import diffusion_parameters
 
 SceneArrays = namedtuple(
     "SceneArrays",
@@ -143,9 +145,15 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         sigma_s_reduced = m.density * albedo * (1.0 - m.g)
         p[16:19] = np.sqrt(3.0 * sigma_a * (sigma_a + sigma_s_reduced))
         return BACKLIGHT, p
+    if m.method == "diffusion":
+        big_a, d, c = diffusion_parameters(m.albedo, m.density, m.g, m.ior)
+        p[7] = c
+        p[12:15] = big_a
+        p[16:19] = d
+        return DIFFUSION, p
     raise CompileError(
         f"materials.{name}: the translucent method {m.method!r} is not implemented in this "
-        "version of the renderer (volumetric, single_scatter, diffuse_entry and backlight are)"
+        "version of the renderer"
     )
 
 
