@@ -70,12 +70,32 @@ def test_giovanelli_semi_infinite_mismatched_boundary():
     assert abs(r - 0.2600) < 3 * se, (r, se)
 
 
+def torus_mesh(major=0.7, minor=0.3, n_major=24, n_minor=12):
+    """A closed torus facing the camera: a concave mesh (it sees itself through its hole)."""
+    u = np.linspace(0, 2 * np.pi, n_major, endpoint=False)
+    v = np.linspace(0, 2 * np.pi, n_minor, endpoint=False)
+    uu, vv = np.meshgrid(u, v, indexing="ij")
+    r = major + minor * np.cos(vv)
+    verts = np.stack([r * np.cos(uu), r * np.sin(uu), minor * np.sin(vv)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n_major), np.arange(n_minor), indexing="ij")
+    a = i * n_minor + j
+    b = ((i + 1) % n_major) * n_minor + j
+    c = ((i + 1) % n_major) * n_minor + (j + 1) % n_minor
+    d = i * n_minor + (j + 1) % n_minor
+    tris = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)]).reshape(-1, 3)
+    return verts.tolist(), tris.tolist()
+
+
 def furnace(*, ior, g, albedo=1.0, density=5.0, spp=64, shape="sphere", seed=2,
             method="volumetric"):
-    obj = ({"type": "sphere", "center": [0, 0, 0], "radius": 1.0, "material": "m"}
-           if shape == "sphere" else
-           {"type": "box", "min": [-1, -1, -0.001], "max": [1, 1, 0.001],
-            "rotate": {"axis": [1, 1, 0], "angle": 30}, "material": "m"})
+    if shape == "sphere":
+        obj = {"type": "sphere", "center": [0, 0, 0], "radius": 1.0, "material": "m"}
+    elif shape == "shell":
+        obj = {"type": "box", "min": [-1, -1, -0.001], "max": [1, 1, 0.001],
+               "rotate": {"axis": [1, 1, 0], "angle": 30}, "material": "m"}
+    else:
+        vertices, triangles = torus_mesh()
+        obj = {"type": "mesh", "vertices": vertices, "triangles": triangles, "material": "m"}
     scene = load_scene({
         "camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 30},
         "film": {"width": 16, "height": 16},
@@ -110,6 +130,9 @@ STABILITY = {
     "g -0.99": dict(g=-0.99),
     "ior 2.5": dict(ior=2.5),
     "thin shell": dict(shape="shell", density=50.0),
+    "albedo 1": dict(albedo=1.0),
+    "ior 1": dict(ior=1.0),
+    "concave mesh": dict(shape="torus", density=8.0),
 }
 
 
@@ -131,15 +154,19 @@ def test_stability_in_failure_regimes(case, method):
     assert mean - 1.0 < 6 * math.sqrt(var.sum()) / var.size + 1e-9, case
 
 
-def test_light_and_camera_inside_the_object_stay_finite():
-    """An emitter inside a translucent sphere, and the camera inside it too: finite, non-negative,
-    and the glow reaches the outside."""
+@pytest.mark.parametrize(
+    "method", ["volumetric", "single_scatter", "diffuse_entry", "backlight", "diffusion"])
+def test_light_and_camera_inside_the_object_stay_finite(method):
+    """An emitter inside a translucent sphere, and the camera inside it too: finite and
+    non-negative for every method. Only the random walks carry the glow out (> 0.01); the
+    approximations cannot (backlight and diffusion shade the outer surface only, single scattering
+    loses what scatters twice), which their pages document as a failure mode."""
     def scene(camera_z):
         return load_scene({
             "camera": {"position": [0, 0, camera_z], "look_at": [0, 0, 0], "fov": 40},
             "film": {"width": 12, "height": 12},
             "render": {"spp": 32, "max_depth": -1, "seed": 1},
-            "materials": {"wax": {"type": "translucent", "method": "volumetric", "ior": 1.4,
+            "materials": {"wax": {"type": "translucent", "method": method, "ior": 1.4,
                                   "albedo": [0.95, 0.9, 0.8], "density": 4.0, "g": 0.2},
                           "lamp": {"type": "diffuse", "albedo": [0, 0, 0]}},
             "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1.0, "material": "wax"},
@@ -152,7 +179,8 @@ def test_light_and_camera_inside_the_object_stay_finite():
     for buf in (outside, inside):
         assert buf.total_dropped == 0
         assert np.all(np.isfinite(buf.sum)) and np.all(buf.sum >= 0)
-    assert outside.mean().mean() > 0.01
+    if method in ("volumetric", "diffuse_entry"):
+        assert outside.mean().mean() > 0.01
 
 
 @pytest.mark.parametrize("albedo", [0.5, 0.9, 1.0])
