@@ -76,6 +76,15 @@ SHADOW_SLACK = 1e-7
 
 
 @kernel
+def roulette(br, bg, bb, eta_scale, cap, u):
+    """Russian roulette: survive with q = min(max(β)·Πη², cap), then β/q. Returns (alive, β)."""
+    q = min(max(br, bg, bb) * eta_scale, cap)
+    if u >= q:
+        return False, br, bg, bb
+    return True, br / q, bg / q, bb / q
+
+
+@kernel
 def transmittance(S, o, d, t_max, medium, stack):
     """Fraction of light that travels from o to o + t_max·d: 0 when a surface blocks it, else
     exp(−σt·length) over the stretches inside index-matched translucent media (their boundaries
@@ -314,12 +323,9 @@ def trace_path(S, o, d, key, stack, max_depth):
                     # No cap below 1 in a medium: at albedo 0.999 a walk needs hundreds of events,
                     # and a 0.95 cap would make their weight heavy-tailed (1/0.95^k) for nothing;
                     # the albedo itself brings β and so the survival probability down.
-                    q = min(max(br, bg, bb) * eta_scale, 1.0)
-                    if uniform(key, dim + 6) >= q:
+                    alive, br, bg, bb = roulette(br, bg, bb, eta_scale, 1.0, uniform(key, dim + 6))
+                    if not alive:
                         break
-                    br /= q
-                    bg /= q
-                    bb /= q
                 dim += DIMS_PER_BOUNCE
                 continue
             # Otherwise the flight reaches the surface: P(s ≥ t) = exp(−σt t) = Tr(t), weight 1
@@ -400,12 +406,10 @@ def trace_path(S, o, d, key, stack, max_depth):
                 o = spawn_offset(p, n, wi, scale)
                 d = wi
                 if depth >= RR_DEPTH:
-                    q = min(max(br, bg, bb) * eta_scale, RR_MAX)
-                    if uniform(key, dim + 6) >= q:
+                    alive, br, bg, bb = roulette(br, bg, bb, eta_scale, RR_MAX,
+                                                 uniform(key, dim + 6))
+                    if not alive:
                         break
-                    br /= q
-                    bg /= q
-                    bb /= q
                 dim += DIMS_PER_BOUNCE
                 continue
             # The rest (1 − F, cancelled by its probability) goes under the surface: find its exit
@@ -535,12 +539,9 @@ def trace_path(S, o, d, key, stack, max_depth):
 
         # Russian roulette
         if depth >= RR_DEPTH:
-            q = min(max(br, bg, bb) * eta_scale, RR_MAX)
-            if uniform(key, dim + 6) >= q:
+            alive, br, bg, bb = roulette(br, bg, bb, eta_scale, RR_MAX, uniform(key, dim + 6))
+            if not alive:
                 break
-            br /= q
-            bg /= q
-            bb /= q
         dim += DIMS_PER_BOUNCE
     return lr, lg, lb
 
