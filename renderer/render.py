@@ -8,6 +8,7 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
+from renderer.film.adaptive import MIN_SAMPLES, pixels_converged
 from renderer.film.buffer import SampleBuffer
 from renderer.integrators.path import render_tile_kernel
 from renderer.scene.compile import CompiledScene, compile_scene
@@ -21,11 +22,13 @@ def render_tile(
     height: int,
     sample_start: int,
     sample_count: int,
+    active: np.ndarray | None = None,
 ) -> SampleBuffer:
     """Render samples [sample_start, sample_start + sample_count) of every pixel of a tile.
 
     Sample indices are global: the same (pixel, index) always gives the same sample, so a tile
-    rendered as passes 0–7 and 8–15 adds up to the tile rendered as 0–15.
+    rendered as passes 0–7 and 8–15 adds up to the tile rendered as 0–15. ``active`` (h, w)
+    limits the pass to the pixels where it is true (adaptive sampling).
     """
     if width < 0 or height < 0 or sample_start < 0 or sample_count < 0:
         raise ValueError("tile sizes and sample ranges must be non-negative")
@@ -34,11 +37,16 @@ def render_tile(
             f"tile ({x0}, {y0}, {width}x{height}) outside the {scene.width}x{scene.height} frame"
         )
     buf = SampleBuffer.empty(x0, y0, width, height)
+    if active is None:
+        active = np.ones((height, width), np.uint8)
+    elif active.shape != (height, width):
+        raise ValueError(f"active mask of shape {active.shape} for a {width}x{height} tile")
     if width and height and sample_count:
         render_tile_kernel(
             scene.arrays, scene.width, scene.height, scene.seed, scene.max_depth,
             scene.stack_size, x0, y0, width, height, sample_start, sample_count,
-            buf.sum, buf.sum_sq, buf.count, buf.dropped,
+            np.ascontiguousarray(active, dtype=np.uint8), buf.sum, buf.sum_sq, buf.count,
+            buf.dropped,
         )
     return buf
 
@@ -64,7 +72,9 @@ def render_buffer(
     """Render a whole frame in passes of ``pass_spp`` samples per pixel.
 
     ``progress(samples_done, samples_total, seconds)`` is called after every pass (per pixel
-    samples × pixels), which is what the CLI's progress bar shows.
+    samples × pixels), which is what the CLI's progress bar shows. With the scene's
+    ``render.target_error``, pixels that have converged (``renderer.film.adaptive``) get no more
+    passes; the render stops when all have, or at ``spp``.
     """
     cs = _as_compiled(scene)
     spp = cs.spp if spp is None else spp
@@ -76,10 +86,17 @@ def render_buffer(
     frame = SampleBuffer.empty(0, 0, cs.width, cs.height)
     start = time.perf_counter()
     done = 0
-    while done < spp:
+    active = np.ones((cs.height, cs.width), np.uint8)
+    adaptive = cs.target_error is not None
+    if adaptive:
+        pass_spp = max(1, min(pass_spp, MIN_SAMPLES))
+    while done < spp and active.any():
         n = min(pass_spp, spp - done)
-        frame.add(render_tile(cs, 0, 0, cs.width, cs.height, done, n))
+        frame.add(render_tile(cs, 0, 0, cs.width, cs.height, done, n, active))
         done += n
+        if adaptive and done >= MIN_SAMPLES:
+            # Once converged, a pixel stays stopped: every active pixel has exactly `done` samples
+            active &= ~pixels_converged(frame, cs.target_error)
         if progress is not None:
             progress(done * cs.width * cs.height, spp * cs.width * cs.height,
                      time.perf_counter() - start)

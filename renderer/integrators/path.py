@@ -560,17 +560,21 @@ def camera_ray(cam, width, height, x, y, jx, jy):
 
 @parallel_kernel
 def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, tile_w, tile_h,
-                       sample_start, sample_count, out_sum, out_sum_sq, out_count, out_dropped):
+                       sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
+                       out_dropped):
     """Add samples [sample_start, sample_start + sample_count) of every pixel of a tile.
 
     Rows are shared among numba's threads; a sample whose radiance is not finite (or whose square
     overflows, |L| > 1e154) is not added but counted in ``out_dropped``, so a bad path can never
-    turn a pixel into NaN or inf unnoticed.
+    turn a pixel into NaN or inf unnoticed. Pixels whose ``active`` flag is 0 (adaptive sampling:
+    converged) get no samples.
     """
     for row in prange(tile_h):
         stack = np.empty(stack_size, np.int64)
         y = y0 + row
         for col in range(tile_w):
+            if active[row, col] == 0:
+                continue
             x = x0 + col
             pixel = y * width + x
             sr = sg = sb = 0.0

@@ -65,6 +65,7 @@ class CompiledScene:
     max_depth: int
     seed: int
     stack_size: int
+    target_error: float | None = None
     info: dict = field(default_factory=dict)
 
 
@@ -308,6 +309,7 @@ def compile_scene(scene) -> CompiledScene:
         spp=scene.render.spp,
         max_depth=scene.render.max_depth,
         seed=scene.render.seed,
+        target_error=scene.render.target_error,
         stack_size=int(bvh_depth(bvh_offset, bvh_count)) + 2,
         info={
             "primitives": int(len(prim_kind)),

@@ -150,6 +150,9 @@ class RenderSettings(SceneModel):
     """Largest number of scattering events on a path; -1: unlimited (Russian roulette only)."""
     seed: Int = Field(default=0, ge=0, le=2**63 - 1)
     """Same scene, same seed: same image, however it is split into tiles and passes."""
+    target_error: Float | None = Field(default=None, gt=0)
+    """Adaptive sampling: a pixel stops receiving samples once its estimated relative MSE is
+    below this (``spp`` stays the most it gets); unset: every pixel gets ``spp``."""
 
 
 # --- Materials ------------------------------------------------------------------------------------
