@@ -15,6 +15,7 @@ import time
 from celery import signals
 from celery.exceptions import SoftTimeLimitExceeded
 
+from renderer.film.buffer import SampleBuffer
 from services.merger import merge_pass
 from services.planner import celery_priority
 from services.store import FINAL
@@ -87,6 +88,13 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
         state.set_task("")
 
 
+def _tile_converged(store, job_id: str, tile: int, target_error: float) -> bool:
+    from renderer.film.adaptive import tile_converged
+
+    data = store.r.get(store.acc_key(job_id, tile))
+    return data is not None and tile_converged(SampleBuffer.from_bytes(data), target_error)
+
+
 def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: int,
                       t_task: float) -> str:
     from renderer.render import render_tile
@@ -107,6 +115,16 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
 
     x0, y0, w, h = meta.plan.tile_rect(tile)
     start, count = meta.plan.sample_range(pass_index)
+    if compiled.target_error is not None and _tile_converged(store, job_id, tile,
+                                                             compiled.target_error):
+        # Adaptive sampling: the tile's merged buffer meets the scene's target (a pure rule of
+        # that buffer, renderer.film.adaptive.tile_converged), so this pass adds no samples. It
+        # is still stored and merged, empty, so the job's task count completes as planned.
+        buf = SampleBuffer.empty(x0, y0, w, h)
+        store.put_pass(job_id, tile, pass_index, buf.to_bytes(), ttl=state.settings.pass_ttl)
+        merged = merge_pass(store, job_id, tile, pass_index)
+        store.set_tile_state(job_id, tile, "done")
+        return "converged" if merged else "duplicate"
     t0 = time.perf_counter()
     buf = render_tile(compiled, x0, y0, w, h, start, count)
     seconds = time.perf_counter() - t0

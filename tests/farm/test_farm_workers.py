@@ -159,3 +159,21 @@ def test_workers_report_heartbeats(farm, farm_client):
     live = [w for w in workers if w["state"] in ("idle", "busy")]
     assert len(live) >= 2
     assert all(w["host"] and w["pid"] and w["last_heartbeat"] for w in live)
+
+
+def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job, tiny_scene):
+    """With render.target_error, passes of a tile whose merged buffer has converged add nothing:
+    the job completes as planned, the black border's tiles stop at the minimum while the noisy
+    ones go on, and no pixel has fewer than the rule's minimum."""
+    from renderer.film.adaptive import MIN_SAMPLES
+
+    scene = copy.deepcopy(tiny_scene)
+    scene["render"].update(spp=256, target_error=0.02)
+    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 8, "spp_per_pass": 64})
+    assert r.status_code == 201, r.text
+    job = wait_for_job(farm_client, r.json()["id"])
+    assert job["status"] == "done", job
+    frame, _ = assemble(farm.store(), job["id"])
+    samples = frame.count + frame.dropped
+    assert samples.min() >= MIN_SAMPLES
+    assert samples.min() < 256 and samples.max() == 256
