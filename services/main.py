@@ -7,9 +7,10 @@ from contextlib import asynccontextmanager
 
 from fastapi import Depends, FastAPI, Request
 from fastapi.responses import JSONResponse
+from fastapi.staticfiles import StaticFiles
 
 from services.api.deps import require_token
-from services.api.routes import health, jobs, workers
+from services.api.routes import dashboard, health, jobs, workers
 from services.merger import Sweeper
 from services.queue import celery_client
 from services.settings import Settings, get_settings
@@ -35,6 +36,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="Lucent", version="0.1.0", lifespan=lifespan,
                   description="A render farm for physically based images of translucent things.")
     app.state.settings = settings
+    # Read-only allow-lists for the dashboard, built once: requests name entries, never paths.
+    app.state.examples = dashboard.find_examples()
+    app.state.figures = dashboard.find_figures()
 
     @app.middleware("http")
     async def limit_body(request: Request, call_next):
@@ -48,7 +52,11 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     api_deps = [Depends(require_token)]
     app.include_router(jobs.router, prefix="/api", dependencies=api_deps)
     app.include_router(workers.router, prefix="/api", dependencies=api_deps)
+    app.include_router(dashboard.api_router, prefix="/api", dependencies=api_deps)
     app.include_router(health.router)
+    # The dashboard: static files, no farm data in them (the pages call /api with the token).
+    app.include_router(dashboard.page_router)
+    app.mount("/dashboard", StaticFiles(directory=dashboard.STATIC_DIR), name="dashboard")
     return app
 
 

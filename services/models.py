@@ -84,3 +84,8 @@ class WorkerPublic(BaseModel):
 class WorkersPublic(BaseModel):
     data: list[WorkerPublic]
     count: int
+    server_time: float | None = Field(
+        default=None, description="the service's clock: a heartbeat's age is server_time minus "
+                                  "last_heartbeat, whatever the client's clock says")
+    heartbeat_interval: float | None = Field(
+        default=None, description="seconds between heartbeats; silent for 3 intervals = lost")

@@ -2,16 +2,18 @@
 
 from __future__ import annotations
 
+import time
+
 from fastapi import APIRouter
 
-from services.api.deps import StoreDep
+from services.api.deps import SettingsDep, StoreDep
 from services.models import WorkerPublic, WorkersPublic
 
 router = APIRouter(prefix="/workers", tags=["workers"])
 
 
 @router.get("", response_model=WorkersPublic)
-def list_workers(store: StoreDep):
+def list_workers(store: StoreDep, settings: SettingsDep):
     """Each worker process: host, state (``idle``, ``busy``, ``starting``; ``lost`` once its
     heartbeat has expired), current task, passes done, paths/s, last heartbeat."""
     out = []
@@ -23,4 +25,5 @@ def list_workers(store: StoreDep):
             paths_per_second=float(w.get("paths_per_second", 0.0)),
             last_heartbeat=float(w["last_heartbeat"]) if w.get("last_heartbeat") else None,
         ))
-    return WorkersPublic(data=out, count=len(out))
+    return WorkersPublic(data=out, count=len(out), server_time=time.time(),
+                         heartbeat_interval=settings.heartbeat_interval)

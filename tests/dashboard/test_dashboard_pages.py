@@ -1,0 +1,262 @@
+"""The dashboard end to end: headless Chromium on the pages, a real farm behind them.
+
+Each test saves a screenshot of what it checked into the ``artifacts`` folder."""
+
+from __future__ import annotations
+
+import io
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+from PIL import Image
+
+ROOT = Path(__file__).resolve().parents[2]
+
+ROOT_EXAMPLE = "cornell_box"
+# The example at half its size (edited in the page), cut into 20 tiles x 4 passes: a few seconds
+# on 2 worker processes.
+FAST = {"tile_size": "32", "spp_per_pass": "16"}
+
+# Mean of a canvas copy of the <img>: the preview as the browser decoded it.
+IMG_MEAN = """(img) => {
+  const c = document.createElement('canvas');
+  c.width = img.naturalWidth; c.height = img.naturalHeight;
+  const g = c.getContext('2d'); g.drawImage(img, 0, 0);
+  const d = g.getImageData(0, 0, c.width, c.height).data;
+  let s = 0; for (let i = 0; i < d.length; i += 4) s += d[i] + d[i + 1] + d[i + 2];
+  return s / (3 * c.width * c.height);
+}"""
+
+
+def shot(page, artifacts, name):
+    page.screenshot(path=str(artifacts / f"{name}.png"), full_page=True)
+
+
+def no_page_errors(page):
+    assert not page.console_errors, page.console_errors
+
+
+@pytest.fixture
+def api(dashboard):
+    with dashboard.api() as c:
+        yield c
+
+
+def test_submit_an_example_and_watch_it_reach_100_percent(dashboard, page, artifacts, api):
+    page.goto(f"{dashboard.url}/#/submit")
+    page.select_option("#example", ROOT_EXAMPLE)
+    page.wait_for_function("document.querySelector('#scene').value.includes('\"camera\"')")
+    assert json.loads(page.input_value("#scene"))["film"] == {"width": 320, "height": 240}
+    assert page.input_value("#f-name") == ROOT_EXAMPLE
+    scene = json.loads(page.input_value("#scene"))
+    scene["film"] = {"width": 160, "height": 120}
+    page.fill("#scene", json.dumps(scene, indent=2))
+    for name, value in FAST.items():
+        page.fill(f"#f-{name}", value)
+    shot(page, artifacts, "submit")
+    page.click("#submit-job")
+
+    # The job page: progress to 100 %, every tile done, a preview that is not black.
+    page.wait_for_url("**/#/job/*")
+    job_id = page.url.rsplit("/", 1)[1]
+    page.wait_for_selector("#job-status .badge.s-done", timeout=120_000)
+    assert page.get_attribute("#job-progress [role=progressbar]", "aria-valuenow") == "100"
+    assert page.inner_text("#job-progress") == "100 %"
+    states = page.eval_on_selector_all("#tile-grid .tile", "ts => ts.map(t => t.dataset.state)")
+    assert states == ["done"] * 20
+    job = api.get(f"/api/jobs/{job_id}").json()
+    page.wait_for_function(
+        f"document.querySelector('#preview').dataset.version === '{job['image_version']}'")
+    page.wait_for_function("document.querySelector('#preview').complete")
+    mean = page.eval_on_selector("#preview", IMG_MEAN)
+    assert mean > 20, f"the preview is black (mean {mean:.1f} of 255)"
+
+    # The download link gives the same image as a PNG file.
+    png = api.get(page.get_attribute("#download-png", "href"))
+    assert png.status_code == 200 and png.headers["content-type"] == "image/png"
+    pixels = np.asarray(Image.open(io.BytesIO(png.content)).convert("RGB"))
+    assert pixels.shape == (120, 160, 3) and pixels.mean() > 20
+    exr = api.get(page.get_attribute("#download-exr", "href"))
+    assert exr.status_code == 200 and exr.content[:4] == b"\x76\x2f\x31\x01"  # OpenEXR magic
+
+    # Exposure: +2 EV fetches a brighter image (a new ETag), and the tiles coloured by samples.
+    page.fill("#exposure", "2")
+    page.dispatch_event("#exposure", "input")
+    page.wait_for_function(f"(m) => ({IMG_MEAN})(document.querySelector('#preview')) > m + 10",
+                           arg=mean)
+    page.select_option("#colour-by", "samples")
+    assert page.inner_text("#tile-legend").endswith("64 spp")
+    assert page.inner_text("#job-methods").startswith("None reported")
+    shot(page, artifacts, "job")
+    no_page_errors(page)
+
+
+def test_preview_is_fetched_only_when_its_etag_changes(dashboard, page, api):
+    scene = json.loads((ROOT / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
+    scene["film"] = {"width": 64, "height": 48}
+    scene["render"]["spp"] = 8
+    job = api.post("/api/jobs", json={"scene": scene, "name": "etag"}).json()
+    api_wait(api, job["id"], "done")
+    images = []
+    page.on("request", lambda r: images.append(r.url) if "/image.png" in r.url else None)
+    page.goto(f"{dashboard.url}/#/job/{job['id']}")
+    page.wait_for_selector("#preview[data-version]")
+    page.wait_for_timeout(2000)  # three polls of the job at least: the image did not change
+    assert len(images) == 1, images
+
+
+def test_cancel_a_second_job_from_the_jobs_page(dashboard, page, artifacts, api):
+    scene = json.loads((ROOT / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
+    scene["render"]["spp"] = 64
+    job = api.post("/api/jobs", json={"scene": scene, "name": "to cancel",
+                                      "spp_per_pass": 4}).json()
+    page.goto(f"{dashboard.url}/#/jobs")
+    row = page.locator(f"tr[data-id='{job['id']}']")
+    row.locator("input[type=checkbox]").check()
+    assert page.inner_text("#sel-count") == "1 selected"
+    page.click("#bulk-cancel")
+    page.wait_for_selector(f"tr[data-id='{job['id']}'][data-status='cancelled']")
+    assert api.get(f"/api/jobs/{job['id']}").json()["status"] == "cancelled"
+
+    # The filter shows it among the cancelled jobs; its page offers retry, not cancel.
+    page.select_option("#status-filter", "cancelled")
+    page.wait_for_function("[...document.querySelectorAll('tbody tr')]"
+                           ".every(r => r.dataset.status === 'cancelled')")
+    shot(page, artifacts, "jobs")
+    page.select_option("#status-filter", "")
+    page.click(f"tr[data-id='{job['id']}'] a.job-link")
+    page.wait_for_selector("#job-status .badge.s-cancelled")
+    assert page.is_disabled("#job-cancel") and page.is_enabled("#job-retry")
+    no_page_errors(page)
+
+
+def test_a_bad_scene_shows_its_error_next_to_the_field(dashboard, page, artifacts, api):
+    before = api.get("/api/jobs").json()["count"]
+    scene = json.loads((ROOT / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
+    scene["render"]["spp"] = 0
+    scene["objects"][0]["edge1"] = [2, 0]
+    page.goto(f"{dashboard.url}/#/submit")
+    page.fill("#scene", json.dumps(scene, indent=2))
+    page.fill("#f-tile_size", "4")
+    page.click("#submit-job")
+    # Pydantic checks the body's own fields first: tile_size is named, next to its input.
+    page.wait_for_selector("#err-tile_size:not(:empty)")
+    assert "8" in page.inner_text("#err-tile_size")
+    assert page.get_attribute("#f-tile_size", "aria-invalid") == "true"
+    page.fill("#f-tile_size", "")
+    page.click("#submit-job")
+    spp = page.wait_for_selector("#scene-errors li[data-path='render.spp']")
+    assert "spp" in spp.inner_text()
+    assert page.locator("#scene-errors li[data-path='objects[0].edge1']").count() == 1
+    assert page.get_attribute("#scene", "aria-invalid") == "true"
+    page.wait_for_timeout(300)
+    assert page.inner_text("#err-tile_size") == ""
+    shot(page, artifacts, "submit-errors")
+    # Clicking the error selects the key in the editor.
+    spp.click()
+    selected = page.evaluate("(() => { const t = document.querySelector('#scene');"
+                             " return t.value.slice(t.selectionStart, t.selectionEnd); })()")
+    assert selected == '"spp"'
+    # Not JSON at all: said before anything is sent.
+    page.fill("#scene", "{not json")
+    page.click("#submit-job")
+    page.wait_for_selector("#scene-errors li:has-text('not valid JSON')")
+    assert api.get("/api/jobs").json()["count"] == before  # nothing queued
+    no_page_errors(page)
+
+
+def test_workers_page_lists_the_workers_and_shows_a_lost_one(dashboard, page, artifacts):
+    store = dashboard.store()
+    page.goto(f"{dashboard.url}/#/workers")
+    page.wait_for_function("document.querySelectorAll('#workers-table tbody tr').length >= 2")
+    live = page.locator("#workers-table tbody tr:not([data-state='lost'])")
+    assert live.count() >= 2
+    first = live.first.inner_text()
+    assert "s ago" in first
+    # A worker that beats once and falls silent is shown as lost within 3 intervals.
+    store.heartbeat("ghost@nowhere", {"host": "nowhere", "pid": 1, "state": "busy",
+                                      "current_task": "", "tiles_done": 7,
+                                      "paths_per_second": 1.0}, ttl=3 * 0.5)
+    ghost = page.locator("tr[data-id='ghost@nowhere']")
+    ghost.wait_for()
+    t0 = time.monotonic()
+    page.wait_for_selector("tr[data-id='ghost@nowhere'][data-state='lost']", timeout=10_000)
+    assert time.monotonic() - t0 < 5.0
+    assert "lost" in page.inner_text("#workers-summary")
+    shot(page, artifacts, "workers")
+    store.remove_worker("ghost@nowhere")
+    store.r.close()
+    no_page_errors(page)
+
+
+def test_a_hidden_page_stops_polling(dashboard, page):
+    page.goto(f"{dashboard.url}/#/jobs")
+    page.wait_for_selector("#jobs-count:not(:empty)")
+    requests: list[str] = []
+    page.on("request", lambda r: requests.append(r.url) if "/api/" in r.url else None)
+    page.evaluate("""() => {
+      Object.defineProperty(document, 'hidden', {configurable: true, get: () => true});
+      document.dispatchEvent(new Event('visibilitychange'));
+    }""")
+    page.wait_for_timeout(300)  # a poll already in flight may finish
+    requests.clear()
+    page.wait_for_timeout(3000)
+    assert requests == [], requests
+    page.evaluate("""() => {
+      Object.defineProperty(document, 'hidden', {configurable: true, get: () => false});
+      document.dispatchEvent(new Event('visibilitychange'));
+    }""")
+    page.wait_for_timeout(500)
+    assert any("/api/jobs" in u for u in requests), "polling did not resume"
+
+
+def test_speed_vs_accuracy_page_shows_what_exists(dashboard, page, artifacts):
+    page.goto(f"{dashboard.url}/#/methods")
+    assert "Not measured yet" in page.inner_text("#not-measured")
+    grid = ROOT / "docs" / "images" / "methods"
+    if list(grid.glob("*_grid.png")):
+        img = page.wait_for_selector("figure.figure img")
+        page.wait_for_function("(i) => i.complete && i.naturalWidth > 0", arg=img)
+    shot(page, artifacts, "methods")
+    no_page_errors(page)
+
+
+def test_a_phone_gets_one_column_and_no_sideways_scroll(dashboard, browser, artifacts):
+    context = browser.new_context(viewport={"width": 390, "height": 844}, device_scale_factor=2,
+                                  is_mobile=True, has_touch=True)
+    page = context.new_page()
+    try:
+        for name in ("jobs", "workers", "submit", "methods"):
+            page.goto(f"{dashboard.url}/#/{name}")
+            page.wait_for_timeout(700)
+            width = page.evaluate("document.documentElement.scrollWidth")
+            assert width <= 390, f"{name}: {width} px wide on a 390 px screen"
+            shot(page, artifacts, f"phone-{name}")
+        page.goto(f"{dashboard.url}/#/jobs")
+        page.click("a.job-link >> nth=0")
+        page.wait_for_selector("#tile-grid .tile")
+        page.wait_for_timeout(500)
+        assert page.evaluate("document.documentElement.scrollWidth") <= 390
+        shot(page, artifacts, "phone-job")
+    finally:
+        context.close()
+
+
+def test_the_api_process_survives(dashboard):
+    # Last in the module: nothing above crashed the service or the workers.
+    assert dashboard.server.poll() is None and dashboard.worker.poll() is None
+
+
+# --- helpers --------------------------------------------------------------------------------------
+
+
+def api_wait(api, job_id, status, timeout=60.0):
+    deadline = time.monotonic() + timeout
+    while time.monotonic() < deadline:
+        if api.get(f"/api/jobs/{job_id}").json()["status"] == status:
+            return
+        time.sleep(0.1)
+    raise AssertionError(f"job {job_id} did not reach {status}")
