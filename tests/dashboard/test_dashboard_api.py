@@ -82,6 +82,8 @@ def test_the_allow_list_reads_only_json_files_in_its_folder(tmp_path):
 def test_figures_are_listed_and_served_by_name_only(client):
     figures = client.get("/api/figures").json()["data"]
     on_disk = sorted(p.name for p in (ROOT / "docs" / "images" / "methods").glob("*.png"))
+    on_disk += sorted("accuracy-" + p.name
+                      for p in (ROOT / "docs" / "images" / "accuracy").glob("*.png"))
     assert [f["name"] for f in figures] == on_disk
     for f in figures:
         r = client.get(f["url"])

@@ -25,6 +25,9 @@ ROOT = Path(__file__).resolve().parents[3]
 STATIC_DIR = Path(__file__).resolve().parents[2] / "dashboard"
 EXAMPLES_DIR = ROOT / "examples"
 FIGURES_DIR = ROOT / "docs" / "images" / "methods"
+# bench/accuracy.py's error-against-time charts and bench/failure_map.py's map
+CHARTS_DIR = ROOT / "docs" / "images" / "accuracy"
+CHART_PREFIX = "accuracy-"
 
 # The largest example offered: the Submit page loads it into a text area.
 MAX_EXAMPLE_BYTES = 1024 * 1024
@@ -66,11 +69,15 @@ def find_examples(folder: Path = EXAMPLES_DIR) -> dict[str, Example]:
     return found
 
 
-def find_figures(folder: Path = FIGURES_DIR) -> dict[str, Path]:
-    """The allow-list of figures: file name -> path, PNGs directly in ``folder``."""
-    if not folder.is_dir():
-        return {}
-    return {p.name: p for p in sorted(folder.glob("*.png")) if p.is_file()}
+def find_figures(folder: Path = FIGURES_DIR, charts: Path = CHARTS_DIR) -> dict[str, Path]:
+    """The allow-list of figures: file name -> path, PNGs directly in ``folder``, and the
+    benchmark's charts in ``charts`` under the name ``accuracy-<file>``."""
+    found: dict[str, Path] = {}
+    if folder.is_dir():
+        found |= {p.name: p for p in sorted(folder.glob("*.png")) if p.is_file()}
+    if charts.is_dir():
+        found |= {CHART_PREFIX + p.name: p for p in sorted(charts.glob("*.png")) if p.is_file()}
+    return found
 
 
 class ExamplePublic(BaseModel):
@@ -90,6 +97,7 @@ class FigurePublic(BaseModel):
     name: str
     url: str
     grid: bool
+    chart: bool = False
 
 
 class FiguresPublic(BaseModel):
@@ -124,7 +132,8 @@ def list_figures(request: Request):
     """The method-comparison figures in docs/images/methods/ (the benchmark's charts once they
     exist); ``grid`` marks the comparison grid."""
     figures: dict[str, Path] = request.app.state.figures
-    data = [FigurePublic(name=n, url=f"/dashboard/figures/{n}", grid=n.endswith("_grid.png"))
+    data = [FigurePublic(name=n, url=f"/dashboard/figures/{n}", grid=n.endswith("_grid.png"),
+                         chart=n.startswith(CHART_PREFIX))
             for n in figures]
     return FiguresPublic(data=data, count=len(data))
 
