@@ -71,7 +71,7 @@ def test_render_refuses_unknown_image_type(tmp_path, capsys):
 
 def test_translucent_scene_fails_clearly_until_implemented(tmp_path, capsys):
     data = json.loads(small_scene(tmp_path).read_text())
-    data["materials"]["wax"] = {"type": "translucent", "method": "diffusion", "ior": 1.3,
+    data["materials"]["wax"] = {"type": "translucent", "method": "auto", "ior": 1.3,
                                 "albedo": [0.9, 0.8, 0.7], "density": 5.0}
     data["objects"].append({"type": "sphere", "center": [0, -0.6, 0], "radius": 0.4,
                             "material": "wax"})
