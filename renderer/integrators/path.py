@@ -116,6 +116,31 @@ def transmittance(S, o, d, t_max, medium, stack):
 
 
 @kernel
+def surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack):
+    """Transmittance of the shadow ray from surface point p towards a light t_max away along wi.
+
+    The ray starts lifted off the surface (``spawn_offset``); its length is measured from there,
+    and it stops short of the light's own surface by more than the rounding of the light point
+    (SHADOW_SLACK of the length plus SPAWN_EPSILON of its coordinates), so neither surface can
+    shadow itself at any scene scale. Plain occlusion unless the scene has surfaces a shadow ray
+    may cross (``null_media``).
+    """
+    origin = spawn_offset(p, n, wi, scale)
+    if t_max < math.inf:
+        q = (p[0] + t_max * wi[0], p[1] + t_max * wi[1], p[2] + t_max * wi[2])
+        t_max -= ((origin[0] - p[0]) * wi[0] + (origin[1] - p[1]) * wi[1]
+                  + (origin[2] - p[2]) * wi[2])
+        t_max = t_max * (1.0 - SHADOW_SLACK) - SPAWN_EPSILON * max(abs(q[0]), abs(q[1]),
+                                                                  abs(q[2]))
+    if null_media:
+        return transmittance(S, origin, wi, t_max, medium, stack)
+    if occluded(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count, S.bvh_axis, S.prim_kind,
+                S.prim_geo, origin, wi, t_max, stack):
+        return 0.0
+    return 1.0
+
+
+@kernel
 def backlight_transmission(S, mp, p, n, wo, wi, t_max, stack):
     """The backlight method's transmitted fraction for light arriving from behind along −wi.
 
@@ -150,13 +175,7 @@ def backlight_transmission(S, mp, p, n, wo, wi, t_max, stack):
     if prim < 0:
         return 0.0, 0.0, 0.0
     q, nq = surface_point(S.prim_kind[prim], S.prim_geo[prim], inside, wi, t, u, v)
-    out = spawn_offset(q, nq, wi, S.prim_scale[prim])
-    rest = t_max
-    if t_max < math.inf:
-        rest = (t_max - t) * (1.0 - SHADOW_SLACK) - SPAWN_EPSILON * max(
-            abs(q[0]), abs(q[1]), abs(q[2]))
-    if occluded(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count, S.bvh_axis, S.prim_kind,
-                S.prim_geo, out, wi, rest, stack):
+    if surface_shadow(S, q, nq, wi, t_max - t, S.prim_scale[prim], -1, False, stack) == 0.0:
         return 0.0, 0.0, 0.0
     k = mp[9] * lobe
     return k * math.exp(-mp[16] * t), k * math.exp(-mp[17] * t), k * math.exp(-mp[18] * t)
@@ -439,22 +458,7 @@ def trace_path(S, o, d, key, stack, max_depth):
             if pdf_l > 0.0:
                 f = bsdf_eval(mk, mp, wo, wi, n)
                 if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
-                    origin = spawn_offset(p, n, wi, scale)
-                    if t_max < math.inf:
-                        # Measure from the lifted origin, and stop short of the light's surface
-                        # by more than the rounding of its point (relative to its coordinates)
-                        q = (p[0] + t_max * wi[0], p[1] + t_max * wi[1], p[2] + t_max * wi[2])
-                        t_max -= ((origin[0] - p[0]) * wi[0] + (origin[1] - p[1]) * wi[1]
-                                  + (origin[2] - p[2]) * wi[2])
-                        t_max = t_max * (1.0 - SHADOW_SLACK) - SPAWN_EPSILON * max(
-                            abs(q[0]), abs(q[1]), abs(q[2]))
-                    if null_media:
-                        tr = transmittance(S, origin, wi, t_max, medium, stack)
-                    elif occluded(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count, S.bvh_axis,
-                                  S.prim_kind, S.prim_geo, origin, wi, t_max, stack):
-                        tr = 0.0
-                    else:
-                        tr = 1.0
+                    tr = surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack)
                     if tr > 0.0:
                         w = tr / pdf_l
                         if not delta_l:
@@ -478,10 +482,7 @@ def trace_path(S, o, d, key, stack, max_depth):
                 S.prim_geo, p, uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
             cos_l = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
             if pdf_l > 0.0 and cos_l > 0.0:
-                origin = spawn_offset(p, n, wi, scale)
-                if t_max < math.inf:
-                    t_max *= 1.0 - SHADOW_SLACK
-                tr = transmittance(S, origin, wi, t_max, -1, stack)
+                tr = surface_shadow(S, p, n, wi, t_max, scale, -1, null_media, stack)
                 if tr > 0.0:
                     f_in, _ = fresnel_dielectric(cos_o, mp[0])
                     w = tr * (1.0 - f_in) * cos_l / (math.pi * pdf_l)
