@@ -43,10 +43,11 @@ FINAL = ("done", "failed", "cancelled")
 _TRANSITION = """
 local status = redis.call('HGET', KEYS[1], 'status')
 if not status then return 0 end
-for i = 4, #ARGV do
+for i = 5, #ARGV do
   if status == ARGV[i] then
     redis.call('HSET', KEYS[1], 'status', ARGV[1])
     if ARGV[3] ~= '' then redis.call('HSET', KEYS[1], ARGV[3], ARGV[2]) end
+    if ARGV[4] ~= '' then redis.call('HSET', KEYS[1], 'error', ARGV[4]) end
     redis.call('HINCRBY', KEYS[1], 'status_version', 1)
     return 1
   end
@@ -189,19 +190,18 @@ class JobStore:
         return [j for j, s in zip(ids, pipe.execute(), strict=True) if _s(s) in ACTIVE]
 
     def transition(self, job_id: str, to: str, from_: tuple[str, ...],
-                   time_field: str = "") -> bool:
-        """Set the status to ``to`` if it is one of ``from_`` (atomic); True if it changed."""
+                   time_field: str = "", error: str = "") -> bool:
+        """Set the status to ``to`` if it is one of ``from_`` (atomic, with the time field and
+        the error when given, so no reader sees the new status without them); True if it
+        changed."""
         return bool(self._transition(keys=[self.job_key(job_id)],
-                                     args=[to, time.time(), time_field, *from_]))
+                                     args=[to, time.time(), time_field, error, *from_]))
 
     def mark_started(self, job_id: str) -> None:
         self.transition(job_id, "running", ("queued",), "started_at")
 
     def fail_job(self, job_id: str, reason: str) -> bool:
-        if self.transition(job_id, "failed", ACTIVE, "finished_at"):
-            self.r.hset(self.job_key(job_id), "error", reason)
-            return True
-        return False
+        return self.transition(job_id, "failed", ACTIVE, "finished_at", error=reason)
 
     def cancel_job(self, job_id: str) -> bool:
         return self.transition(job_id, "cancelled", ACTIVE, "finished_at")
