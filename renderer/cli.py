@@ -77,6 +77,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"{args.scene}: {err}", file=sys.stderr)
         return 1
     t_compile = time.perf_counter() - t0
+    for name, choice in compiled.info["auto"].items():
+        print(f"auto chose {choice['method']} for {name!r}: {choice['reason']}, expected relMSE "
+              f"{choice['expected_error']:.3g}", file=sys.stderr)
     threads = args.threads or numba.config.NUMBA_NUM_THREADS
     print(
         f"{args.scene}: {compiled.width}x{compiled.height}, {spp} spp, "

@@ -17,6 +17,7 @@ import numpy as np
 from renderer.geometry.bvh import build_bvh, bvh_depth
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
+from renderer.materials.auto import choose_method
 from renderer.materials.bsdf import (
     BACKLIGHT,
     DIELECTRIC,
@@ -30,6 +31,7 @@ from renderer.materials.bsdf import (
     TRANSLUCENT,
 )
 from renderer.materials.diffusion import diffusion_parameters
+from renderer.scene.schema import DielectricMaterial
 
 SceneArrays = namedtuple(
     "SceneArrays",
@@ -100,6 +102,29 @@ def box_quads(lo, hi, rotate=None, translate=(0.0, 0.0, 0.0)) -> np.ndarray:
         faces = (faces.reshape(6, 3, 3) @ r.T).reshape(6, 9)
     faces[:, 0:3] += np.asarray(translate, dtype=np.float64)
     return faces
+
+
+def _object_half_extent(obj) -> float:
+    """The smallest half-extent of an object's bounds (a sphere's radius): its optical size."""
+    if obj.type == "sphere":
+        return float(obj.radius)
+    if obj.type == "box":
+        return float(np.min(np.subtract(obj.max, obj.min))) / 2
+    if obj.type == "quad":
+        return 0.0
+    verts, _ = obj.arrays()
+    return float(np.min(verts.max(axis=0) - verts.min(axis=0))) / 2
+
+
+def _resolve_auto(scene, name: str, m):
+    """The material ``auto`` stands for, and the choice with its reason."""
+    sizes = [_object_half_extent(o) for o in scene.objects if o.material == name]
+    size = min(sizes) if sizes else 0.0
+    choice = choose_method(m.albedo, m.density, size, scene.render.target_error)
+    if choice.method == "dielectric":
+        absorption = tuple(float(m.density * (1.0 - a)) for a in m.albedo)
+        return DielectricMaterial(ior=m.ior, absorption=absorption), choice
+    return m.model_copy(update={"method": choice.method}), choice
 
 
 def _material_row(name: str, m) -> tuple[int, np.ndarray]:
@@ -176,8 +201,12 @@ def compile_scene(scene) -> CompiledScene:
     mat_index = {name: i for i, name in enumerate(names)}
     mat_kind = np.zeros(len(names), np.int32)
     mat_param = np.zeros((len(names), N_PARAMS))
+    auto = {}
     for i, name in enumerate(names):
-        mat_kind[i], mat_param[i] = _material_row(name, scene.materials[name])
+        m = scene.materials[name]
+        if m.type == "translucent" and m.method == "auto":
+            m, auto[name] = _resolve_auto(scene, name, m)
+        mat_kind[i], mat_param[i] = _material_row(name, m)
 
     # Objects → primitives
     kinds, geos, mats, emissions = [], [], [], []
@@ -316,6 +345,8 @@ def compile_scene(scene) -> CompiledScene:
             "triangles": int(n_triangles),
             "bvh_nodes": int(len(bvh_offset)),
             "lights": int(len(light_kind_a)),
+            # per material with method auto: {"method", "reason", "expected_error"}
+            "auto": {name: vars(choice) for name, choice in auto.items()},
         },
     )
 

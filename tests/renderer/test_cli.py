@@ -69,7 +69,7 @@ def test_render_refuses_unknown_image_type(tmp_path, capsys):
     assert ".exr" in capsys.readouterr().err
 
 
-def test_translucent_scene_fails_clearly_until_implemented(tmp_path, capsys):
+def test_render_reports_what_auto_chose(tmp_path, capsys):
     data = json.loads(small_scene(tmp_path).read_text())
     data["materials"]["wax"] = {"type": "translucent", "method": "auto", "ior": 1.3,
                                 "albedo": [0.9, 0.8, 0.7], "density": 5.0}
@@ -77,8 +77,8 @@ def test_translucent_scene_fails_clearly_until_implemented(tmp_path, capsys):
                             "material": "wax"})
     path = tmp_path / "wax.json"
     path.write_text(json.dumps(data))
-    assert main(["render", str(path), "-o", str(tmp_path / "x.npy"), "-q"]) == 1
-    assert "materials.wax" in capsys.readouterr().err
+    assert main(["render", str(path), "-o", str(tmp_path / "x.npy"), "-q"]) == 0
+    assert "auto chose volumetric for 'wax': optical radius 2" in capsys.readouterr().err
 
 
 def test_console_script_runs_in_a_fresh_process(tmp_path):

@@ -1,0 +1,55 @@
+"""``method: "auto"``: the cheapest translucent method whose expected error meets the target.
+
+The expected errors come from the speed/accuracy suite (``python -m bench.accuracy``;
+docs/speed-accuracy.md): each approximation has a bias floor, the relative MSE over the object's
+pixels that it keeps however many samples it takes. The largest floor measured over the suite
+(wax sphere, backlit slab, spheres at albedo 0.5, 0.9, 0.99; docs/images/accuracy/failures.md) is
+the method's expected error. A method is chosen only if that is at or below the scene's
+``render.target_error`` (default ``DEFAULT_TARGET``), cheapest first; otherwise ``volumetric``,
+the unbiased reference, which reaches any target given time.
+
+Two regimes need no subsurface model at all, and are rendered as what they are:
+- albedo 0 everywhere: nothing scatters, so the medium is exactly an absorbing glass (Beer–Lambert
+  with σa = density): a ``dielectric``, no error;
+- effectively clear: the optical size τ = density × size is so small that the fraction of light that
+  scatters, ≈ albedo·τ, is below the target: a ``dielectric`` with σa = density·(1 − albedo) (the
+  little scattered light is taken to go on forward).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+DEFAULT_TARGET = 0.01
+
+# Largest object relMSE at 1024 spp over the suite (docs/images/accuracy/failures.md), cheapest
+# method first (the same file's timings: backlight < diffusion < single_scatter per sample).
+BIAS_FLOOR = {"backlight": 0.313, "diffusion": 0.41, "single_scatter": 0.376}
+
+
+@dataclass
+class AutoChoice:
+    method: str  # a translucent method, or "dielectric"
+    reason: str
+    expected_error: float
+
+
+def choose_method(albedo, density: float, size: float, target: float | None) -> AutoChoice:
+    """The method ``auto`` renders a material with; ``size`` is the smallest half-extent of the
+    objects that use it (the radius of a sphere)."""
+    target = DEFAULT_TARGET if target is None else target
+    tau = density * size
+    a = max(albedo)
+    where = f"optical radius {tau:.3g}, albedo {a:.3g}"
+    if a == 0.0:
+        return AutoChoice("dielectric", f"{where}: nothing scatters, an absorbing glass is exact",
+                          0.0)
+    if a * tau <= target:
+        return AutoChoice("dielectric", f"{where}: effectively clear, scattered fraction "
+                          f"{a * tau:.3g} <= target {target:g}", a * tau)
+    for method, floor in BIAS_FLOOR.items():
+        if floor <= target:
+            return AutoChoice(method, f"{where}: measured bias floor {floor:g} <= target "
+                              f"{target:g}", floor)
+    return AutoChoice("volumetric", f"{where}: no approximation's measured bias floor (lowest "
+                      f"{min(BIAS_FLOOR.values()):g}) meets target {target:g}", 0.0)

@@ -1,0 +1,72 @@
+"""``method: "auto"``: the choice, its reason, and that the chosen model is what gets rendered."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from renderer.materials.auto import BIAS_FLOOR, DEFAULT_TARGET, choose_method
+from renderer.render import render
+from renderer.scene import load_scene
+from renderer.scene.compile import compile_scene
+
+ROOT = Path(__file__).resolve().parents[3]
+
+
+def wax_scene(method: str, target=None, **material) -> dict:
+    data = json.loads((ROOT / "examples" / "translucent_sphere.json").read_text())
+    data["film"] = {"width": 24, "height": 18}
+    data["render"]["spp"] = 8
+    if target is not None:
+        data["render"]["target_error"] = target
+    data["materials"]["wax"].update(method=method, **material)
+    return data
+
+
+def test_default_target_needs_the_reference():
+    """At the default target (relMSE 0.01) no approximation's measured floor qualifies."""
+    assert min(BIAS_FLOOR.values()) > DEFAULT_TARGET
+    c = choose_method((0.97, 0.88, 0.7), 8.0, 0.5, None)
+    assert c.method == "volumetric" and "optical radius 4" in c.reason
+
+
+def test_a_loose_target_takes_the_cheapest_method_that_meets_it():
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.35).method == "backlight"
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.5).method == "backlight"
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.3).method == "volumetric"
+
+
+@pytest.mark.parametrize(("albedo", "density", "expected"), [
+    ((0.0, 0.0, 0.0), 50.0, "dielectric"),  # only absorbs: an absorbing glass is exact
+    ((0.9, 0.9, 0.9), 0.005, "dielectric"),  # τ·a = 0.0023 < 0.01: effectively clear
+    ((0.9, 0.9, 0.9), 0.05, "volumetric"),
+])
+def test_regimes_that_need_no_subsurface_model(albedo, density, expected):
+    assert choose_method(albedo, density, 0.5, None).method == expected
+
+
+def test_compile_renders_what_auto_chose_and_reports_why():
+    """auto's image is the chosen method's image, sample for sample, and the choice is reported."""
+    cs = compile_scene(load_scene(wax_scene("auto")))
+    assert cs.info["auto"]["wax"]["method"] == "volumetric"
+    np.testing.assert_array_equal(render(cs), render(wax_scene("volumetric")))
+    loose = compile_scene(load_scene(wax_scene("auto", target=0.4)))
+    assert loose.info["auto"]["wax"]["method"] == "backlight"
+    np.testing.assert_array_equal(render(loose), render(wax_scene("backlight", target=0.4)))
+
+
+def test_an_absorbing_only_material_is_rendered_as_absorbing_glass():
+    """Albedo 0: the random walk never scatters, so it is Beer–Lambert glass: the same image as
+    the dielectric auto substitutes, up to the noise of the walk's grey free-flight sampling
+    (which the dielectric replaces by exact attenuation): frame means within 2 %."""
+    data = wax_scene("auto", albedo=[0.0, 0.0, 0.0])
+    data["render"]["spp"] = 64
+    cs = compile_scene(load_scene(data))
+    assert cs.info["auto"]["wax"]["method"] == "dielectric"
+    ref = wax_scene("volumetric", albedo=[0.0, 0.0, 0.0])
+    ref["render"]["spp"] = 64
+    a, b = render(cs), render(ref)
+    np.testing.assert_allclose(a.mean(axis=(0, 1)), b.mean(axis=(0, 1)), rtol=0.02)
