@@ -81,6 +81,7 @@ class JobMeta:
     started_at: float | None
     finished_at: float | None
     error: str | None
+    methods: dict[str, str]
 
     @property
     def samples_planned(self) -> int:
@@ -108,6 +109,7 @@ class JobMeta:
             started_at=opt_float("started_at"),
             finished_at=opt_float("finished_at"),
             error=d.get("error") or None,
+            methods=json.loads(d.get("methods") or "{}"),
         )
 
 
@@ -138,7 +140,7 @@ class JobStore:
 
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
-                   scene_json: str) -> JobMeta:
+                   scene_json: str, methods: dict[str, str] | None = None) -> JobMeta:
         now = time.time()
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -146,7 +148,7 @@ class JobStore:
             "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
             "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
-            "finished_at": "", "error": "",
+            "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)

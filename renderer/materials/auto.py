@@ -20,6 +20,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import numpy as np
+
 DEFAULT_TARGET = 0.01
 
 # Largest object relMSE at 1024 spp over the suite (docs/images/accuracy/failures.md), cheapest
@@ -53,3 +55,30 @@ def choose_method(albedo, density: float, size: float, target: float | None) -> 
                               f"{target:g}", floor)
     return AutoChoice("volumetric", f"{where}: no approximation's measured bias floor (lowest "
                       f"{min(BIAS_FLOOR.values()):g}) meets target {target:g}", 0.0)
+
+
+def _object_half_extent(obj) -> float:
+    """The smallest half-extent of an object's bounds (a sphere's radius): its optical size."""
+    if obj.type == "sphere":
+        return float(obj.radius)
+    if obj.type == "box":
+        return float(np.min(np.subtract(obj.max, obj.min))) / 2
+    if obj.type == "quad":
+        return 0.0
+    verts, _ = obj.arrays()
+    return float(np.min(verts.max(axis=0) - verts.min(axis=0))) / 2
+
+
+def auto_choice(scene, name: str):
+    """What ``method: "auto"`` picks for material ``name`` of a validated scene (cheap: no BVH),
+    the same choice ``compile_scene`` renders: the farm's API reports it at submission."""
+    m = scene.materials[name]
+    sizes = [_object_half_extent(o) for o in scene.objects if o.material == name]
+    return choose_method(m.albedo, m.density, min(sizes) if sizes else 0.0,
+                         scene.render.target_error)
+
+
+def auto_choices(scene) -> dict:
+    """``auto_choice`` for every translucent material with method auto."""
+    return {name: auto_choice(scene, name) for name, m in scene.materials.items()
+            if m.type == "translucent" and m.method == "auto"}

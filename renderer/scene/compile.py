@@ -17,7 +17,7 @@ import numpy as np
 from renderer.geometry.bvh import build_bvh, bvh_depth
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
-from renderer.materials.auto import choose_method
+from renderer.materials.auto import auto_choice
 from renderer.materials.bsdf import (
     BACKLIGHT,
     DIELECTRIC,
@@ -104,23 +104,9 @@ def box_quads(lo, hi, rotate=None, translate=(0.0, 0.0, 0.0)) -> np.ndarray:
     return faces
 
 
-def _object_half_extent(obj) -> float:
-    """The smallest half-extent of an object's bounds (a sphere's radius): its optical size."""
-    if obj.type == "sphere":
-        return float(obj.radius)
-    if obj.type == "box":
-        return float(np.min(np.subtract(obj.max, obj.min))) / 2
-    if obj.type == "quad":
-        return 0.0
-    verts, _ = obj.arrays()
-    return float(np.min(verts.max(axis=0) - verts.min(axis=0))) / 2
-
-
 def _resolve_auto(scene, name: str, m):
     """The material ``auto`` stands for, and the choice with its reason."""
-    sizes = [_object_half_extent(o) for o in scene.objects if o.material == name]
-    size = min(sizes) if sizes else 0.0
-    choice = choose_method(m.albedo, m.density, size, scene.render.target_error)
+    choice = auto_choice(scene, name)
     if choice.method == "dielectric":
         absorption = tuple(float(m.density * (1.0 - a)) for a in m.albedo)
         return DielectricMaterial(ior=m.ior, absorption=absorption), choice

@@ -69,6 +69,19 @@ def test_mesh_paths_are_refused(client, tiny_scene):
     assert any(d["loc"][:4] == ["body", "scene", "objects", 8] for d in r.json()["detail"])
 
 
+def test_auto_choice_is_reported_with_the_job(client, tiny_scene):
+    """The job reports, per material with method auto, what it renders and why."""
+    tiny_scene["materials"]["wax"] = {"type": "translucent", "method": "auto", "ior": 1.3,
+                                      "albedo": [0.9, 0.9, 0.9], "density": 5.0}
+    tiny_scene["objects"].append({"type": "sphere", "center": [0, -0.6, 0], "radius": 0.4,
+                                  "material": "wax"})
+    r = client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 201, r.text
+    job = client.get(f"/api/jobs/{r.json()['id']}").json()
+    assert job["methods"]["wax"].startswith("volumetric: optical radius 2")
+    assert set(job["methods"]) == {"wax"}
+
+
 def test_unknown_job_is_404(client):
     for method, path in [("GET", "/api/jobs/nope"), ("GET", "/api/jobs/nope/image.png"),
                          ("DELETE", "/api/jobs/nope"), ("POST", "/api/jobs/nope/retry")]:

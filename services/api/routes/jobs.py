@@ -11,6 +11,7 @@ from typing import Annotated, Literal
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from fastapi.responses import JSONResponse
 
+from renderer.materials.auto import auto_choices
 from renderer.scene import Limits, SceneError, load_scene
 from services.api.deps import CeleryDep, SettingsDep, StoreDep
 from services.merger import assemble
@@ -59,7 +60,7 @@ def to_public(meta: JobMeta) -> JobPublic:
         progress=meta.samples_merged / meta.samples_planned if meta.samples_planned else 1.0,
         samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
         created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
-        error=meta.error, image_version=meta.version,
+        error=meta.error, image_version=meta.version, methods=meta.methods,
     )
 
 
@@ -89,7 +90,11 @@ def create_job(body: JobCreate, store: StoreDep, celery: CeleryDep, settings: Se
         return _unprocessable([(["body", "tile_size"], msg, "limit"),
                                (["body", "spp_per_pass"], msg, "limit")])
     job_id = uuid.uuid4().hex
-    meta = store.create_job(job_id, body.name, body.priority, plan, json.dumps(body.scene))
+    # What `auto` picks for each material (the workers compile the same choice)
+    methods = {name: f"{c.method}: {c.reason}, expected relMSE {c.expected_error:.3g}"
+               for name, c in auto_choices(scene).items()}
+    meta = store.create_job(job_id, body.name, body.priority, plan, json.dumps(body.scene),
+                            methods)
     enqueue(celery, job_id, plan.order(), body.priority)
     return to_public(meta)
 
