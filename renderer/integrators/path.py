@@ -55,7 +55,7 @@ from renderer.materials.burley import (
     burley_r_max,
     burley_sample_radius,
 )
-from renderer.materials.fresnel import fresnel_dielectric, reflect
+from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.phase import hg_pdf, hg_sample
 from renderer.rng import mix64, sample_key, uniform
 from renderer.sampling import INV_4PI, phong_lobe, power_heuristic
@@ -415,39 +415,27 @@ def trace_path(S, o, d, key, stack, max_depth):
                 o = spawn_offset(p, n, d, scale)
                 dim += DIMS_PER_BOUNCE
                 continue
+            # The smooth coat reflects F of the light: with probability F (the same uc and
+            # Fresnel the boundary's bsdf_sample below uses) the generic code takes the mirror
+            # direction; the rest (1 − F, cancelled by its probability) goes under the surface.
             f_o, _ = fresnel_dielectric(cos_o, mp[0])
-            if uniform(key, dim + 3) < f_o:
-                # The smooth coat reflects F of the light (weight 1 when chosen with prob. F)
-                wi = reflect(wo, n)
-                unweighted = True
-                prev_p = p
+            if uniform(key, dim + 3) >= f_o:
+                ok, p_o, n_o, prim_o, w = diffusion_probe(S, mat, p, n, mp,
+                                                          key ^ np.uint64(dim), stack)
+                if not ok:
+                    break
+                br *= w[0]
+                bg *= w[1]
+                bb *= w[2]
                 depth += 1
-                o = spawn_offset(p, n, wi, scale)
-                d = wi
-                if depth >= RR_DEPTH:
-                    alive, br, bg, bb = roulette(br, bg, bb, eta_scale, RR_MAX,
-                                                 uniform(key, dim + 6))
-                    if not alive:
-                        break
-                dim += DIMS_PER_BOUNCE
-                continue
-            # The rest (1 − F, cancelled by its probability) goes under the surface: find its exit
-            ok, p_o, n_o, prim_o, w = diffusion_probe(S, mat, p, n, mp, key ^ np.uint64(dim),
-                                                      stack)
-            if not ok:
-                break
-            br *= w[0]
-            bg *= w[1]
-            bb *= w[2]
-            depth += 1
-            if max_depth >= 0 and depth >= max_depth:
-                break
-            # Carry on from the exit vertex, lit through S_w (a diffuse-like lobe)
-            p = p_o
-            n = n_o
-            wo = n_o
-            mk = DIFFUSION_EXIT
-            scale = S.prim_scale[prim_o]
+                if max_depth >= 0 and depth >= max_depth:
+                    break
+                # Carry on from the exit vertex, lit through S_w (a diffuse-like lobe)
+                p = p_o
+                n = n_o
+                wo = n_o
+                mk = DIFFUSION_EXIT
+                scale = S.prim_scale[prim_o]
 
         # Next-event estimation: one light sample, MIS-weighted against the BSDF
         delta = is_delta(mk)
