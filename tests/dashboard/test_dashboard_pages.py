@@ -20,8 +20,10 @@ ROOT_EXAMPLE = "cornell_box"
 # on 2 worker processes.
 FAST = {"tile_size": "32", "spp_per_pass": "16"}
 
-# Mean of a canvas copy of the <img>: the preview as the browser decoded it.
+# Mean of a canvas copy of the <img>: the preview as the browser decoded it; -1 while a new
+# preview is still loading (naturalWidth is 0 then, and reading the canvas would throw).
 IMG_MEAN = """(img) => {
+  if (!img.complete || !img.naturalWidth) return -1;
   const c = document.createElement('canvas');
   c.width = img.naturalWidth; c.height = img.naturalHeight;
   const g = c.getContext('2d'); g.drawImage(img, 0, 0);
