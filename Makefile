@@ -20,6 +20,12 @@ $(STAMP): pyproject.toml
 		DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null 2>&1 || \
 		{ apt-get update -qq >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq chromium >/dev/null 2>&1; } || \
 		echo "chromium could not be installed: tests/dashboard will skip"; fi
+	@# Mitsuba 3's fast llvm_ad_rgb variant (the reference renders) needs libLLVM >= 16; Debian 12's
+	@# default LLVM 15 aborts Dr.Jit. Without it the bridge uses scalar_rgb (slower, same images).
+	-@if [ ! -e /usr/lib/x86_64-linux-gnu/libLLVM-19.so ] && command -v apt-get >/dev/null && [ "$$(id -u)" = 0 ]; then \
+		DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null 2>&1 || \
+		{ apt-get update -qq >/dev/null 2>&1 && DEBIAN_FRONTEND=noninteractive apt-get install -y -qq libllvm19 >/dev/null 2>&1; } || \
+		echo "libllvm19 could not be installed: Mitsuba references use scalar_rgb"; fi
 	rm -f $(VENV)/.installed-*
 	touch $@
 

@@ -62,7 +62,9 @@ Mapping (Lucent → Mitsuba 3)
  * - mesh {vertices, triangles} / {path}
    - ``mi.Mesh`` filled through ``mi.traverse`` (no vertex normals ⇒ flat face normals
      cross(v1 − v0, v2 − v0), as Lucent); a ``path`` loads ``obj`` / ``ply`` with
-     ``face_normals=True``.
+     ``face_normals=True``, relative to ``base_dir`` (the scene file's folder). A medium lies
+     behind the faces in both renderers, so a hollow mesh whose inner sheet faces the cavity is a
+     shell (``examples/translucent_shell.json``).
  * - object emission
    - ``area`` emitter, ``radiance`` rgb. Mitsuba's area emitter is one-sided (front = normal side)
      like Lucent's: quads emit on their normal side, spheres/boxes/meshes outward.
@@ -89,6 +91,7 @@ import ctypes.util
 import glob
 import math
 import os
+import re
 from typing import Any
 
 import numpy as np
@@ -99,6 +102,8 @@ _INSTALL_HINT = "pip install 'lucent-farm[mitsuba]'"
 
 # Debian's LLVM 19 (``apt-get install libllvm19``), which Dr.Jit's LLVM backend compiles with.
 _LIBLLVM_DEFAULT = "/usr/lib/x86_64-linux-gnu/libLLVM-19.so"
+# The oldest LLVM the bridge hands to Dr.Jit (see _find_libllvm).
+_MIN_LLVM = 16
 
 # JIT variants trace one wavefront of width·height·spp lanes; above this many lanes a render is
 # split into passes with derived seeds so that memory stays bounded (16384 spp at 64×48 would be
@@ -111,8 +116,21 @@ _MAX_LANES_PER_PASS = 1 << 23
 # --------------------------------------------------------------------------------------------------
 
 
+def _llvm_major(path: str) -> int | None:
+    """The LLVM major version in a library's file name (``libLLVM-19.so``, ``libLLVM.so.19.1``)."""
+    m = re.search(r"libLLVM(?:-(\d+)|\.so\.(\d+))", os.path.basename(path))
+    if m is None:
+        return None
+    return int(m.group(1) or m.group(2))
+
+
 def _find_libllvm() -> str | None:
-    """Path of a libLLVM shared library for Dr.Jit, setting DRJIT_LIBLLVM_PATH when we pick one."""
+    """Path of a libLLVM shared library for Dr.Jit, setting DRJIT_LIBLLVM_PATH when we pick one.
+
+    Only LLVM >= ``_MIN_LLVM`` is taken: Dr.Jit 1.x with Debian 12's LLVM 15 aborts the process in
+    instruction selection on the first Mitsuba render (seen here), so an old library found on the
+    system means "no LLVM" (``scalar_rgb``), not a crash. The newest version found wins.
+    """
     env = os.environ.get("DRJIT_LIBLLVM_PATH")
     if env:
         return env if os.path.isfile(env) else None
@@ -121,13 +139,15 @@ def _find_libllvm() -> str | None:
     if found:
         candidates.append(found if os.path.isabs(found) else f"/usr/lib/x86_64-linux-gnu/{found}")
     for libdir in ("/usr/lib/x86_64-linux-gnu", "/usr/lib64", "/usr/lib", "/usr/local/lib"):
-        candidates += sorted(glob.glob(os.path.join(libdir, "libLLVM*.so*")), reverse=True)
-    for path in candidates:
-        if os.path.isfile(path):
-            # Must be set before Dr.Jit initialises its LLVM backend.
-            os.environ["DRJIT_LIBLLVM_PATH"] = path
-            return path
-    return None
+        candidates += glob.glob(os.path.join(libdir, "libLLVM*.so*"))
+    usable = [(_llvm_major(p) or 0, p) for p in candidates
+              if os.path.isfile(p) and (_llvm_major(p) or 0) >= _MIN_LLVM]
+    if not usable:
+        return None
+    path = max(usable, key=lambda vp: vp[0])[1]
+    # Must be set before Dr.Jit initialises its LLVM backend.
+    os.environ["DRJIT_LIBLLVM_PATH"] = path
+    return path
 
 
 def _import_mitsuba() -> Any:
@@ -356,7 +376,7 @@ def _inline_mesh(
     return mesh
 
 
-def _shapes(mi: Any, scene: dict) -> tuple[dict, bool]:
+def _shapes(mi: Any, scene: dict, base_dir: str | os.PathLike | None) -> tuple[dict, bool]:
     """Mitsuba shapes keyed by id, and whether any medium is present."""
     materials = scene.get("materials", {})
     shapes: dict[str, Any] = {}
@@ -403,9 +423,10 @@ def _shapes(mi: Any, scene: dict) -> tuple[dict, bool]:
                 ext = os.path.splitext(obj["path"])[1].lower().lstrip(".")
                 if ext not in ("obj", "ply"):
                     raise ValueError(f"{path}.path: only .obj and .ply meshes are supported")
-                shapes[key] = dress(
-                    {"type": ext, "filename": str(obj["path"]), "face_normals": True}
-                )
+                # Relative to the scene file, as Lucent's loader reads it (Mitsuba would
+                # resolve it against the working directory)
+                filename = os.path.join(base_dir or os.getcwd(), os.path.expanduser(obj["path"]))
+                shapes[key] = dress({"type": ext, "filename": filename, "face_normals": True})
             else:
                 shapes[key] = _inline_mesh(mi, obj, path, key, bsdf, medium, emitter)
         else:
@@ -440,12 +461,15 @@ def _lights(scene: dict) -> dict:
     return lights
 
 
-def to_mitsuba_dict(scene: dict, *, variant: str | None = None) -> dict:
+def to_mitsuba_dict(
+    scene: dict, *, variant: str | None = None, base_dir: str | os.PathLike | None = None
+) -> dict:
     """Convert a Lucent scene dict into a Mitsuba 3 scene dict (for ``mi.load_dict``).
 
     Applies the documented defaults of the scene format. ``variant`` selects the Mitsuba variant
     first (None: keep the current one, or :func:`default_variant` if none is set); inline meshes are
-    Mitsuba objects of that variant.
+    Mitsuba objects of that variant. A mesh ``path`` is read relative to ``base_dir`` (the scene
+    file's folder, as ``load_scene_file`` does; None: the working directory).
 
     Raises ``NotImplementedError`` for materials Mitsuba 3 cannot express (phong, translucent
     methods other than ``volumetric``) and ``ValueError`` naming the JSON path of a bad field.
@@ -481,7 +505,7 @@ def to_mitsuba_dict(scene: dict, *, variant: str | None = None) -> dict:
         },
     }
 
-    shapes, any_medium = _shapes(mi, scene)
+    shapes, any_medium = _shapes(mi, scene, base_dir)
 
     # Integrator: Lucent counts scattering events, Mitsuba path segments.
     max_depth = int(render.get("max_depth", -1))
@@ -507,20 +531,25 @@ def _pass_seeds(seed: int, n_passes: int) -> list[int]:
 
 
 def render_mitsuba(
-    scene: dict, spp: int | None = None, seed: int = 0, variant: str | None = None
+    scene: dict,
+    spp: int | None = None,
+    seed: int = 0,
+    variant: str | None = None,
+    base_dir: str | os.PathLike | None = None,
 ) -> np.ndarray:
     """Render a Lucent scene with Mitsuba 3; returns linear RGB, float32, shape (H, W, 3).
 
     ``spp`` defaults to the scene's ``render.spp`` (64); ``variant`` to :func:`default_variant`.
     With a JIT variant, more than ``_MAX_LANES_PER_PASS`` samples are split into equal passes with
     seeds derived from ``seed`` and averaged (weighted by their spp), which is the same estimator.
+    ``base_dir``: where relative mesh paths are read from (see :func:`to_mitsuba_dict`).
     """
     mi = _use_variant(variant or default_variant())
     if spp is None:
         spp = int(scene.get("render", {}).get("spp", 64))
     if spp < 1:
         raise ValueError("spp: must be >= 1")
-    mi_scene = mi.load_dict(to_mitsuba_dict(scene, variant=mi.variant()))
+    mi_scene = mi.load_dict(to_mitsuba_dict(scene, variant=mi.variant(), base_dir=base_dir))
 
     pixels = int(scene["film"]["width"]) * int(scene["film"]["height"])
     n_passes = 1

@@ -440,3 +440,23 @@ def test_materials_without_a_mitsuba_counterpart_raise(material, message):
     )
     with pytest.raises(NotImplementedError, match=message):
         to_mitsuba_dict(scene, variant=VARIANT)
+
+
+def test_an_llvm_too_old_for_drjit_is_never_picked(tmp_path, monkeypatch):
+    """Debian 12 ships LLVM 14 and 15 beside 19: Dr.Jit with LLVM 15 aborts the whole process on
+    the first render, so the bridge must take the newest library >= 16, or none (scalar_rgb)."""
+    from renderer import mitsuba_bridge as mb
+
+    for name in ("libLLVM-14.0.6.so.1", "libLLVM-15.so.1"):
+        (tmp_path / name).write_bytes(b"")
+    monkeypatch.delenv("DRJIT_LIBLLVM_PATH", raising=False)
+    monkeypatch.setattr(mb, "_LIBLLVM_DEFAULT", str(tmp_path / "libLLVM-19.so"))
+    monkeypatch.setattr(mb.ctypes.util, "find_library", lambda name: None)
+    real_glob = mb.glob.glob
+    monkeypatch.setattr(mb.glob, "glob",
+                        lambda pattern: real_glob(str(tmp_path / Path(pattern).name)))
+    assert mb._find_libllvm() is None
+    (tmp_path / "libLLVM.so.19.1").write_bytes(b"")
+    (tmp_path / "libLLVM-17.so").write_bytes(b"")
+    assert mb._find_libllvm() == str(tmp_path / "libLLVM.so.19.1")
+    assert mb.os.environ["DRJIT_LIBLLVM_PATH"] == str(tmp_path / "libLLVM.so.19.1")
