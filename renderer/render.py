@@ -46,7 +46,7 @@ def render_tile(
             scene.arrays, scene.width, scene.height, scene.seed, scene.max_depth,
             scene.stack_size, x0, y0, width, height, sample_start, sample_count,
             np.ascontiguousarray(active, dtype=np.uint8), buf.sum, buf.sum_sq, buf.count,
-            buf.dropped,
+            buf.dropped, numba.get_num_threads(),
         )
     return buf
 

@@ -30,6 +30,12 @@ def _area(lo0, lo1, lo2, hi0, hi1, hi2):
 
 
 @kernel
+def _centroid(lo, hi, i, axis):
+    """A primitive's box centre, computed where needed rather than stored: (n, 3) floats fewer."""
+    return 0.5 * (lo[i, axis] + hi[i, axis])
+
+
+@kernel
 def build_bvh(lo, hi):
     """Build over primitive bounds ``lo``/``hi`` (n, 3). Returns the node arrays and the order.
 
@@ -38,7 +44,6 @@ def build_bvh(lo, hi):
     """
     n = lo.shape[0]
     order = np.arange(n).astype(np.int64)
-    centroid = 0.5 * (lo + hi)
     max_nodes = max(1, 2 * n - 1)
     node_lo = np.empty((max_nodes, 3))
     node_hi = np.empty((max_nodes, 3))
@@ -84,12 +89,15 @@ def build_bvh(lo, hi):
             bhi0 = max(bhi0, hi[i, 0])
             bhi1 = max(bhi1, hi[i, 1])
             bhi2 = max(bhi2, hi[i, 2])
-            clo0 = min(clo0, centroid[i, 0])
-            clo1 = min(clo1, centroid[i, 1])
-            clo2 = min(clo2, centroid[i, 2])
-            chi0 = max(chi0, centroid[i, 0])
-            chi1 = max(chi1, centroid[i, 1])
-            chi2 = max(chi2, centroid[i, 2])
+            c0 = _centroid(lo, hi, i, 0)
+            c1 = _centroid(lo, hi, i, 1)
+            c2 = _centroid(lo, hi, i, 2)
+            clo0 = min(clo0, c0)
+            clo1 = min(clo1, c1)
+            clo2 = min(clo2, c2)
+            chi0 = max(chi0, c0)
+            chi1 = max(chi1, c1)
+            chi2 = max(chi2, c2)
         node_lo[node, 0] = blo0
         node_lo[node, 1] = blo1
         node_lo[node, 2] = blo2
@@ -114,7 +122,7 @@ def build_bvh(lo, hi):
                 b_hi[:, :] = -INF
                 for k in range(start, end):
                     i = order[k]
-                    b = int(N_BUCKETS * (centroid[i, axis] - c_lo) / extent)
+                    b = int(N_BUCKETS * (_centroid(lo, hi, i, axis) - c_lo) / extent)
                     if b >= N_BUCKETS:
                         b = N_BUCKETS - 1
                     b_count[b] += 1
@@ -173,7 +181,7 @@ def build_bvh(lo, hi):
                 i1 = end - 1
                 while i0 <= i1:
                     p = order[i0]
-                    b = int(N_BUCKETS * (centroid[p, best_axis] - c_lo) / extent)
+                    b = int(N_BUCKETS * (_centroid(lo, hi, p, best_axis) - c_lo) / extent)
                     if b >= N_BUCKETS:
                         b = N_BUCKETS - 1
                     if b <= best_bucket:

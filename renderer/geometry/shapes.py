@@ -140,24 +140,29 @@ def spawn_offset(p, n, w, prim_scale):
     return (p[0] + eps * n[0], p[1] + eps * n[1], p[2] + eps * n[2])
 
 
-def prim_bounds(kind: np.ndarray, geo: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Axis-aligned bounds of every primitive, vectorized (host code)."""
+@kernel
+def prim_bounds(kind, geo):
+    """Axis-aligned bounds (lo, hi), each (n, 3), of every primitive.
+
+    A kernel rather than vectorized NumPy: the masked NumPy version made ~10 temporary (n, 3)
+    arrays, which for a million-triangle mesh were the peak of the scene compile's memory.
+    """
     n = kind.shape[0]
     lo = np.empty((n, 3))
     hi = np.empty((n, 3))
-    sph = kind == SPHERE
-    r = geo[sph, 3:4]
-    lo[sph] = geo[sph, 0:3] - r
-    hi[sph] = geo[sph, 0:3] + r
-    quad = kind == QUAD
-    tri = kind == TRIANGLE
-    p0 = geo[:, 0:3]
-    p1 = p0 + geo[:, 3:6]
-    p2 = p0 + geo[:, 6:9]
-    p3 = p1 + geo[:, 6:9]
-    flat = quad | tri
-    lo[flat] = np.minimum(np.minimum(p0[flat], p1[flat]), p2[flat])
-    hi[flat] = np.maximum(np.maximum(p0[flat], p1[flat]), p2[flat])
-    lo[quad] = np.minimum(lo[quad], p3[quad])
-    hi[quad] = np.maximum(hi[quad], p3[quad])
+    for i in range(n):
+        for a in range(3):
+            if kind[i] == SPHERE:
+                lo[i, a] = geo[i, a] - geo[i, 3]
+                hi[i, a] = geo[i, a] + geo[i, 3]
+                continue
+            p0 = geo[i, a]
+            p1 = p0 + geo[i, 3 + a]
+            p2 = p0 + geo[i, 6 + a]
+            lo[i, a] = min(min(p0, p1), p2)
+            hi[i, a] = max(max(p0, p1), p2)
+            if kind[i] == QUAD:
+                p3 = p1 + geo[i, 6 + a]
+                lo[i, a] = min(lo[i, a], p3)
+                hi[i, a] = max(hi[i, a], p3)
     return lo, hi

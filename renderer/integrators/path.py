@@ -547,49 +547,63 @@ def camera_ray(cam, width, height, x, y, jx, jy):
     return (cam[0], cam[1], cam[2]), (dx * inv, dy * inv, dz * inv)
 
 
+@kernel
+def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_start,
+               sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, stack):
+    """Add the samples of one row of a tile (``render_tile_kernel``'s unit of work)."""
+    for col in range(tile_w):
+        if active[row, col] == 0:
+            continue
+        x = x0 + col
+        pixel = y * width + x
+        sr = sg = sb = 0.0
+        qr = qg = qb = 0.0
+        good = 0
+        bad = 0
+        for s in range(sample_start, sample_start + sample_count):
+            key = sample_key(seed, pixel, s)
+            o, d = camera_ray(S.camera, width, height, x, y, uniform(key, 0), uniform(key, 1))
+            r, g, b = trace_path(S, o, d, key, stack, max_depth)
+            # Dropped also when the square overflows, so the variance sums stay finite
+            if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
+                sr += r
+                sg += g
+                sb += b
+                qr += r * r
+                qg += g * g
+                qb += b * b
+                good += 1
+            else:
+                bad += 1
+        out_sum[row, col, 0] += sr
+        out_sum[row, col, 1] += sg
+        out_sum[row, col, 2] += sb
+        out_sum_sq[row, col, 0] += qr
+        out_sum_sq[row, col, 1] += qg
+        out_sum_sq[row, col, 2] += qb
+        out_count[row, col] += good
+        out_dropped[row, col] += bad
+
+
 @parallel_kernel
 def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, tile_w, tile_h,
                        sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
-                       out_dropped):
+                       out_dropped, n_threads):
     """Add samples [sample_start, sample_start + sample_count) of every pixel of a tile.
 
-    Rows are shared among numba's threads; a sample whose radiance is not finite (or whose square
-    overflows, |L| > 1e154) is not added but counted in ``out_dropped``, so a bad path can never
-    turn a pixel into NaN or inf unnoticed. Pixels whose ``active`` flag is 0 (adaptive sampling:
-    converged) get no samples.
+    Rows are shared among ``n_threads`` of numba's threads; a sample whose radiance is not finite
+    (or whose square overflows, |L| > 1e154) is not added but counted in ``out_dropped``, so a bad
+    path can never turn a pixel into NaN or inf unnoticed. Pixels whose ``active`` flag is 0
+    (adaptive sampling: converged) get no samples.
     """
-    for row in prange(tile_h):
+    # Rows are dealt out in turn (thread c takes rows c, c + n, c + 2n, …) rather than in n
+    # contiguous blocks, so a thread whose block holds the costly part of the frame (a translucent
+    # object filling the lower half) does not leave the others idle at the end.
+    # (numba.get_num_threads() inside the kernel would make it uncacheable: the host passes it.)
+    n_chunks = max(1, min(tile_h, n_threads))
+    for chunk in prange(n_chunks):
         stack = np.empty(stack_size, np.int64)
-        y = y0 + row
-        for col in range(tile_w):
-            if active[row, col] == 0:
-                continue
-            x = x0 + col
-            pixel = y * width + x
-            sr = sg = sb = 0.0
-            qr = qg = qb = 0.0
-            good = 0
-            bad = 0
-            for s in range(sample_start, sample_start + sample_count):
-                key = sample_key(seed, pixel, s)
-                o, d = camera_ray(S.camera, width, height, x, y, uniform(key, 0), uniform(key, 1))
-                r, g, b = trace_path(S, o, d, key, stack, max_depth)
-                # Dropped also when the square overflows, so the variance sums stay finite
-                if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
-                    sr += r
-                    sg += g
-                    sb += b
-                    qr += r * r
-                    qg += g * g
-                    qb += b * b
-                    good += 1
-                else:
-                    bad += 1
-            out_sum[row, col, 0] += sr
-            out_sum[row, col, 1] += sg
-            out_sum[row, col, 2] += sb
-            out_sum_sq[row, col, 0] += qr
-            out_sum_sq[row, col, 1] += qg
-            out_sum_sq[row, col, 2] += qb
-            out_count[row, col] += good
-            out_dropped[row, col] += bad
+        for row in range(chunk, tile_h, n_chunks):
+            render_row(S, width, height, seed, max_depth, x0, y0 + row, row, tile_w,
+                       sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
+                       out_dropped, stack)

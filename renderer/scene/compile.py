@@ -225,6 +225,9 @@ def compile_scene(scene) -> CompiledScene:
     prim_geo = np.concatenate(geos)
     prim_material = np.concatenate(mats)
     prim_emission = np.concatenate(emissions)
+    # Drop the per-object pieces now: for a large mesh they are as big as the packed arrays, and
+    # the BVH build and the reordering below would otherwise stack on top of them (peak memory)
+    kinds = geos = mats = emissions = g = v0 = None
 
     # BVH, then primitives in BVH order
     lo, hi = prim_bounds(prim_kind, prim_geo)

@@ -9,6 +9,7 @@ import numpy as np
 import pytest
 
 from renderer.film.buffer import SampleBuffer
+from renderer.integrators.path import render_tile_kernel
 from renderer.render import render, render_buffer, render_tile
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
@@ -44,6 +45,25 @@ def test_tiles_and_passes_add_up_to_the_whole(glass):
     np.testing.assert_allclose(tiled.sum, whole.sum, rtol=1e-12, atol=1e-300)
     np.testing.assert_allclose(tiled.sum_sq, whole.sum_sq, rtol=1e-12, atol=1e-300)
     assert whole.count.min() == glass.spp
+
+
+@pytest.mark.parametrize("n_threads", [2, 3, 7, 64])
+def test_the_split_among_threads_does_not_change_the_image(glass, n_threads):
+    """render_tile_kernel deals rows out in turn to n_threads chunks (more chunks than rows, or
+    than numba has threads, included): every pixel's sums come out bit for bit as with one."""
+    def run(n):
+        buf = SampleBuffer.empty(0, 0, glass.width, glass.height)
+        render_tile_kernel(
+            glass.arrays, glass.width, glass.height, glass.seed, glass.max_depth,
+            glass.stack_size, 0, 0, glass.width, glass.height, 0, 4,
+            np.ones((glass.height, glass.width), np.uint8), buf.sum, buf.sum_sq, buf.count,
+            buf.dropped, n)
+        return buf
+
+    one, many = run(1), run(n_threads)
+    np.testing.assert_array_equal(many.sum, one.sum)
+    np.testing.assert_array_equal(many.sum_sq, one.sum_sq)
+    np.testing.assert_array_equal(many.count, np.full((glass.height, glass.width), 4))
 
 
 def test_buffers_merge_by_addition_in_any_order(glass):
