@@ -1,15 +1,18 @@
 """Speed against accuracy: error against time for every translucent method, on a fixed suite.
 
-    .venv/bin/python -m bench.accuracy [--quick] [--out docs/images/accuracy]
+    .venv/bin/python -m bench.accuracy [--quick] [--out docs/images/accuracy] [--from-csv]
 
 Scenes (64×48): the wax sphere in a Cornell box (``examples/translucent_sphere.json``), the
-backlit jade slab (``examples/backlit_slab.json``), and the same sphere with a grey albedo of
-0.5, 0.9 and 0.99 (variants written below). Only ``material.method`` changes between runs.
+backlit jade slab (``examples/backlit_slab.json``), a concave mesh, the soap torus lit from above
+(``examples/translucent_torus.json``, 9216 triangles), a thin shell, a hollow sphere whose wall is
+0.04 thick, optical thickness 0.8, in the Cornell box (``examples/translucent_shell.json``), and the
+wax sphere with a grey albedo of 0.5, 0.9 and 0.99 (variants written below). Only
+``material.method`` changes between runs.
 
-Reference per scene: Mitsuba 3 ``volpath`` (``renderer.mitsuba_bridge``); the two examples reuse
-``tests/data/*_ref.npy`` (16384 spp), the variants are rendered here at ``--ref-spp`` (16384) and
-cached under ``$LUCENT_CACHE`` (default ``/tmp/lucent-accuracy``), never in git. Without Mitsuba,
-Lucent's own ``volumetric`` at ``--ref-spp`` stands in (said in the output and the CSV).
+Reference per scene: Mitsuba 3 ``volpath`` (``renderer.mitsuba_bridge``); the sphere and the slab
+reuse ``tests/data/*_ref.npy`` (16384 spp), the others are rendered here at ``--ref-spp`` (16384)
+and cached under ``$LUCENT_CACHE`` (default ``/tmp/lucent-accuracy``), never in git. Without
+Mitsuba, Lucent's own ``volumetric`` at ``--ref-spp`` stands in (said in the output and the CSV).
 
 For every method and spp in 4, 16, 64, 256, 1024 (seed 7) it records the wall time (best of two,
 after a 1-spp render that warms the JIT) and these errors against the reference:
@@ -32,8 +35,14 @@ against seconds, one line per method) and ``failures.md``, the "where each metho
   (within the times both measured); "never" if it does not, "always" if it already does at the
   first common time.
 
-``--quick`` (< 60 s; references at 1024 spp) renders spp 4, 16, 64 once each, only the two
-examples plus albedo 0.99, and writes to ``$LUCENT_CACHE/quick`` unless ``--out`` says otherwise.
+``auto.csv`` / ``auto.md``: for every scene and a few object-relMSE targets (``AUTO_TARGETS``),
+what ``method: "auto"`` chooses there and the seconds that choice and ``volumetric`` take to
+reach the target, read off the measured curves (``time_to_target``); the claim to check is that
+auto is never the slower. ``--from-csv`` renders nothing and rewrites the charts and the tables
+from ``OUT/results.csv`` (after a change to auto's rule).
+
+``--quick`` (< 60 s; references at 1024 spp) renders spp 4, 16, 64 once each, only the sphere,
+the slab and albedo 0.99, and writes to ``$LUCENT_CACHE/quick`` unless ``--out`` says otherwise.
 """
 
 from __future__ import annotations
@@ -62,8 +71,16 @@ CACHE = Path(os.environ.get("LUCENT_CACHE", "/tmp/lucent-accuracy"))
 
 
 def _example(name: str) -> dict:
+    """An example at the suite's film size, its mesh files read into inline arrays (the renderers
+    take scene dicts, where a server-style ``load_scene`` refuses paths)."""
+    from renderer.geometry.meshio import read_mesh
+
     scene = json.loads((ROOT / "examples" / f"{name}.json").read_text())
     scene["film"] = dict(FILM)
+    for obj in scene["objects"]:
+        if obj["type"] == "mesh" and "path" in obj:
+            vertices, triangles = read_mesh(ROOT / "examples" / obj.pop("path"))
+            obj.update(vertices=vertices.tolist(), triangles=triangles.tolist())
     return scene
 
 
@@ -73,6 +90,9 @@ def suite(quick: bool = False) -> dict[str, tuple[dict, str]]:
         "translucent_sphere": (_example("translucent_sphere"), "wax"),
         "backlit_slab": (_example("backlit_slab"), "jade"),
     }
+    if not quick:
+        scenes["translucent_torus"] = (_example("translucent_torus"), "soap")
+        scenes["translucent_shell"] = (_example("translucent_shell"), "eggshell")
     for albedo in (0.5, 0.9, 0.99):
         if quick and albedo != 0.99:
             continue
@@ -263,6 +283,114 @@ def failure_markdown(fails: list[dict]) -> str:
 
 
 # --------------------------------------------------------------------------------------------------
+# `auto` against `volumetric`: time to reach a target, read off the measured curves
+# --------------------------------------------------------------------------------------------------
+
+# Object relMSE targets: loose ones where auto takes an approximation, tight ones where it falls
+# back to volumetric (at or above BIAS_FLOOR's largest value every approximation qualifies).
+AUTO_TARGETS = (1.0, 0.6, 0.5, 0.45, 0.3, 0.1, 0.03)
+
+
+def time_to_target(ts: np.ndarray, es: np.ndarray, target: float,
+                   extrapolate: bool) -> tuple[float, str]:
+    """First time at which a measured curve (by increasing spp) reaches ``target``, log–log
+    interpolated between its points, and how it was read: "measured" (between two points),
+    "first point" (already there at the fewest spp: an upper bound), "extrapolated" (slope −1
+    beyond the last point, for an unbiased method) or "never" (inf: a biased curve that never got
+    there)."""
+    if es[0] <= target:
+        return float(ts[0]), "first point"
+    for k in range(1, len(ts)):
+        if es[k] <= target:
+            x = np.interp(np.log(target), np.log([es[k], es[k - 1]]),
+                          np.log([ts[k], ts[k - 1]]))
+            return float(np.exp(x)), "measured"
+    if extrapolate:
+        return float(ts[-1] * es[-1] / target), "extrapolated"
+    return float("inf"), "never"
+
+
+def _curve(rows: list[dict], scene: str, method: str, metric: str):
+    mine = sorted((r for r in rows if r["scene"] == scene and r["method"] == method),
+                  key=lambda r: r["spp"])
+    return np.array([r["seconds"] for r in mine]), np.array([r[metric] for r in mine])
+
+
+def auto_rows(rows: list[dict], scenes: dict[str, tuple[dict, str]],
+              targets=AUTO_TARGETS, metric: str = "object_rel_mse") -> list[dict]:
+    """For every suite scene and target: what ``auto`` chooses (the same ``auto_choice`` that
+    ``compile_scene`` renders), and the time the chosen method and ``volumetric`` take to reach
+    the target on their measured curves."""
+    from renderer.materials.auto import auto_choice
+    from renderer.scene import load_scene
+
+    out = []
+    for name, (scene, material) in scenes.items():
+        vt, ve = _curve(rows, name, "volumetric", metric)
+        for target in targets:
+            d = with_method(scene, material, "auto", 1)
+            d["render"]["target_error"] = target
+            choice = auto_choice(load_scene(d), material)
+            t_vol, how_vol = time_to_target(vt, ve, target, extrapolate=True)
+            if choice.method == "volumetric":
+                t_auto, how_auto = t_vol, how_vol
+            else:
+                at, ae = _curve(rows, name, choice.method, metric)
+                t_auto, how_auto = time_to_target(at, ae, target, extrapolate=False)
+            out.append({"scene": name, "target": target, "auto_method": choice.method,
+                        "expected_error": choice.expected_error, "auto_seconds": t_auto,
+                        "auto_read": how_auto, "volumetric_seconds": t_vol,
+                        "volumetric_read": how_vol, "speedup": t_vol / t_auto,
+                        "claim_holds": _claim(t_auto, how_auto, t_vol, how_vol)})
+    return out
+
+
+def _claim(t_auto: float, how_auto: str, t_vol: float, how_vol: str) -> str:
+    """"yes" when auto reaches the target no later than volumetric; "tie" when auto's time is
+    only an upper bound (already there at its first point, 4 spp: the curves say nothing finer)
+    within 10 % of volumetric's; else "no"."""
+    if t_auto <= t_vol:
+        return "yes"
+    if how_auto == "first point" and t_auto <= 1.1 * t_vol:
+        return "tie"
+    return "no"
+
+
+def auto_markdown(autos: list[dict]) -> str:
+    lines = ["| target | auto's choice | " + " | ".join(
+        f"`{s}`" for s in dict.fromkeys(a["scene"] for a in autos)) + " |"]
+    lines.append("|---|---|" + "---|" * (len(lines[0].split("|")) - 4))
+    for target in dict.fromkeys(a["target"] for a in autos):
+        mine = [a for a in autos if a["target"] == target]
+        methods = sorted({a["auto_method"] for a in mine})
+        cells = []
+        for a in mine:
+            if a["auto_method"] == "volumetric":
+                cells.append(f"{a['volumetric_seconds']:.3g} s{_mark(a['volumetric_read'])}")
+            else:
+                cells.append(f"{a['auto_seconds']:.3g}{_mark(a['auto_read'])} / "
+                             f"{a['volumetric_seconds']:.3g}{_mark(a['volumetric_read'])} s "
+                             f"(×{a['speedup']:.3g})"
+                             + {"yes": "", "tie": " tie", "no": " **fails**"}[a["claim_holds"]])
+        lines.append(f"| {target:g} | {', '.join(methods)} | " + " | ".join(cells) + " |")
+    return "\n".join(lines) + "\n"
+
+
+def _mark(how: str) -> str:
+    return {"measured": "", "first point": "≤", "extrapolated": "*", "never": " never"}[how]
+
+
+def suggested_floors(rows: list[dict], metric: str = "object_rel_mse") -> dict[str, float]:
+    """Each approximation's largest error at its highest spp over the suite: auto's BIAS_FLOOR."""
+    out = {}
+    for method in METHODS[1:]:
+        top = max(r["spp"] for r in rows if r["method"] == method)
+        out[method] = max(r[metric] for r in rows if r["method"] == method and r["spp"] == top)
+    return out
+
+
+
+# --------------------------------------------------------------------------------------------------
 # Charts
 # --------------------------------------------------------------------------------------------------
 
@@ -300,6 +428,50 @@ def chart(scene: str, rows: list[dict], source: str, path: Path) -> None:
 # --------------------------------------------------------------------------------------------------
 
 
+def read_rows(path: Path) -> list[dict]:
+    """The rows of a results.csv, typed as ``main`` wrote them."""
+    with open(path, newline="") as f:
+        rows = list(csv.DictReader(f))
+    for r in rows:
+        r["spp"], r["dropped"] = int(r["spp"]), int(r["dropped"])
+        for key in ("seconds", "rel_mse", "object_rel_mse", "ssim_error", "mean_over_ref"):
+            r[key] = float(r[key])
+    return rows
+
+
+def write_csv(path: Path, rows: list[dict]) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
+
+
+def write_tables(rows: list[dict], scenes: dict[str, tuple[dict, str]], out: Path) -> None:
+    """Charts, failures.md, the auto table (auto.csv, auto.md) from the measured rows."""
+    sources = {r["scene"]: r["reference"] for r in rows}
+    for name in sources:
+        chart(name, rows, sources[name], out / f"{name}.png")
+    table = failure_markdown(failure_rows(rows))
+    floors = suggested_floors(rows)
+    (out / "failures.md").write_text(
+        "object relMSE at the highest spp · floor (× volumetric's relMSE at equal time) · "
+        "crossover (time after which volumetric is more accurate)\n\n" + table
+        + "\nLargest object relMSE at the highest spp (auto's BIAS_FLOOR): "
+        + ", ".join(f"{m} {e:.3g}" for m, e in floors.items()) + "\n")
+    print("\n" + table)
+    autos = auto_rows(rows, {k: v for k, v in scenes.items() if k in sources})
+    write_csv(out / "auto.csv", autos)
+    (out / "auto.md").write_text(
+        "Seconds to reach each object-relMSE target on the measured curves: auto's choice / "
+        "volumetric (×speed-up; tie: auto's time only bounded by its 4-spp time, within 10 %); "
+        "one number where auto chose volumetric. ≤: reached at the "
+        "first point (4 spp); *: extrapolated with slope −1 beyond volumetric's 1024 spp.\n\n"
+        + auto_markdown(autos))
+    print(auto_markdown(autos))
+    print("largest floors: " + ", ".join(f"{m} {e:.3g}" for m, e in floors.items()))
+    print(f"wrote {out}/results.csv, failures.md, auto.csv, auto.md and {len(sources)} charts")
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="reduced suite, < 60 s")
@@ -307,9 +479,14 @@ def main(argv: list[str] | None = None) -> int:
                         help="reference spp (16384; 1024 quick)")
     parser.add_argument("--out", type=Path, default=None,
                         help="docs/images/accuracy (quick: $LUCENT_CACHE/quick)")
+    parser.add_argument("--from-csv", action="store_true",
+                        help="render nothing: redo the charts and tables from OUT/results.csv")
     args = parser.parse_args(argv)
     if args.out is None:
         args.out = CACHE / "quick" if args.quick else ROOT / "docs" / "images" / "accuracy"
+    if args.from_csv:
+        write_tables(read_rows(args.out / "results.csv"), suite(args.quick), args.out)
+        return 0
     spps = (4, 16, 64) if args.quick else (4, 16, 64, 256, 1024)
     repeats = 1 if args.quick else 2
     ref_spp = args.ref_spp or (1024 if args.quick else 16384)
@@ -322,11 +499,12 @@ def main(argv: list[str] | None = None) -> int:
     print(f"machine: {platform.processor() or platform.machine()}, {os.cpu_count()} CPUs, "
           f"numba threads {numba.get_num_threads()}, python {platform.python_version()}")
     rows: list[dict] = []
-    sources: dict[str, str] = {}
     print(f"{'scene':<20} {'method':<15} {'spp':>5} {'seconds':>8} {'relMSE':>9} "
           f"{'obj relMSE':>9} {'1-SSIM':>8} {'mean/ref':>8}")
-    for name, (scene, material) in suite(args.quick).items():
-        ref, sources[name] = reference(name, scene, material, ref_spp)
+    scenes = suite(args.quick)
+    for name, (scene, material) in scenes.items():
+        ref, source = reference(name, scene, material, ref_spp)
+        source = source.removesuffix(" (cached)")
         mask = object_mask(scene, material)
         for method in METHODS:
             render_buffer(with_method(scene, material, method, 1))  # warm the JIT
@@ -337,24 +515,14 @@ def main(argv: list[str] | None = None) -> int:
                        "rel_mse": rel_mse(img, ref), "object_rel_mse": rel_mse(img, ref, mask),
                        "ssim_error": ssim_error(img, ref),
                        "mean_over_ref": float(img.mean() / ref.mean()), "dropped": dropped,
-                       "reference": sources[name]}
+                       "reference": source}
                 rows.append(row)
                 print(f"{name:<20} {method:<15} {spp:>5} {seconds:>8.3f} {row['rel_mse']:>9.5f} "
                       f"{row['object_rel_mse']:>9.5f} {row['ssim_error']:>8.4f} "
                       f"{row['mean_over_ref']:>8.3f}")
 
-    with open(args.out / "results.csv", "w", newline="") as f:
-        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-        writer.writeheader()
-        writer.writerows(rows)
-    for name in sources:
-        chart(name, rows, sources[name], args.out / f"{name}.png")
-    table = failure_markdown(failure_rows(rows))
-    (args.out / "failures.md").write_text(
-        "object relMSE at the highest spp · floor (× volumetric's relMSE at equal time) · "
-        "crossover (time after which volumetric is more accurate)\n\n" + table)
-    print("\n" + table)
-    print(f"wrote {args.out}/results.csv, failures.md and {len(sources)} charts")
+    write_csv(args.out / "results.csv", rows)
+    write_tables(rows, scenes, args.out)
     return 0
 
 

@@ -3,7 +3,8 @@
 The expected errors come from the speed/accuracy suite (``python -m bench.accuracy``;
 docs/speed-accuracy.md): each approximation has a bias floor, the relative MSE over the object's
 pixels that it keeps however many samples it takes. The largest floor measured over the suite
-(wax sphere, backlit slab, spheres at albedo 0.5, 0.9, 0.99; docs/images/accuracy/failures.md) is
+(wax sphere, backlit slab, concave torus, thin shell, spheres at albedo 0.5, 0.9, 0.99;
+docs/images/accuracy/failures.md) is
 the method's expected error. A method is chosen only if that is at or below the scene's
 ``render.target_error`` (default ``DEFAULT_TARGET``), cheapest first; otherwise ``volumetric``,
 the unbiased reference, which reaches any target given time.
@@ -24,9 +25,13 @@ import numpy as np
 
 DEFAULT_TARGET = 0.01
 
-# Largest object relMSE at 1024 spp over the suite (docs/images/accuracy/failures.md), cheapest
-# method first (the same file's timings: backlight < diffusion < single_scatter per sample).
-BIAS_FLOOR = {"backlight": 0.313, "diffusion": 0.41, "single_scatter": 0.376}
+# Largest object relMSE at 1024 spp over the suite (docs/images/accuracy/failures.md), rounded up,
+# cheapest method first (the same file's timings: backlight < diffusion < single_scatter per
+# sample). Set by the concave torus for backlight (0.473; 0.313 before the torus joined the suite,
+# when auto took backlight at target 0.45, which it never reaches there) and single_scatter
+# (2.2), by the backlit slab for diffusion (0.41). tests/renderer/materials/test_auto_evidence.py
+# ties these numbers to the committed CSV.
+BIAS_FLOOR = {"backlight": 0.474, "diffusion": 0.41, "single_scatter": 2.21}
 
 
 @dataclass
