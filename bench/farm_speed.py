@@ -52,6 +52,26 @@ def run_job(client: TestClient, body: dict) -> dict:
             "samples": j["samples_planned"]}
 
 
+def timed_runs(client: TestClient, store: JobStore, body: dict, repeats: int,
+               processes: int) -> list[dict]:
+    """``repeats`` runs of ``body``, each with its render seconds and per-task overheads, the
+    farm's ``processes`` pool processes all rendering (``bench.scaling`` uses it as well)."""
+    runs = []
+    for _ in range(repeats):
+        before = store.metrics()
+        r = run_job(client, body)
+        after = store.metrics()
+        d = {k: after.get(k, 0) - before.get(k, 0) for k in after}
+        r["render_s"] = d["render_seconds"]
+        r["overhead_ms"] = 1e3 * (d["task_seconds"] - d["render_seconds"]) / d["tasks_done"]
+        # Everything that is not rendering, per task, as the wall clock sees it
+        # (broker round trips and idle time included).
+        r["wall_overhead_ms"] = 1e3 * (r["done"] * processes - d["render_seconds"]) \
+            / d["tasks_done"]
+        runs.append(r)
+    return runs
+
+
 def measure(name: str, concurrency: int, threads: int, body: dict, repeats: int) -> dict:
     server = EmbeddedRedis().start()
     settings = Settings(redis_url=server.url, key_prefix="bench")
@@ -63,19 +83,7 @@ def measure(name: str, concurrency: int, threads: int, body: dict, repeats: int)
               interval=0.2)
         with TestClient(create_app(settings)) as client:
             run_job(client, body)  # untimed: compiles the scene in every process
-            runs = []
-            for _ in range(repeats):
-                before = store.metrics()
-                r = run_job(client, body)
-                after = store.metrics()
-                d = {k: after.get(k, 0) - before.get(k, 0) for k in after}
-                r["render_s"] = d["render_seconds"]
-                r["overhead_ms"] = 1e3 * (d["task_seconds"] - d["render_seconds"]) / d["tasks_done"]
-                # Everything that is not rendering, per task, as the wall clock sees it
-                # (broker round trips and idle time included).
-                r["wall_overhead_ms"] = 1e3 * (r["done"] * concurrency - d["render_seconds"]) \
-                    / d["tasks_done"]
-                runs.append(r)
+            runs = timed_runs(client, store, body, repeats, concurrency)
     finally:
         terminate(proc, 30)
         store.r.close()

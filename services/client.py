@@ -31,6 +31,11 @@ def scene_for_upload(path: str | Path) -> dict[str, Any]:
     return data
 
 
+class JobLost(RuntimeError):
+    """The server no longer knows a job it accepted: its Redis lost it (restarted without
+    persistence, or flushed). Nothing of the job survives; submit it again."""
+
+
 class Client:
     def __init__(self, server: str, token: str | None = None, timeout: float = 60.0):
         headers = {"Authorization": f"Bearer {token}"} if token else {}
@@ -47,6 +52,9 @@ class Client:
 
     def job(self, job_id: str) -> dict:
         r = self.http.get(f"/api/jobs/{job_id}")
+        if r.status_code == 404:
+            raise JobLost(f"job {job_id} is gone from the server (was its Redis restarted "
+                          "without persistence?)")
         r.raise_for_status()
         return r.json()
 
@@ -94,7 +102,11 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
         print(job["id"])
         return 0
     t0 = time.perf_counter()
-    job = client.wait(job["id"], progress=not quiet)
+    try:
+        job = client.wait(job["id"], progress=not quiet)
+    except (JobLost, httpx.HTTPError) as err:
+        print(f"{server}: {err}", file=sys.stderr)
+        return 1
     if job["status"] != "done":
         print(f"job {job['id']} {job['status']}: {job.get('error') or ''}", file=sys.stderr)
         return 1

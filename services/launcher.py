@@ -52,29 +52,42 @@ def redis_server_binary() -> str:
 
 
 class EmbeddedRedis:
-    """A real redis-server on 127.0.0.1, in a temporary folder, for one farm's lifetime."""
+    """A real redis-server on 127.0.0.1, in a temporary folder, for one farm's lifetime.
 
-    def __init__(self, port: int | None = None, data_dir: str | None = None):
-        self.port = port or free_port()
+    ``appendonly``: write every change to an append-only file in ``data_dir`` (Redis's AOF,
+    ``appendfsync everysec``), so that a server started again on the same ``data_dir`` comes back
+    with the queue, the jobs and their buffers. Off by default: ``lucent up``'s Redis lives and
+    dies with the farm. The deploy files run Redis with it on.
+
+    ``host``: the one address it listens on (``bench.scaling --netns`` binds it to a bridge's
+    address, so that workers in other network namespaces reach it through their veth).
+    """
+
+    def __init__(self, port: int | None = None, data_dir: str | None = None,
+                 appendonly: bool = False, host: str = "127.0.0.1"):
+        self.host = host
+        self.port = port or free_port(host)
         self._tmp = None if data_dir else tempfile.TemporaryDirectory(prefix="lucent-redis-")
         self.data_dir = data_dir or self._tmp.name  # type: ignore[union-attr]
+        self.appendonly = appendonly
         self.proc: subprocess.Popen | None = None
 
     @property
     def url(self) -> str:
-        return f"redis://127.0.0.1:{self.port}/0"
+        return f"redis://{self.host}:{self.port}/0"
 
     def start(self, timeout: float = 20.0) -> EmbeddedRedis:
         import redis
 
         self.proc = subprocess.Popen(
-            [redis_server_binary(), "--port", str(self.port), "--bind", "127.0.0.1",
-             "--dir", self.data_dir, "--save", "", "--appendonly", "no",
+            [redis_server_binary(), "--port", str(self.port), "--bind", self.host,
+             "--dir", self.data_dir, "--save", "",
+             "--appendonly", "yes" if self.appendonly else "no",
              "--daemonize", "no", "--loglevel", "warning"],
             stdout=subprocess.DEVNULL, preexec_fn=_die_with_parent,
         )
         deadline = time.monotonic() + timeout
-        client = redis.Redis(port=self.port)
+        client = redis.Redis(host=self.host, port=self.port)
         while True:
             try:
                 client.ping()

@@ -5,13 +5,15 @@ from __future__ import annotations
 from collections.abc import AsyncIterator
 from contextlib import asynccontextmanager
 
-from fastapi import Depends, FastAPI, Request
-from fastapi.responses import JSONResponse
+from fastapi import Depends, FastAPI
+from fastapi.exceptions import RequestValidationError
+from fastapi.middleware.cors import CORSMiddleware
 from fastapi.staticfiles import StaticFiles
 
 from services.api.deps import require_token
+from services.api.guards import BodyLimit, validation_error
 from services.api.routes import dashboard, health, jobs, workers
-from services.merger import Sweeper
+from services.merger import StallRule, Sweeper
 from services.queue import celery_client
 from services.settings import Settings, get_settings
 from services.store import JobStore
@@ -25,7 +27,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         store = JobStore.from_url(settings.redis_url, settings.key_prefix)
         app.state.store = store
         app.state.celery = celery_client(settings)
-        sweeper = Sweeper(store, settings.sweep_interval)
+        stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues)
+        sweeper = Sweeper(store, settings.sweep_interval, stall)
         sweeper.start()  # merges what a previous run or a lost worker left behind
         try:
             yield
@@ -40,20 +43,23 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app.state.examples = dashboard.find_examples()
     app.state.figures = dashboard.find_figures()
 
-    @app.middleware("http")
-    async def limit_body(request: Request, call_next):
-        length = request.headers.get("content-length")
-        if length is not None and length.isdigit() and int(length) > settings.max_body_bytes:
-            return JSONResponse(status_code=413, content={"detail": (
-                f"request body of {length} bytes exceeds the limit {settings.max_body_bytes} "
-                "(LUCENT_MAX_BODY_BYTES)")})
-        return await call_next(request)
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_exception_handler(RequestValidationError, validation_error)
+    if settings.cors_origins:
+        # Off unless configured: without Access-Control-Allow-Origin a browser keeps other sites'
+        # pages from reading the API. No cookies are used (the token is a header), so no
+        # credentials mode.
+        app.add_middleware(CORSMiddleware, allow_origins=list(settings.cors_origins),
+                           allow_methods=["GET", "POST", "DELETE"],
+                           allow_headers=["Authorization", "Content-Type", "If-None-Match"],
+                           expose_headers=["ETag"])
 
     api_deps = [Depends(require_token)]
     app.include_router(jobs.router, prefix="/api", dependencies=api_deps)
     app.include_router(workers.router, prefix="/api", dependencies=api_deps)
     app.include_router(dashboard.api_router, prefix="/api", dependencies=api_deps)
     app.include_router(health.router)
+    app.include_router(health.metrics_router, dependencies=api_deps)
     # The dashboard: static files, no farm data in them (the pages call /api with the token).
     app.include_router(dashboard.page_router)
     app.mount("/dashboard", StaticFiles(directory=dashboard.STATIC_DIR), name="dashboard")

@@ -12,18 +12,34 @@ adds the pass in Python, and in one MULTI/EXEC writes the new accumulation, adds
 between, EXEC fails and the merge starts over, and then finds ``tile:pass`` already in ``merged``
 and only deletes the buffer. So a task delivered twice writes the same pass twice (same key, same
 bytes: rendering is deterministic) and it is counted once.
+
+Why the sweeper also re-queues passes: a task message can vanish. kombu's Redis transport takes a
+message with ``BRPOP`` (Redis removes it from the list as it replies) and only then, in the
+consumer's callback, writes it to the ``unacked`` hash (``QoS.append``) from which
+``restore_visible`` brings back the messages of dead workers after ``visibility_timeout``. A worker
+node killed between the two (its main process, which does both) takes the message with it, and
+nothing in Celery sends it again; so does one killed while it holds the restore mutex (the other
+nodes restore nothing for ``unacked_mutex_expire``, 300 s). The service knows every planned
+(tile, pass) and which are merged, so ``requeue_stalled`` sends again the unmerged passes of a job
+that has been idle (no pass started or merged) for ``stall_timeout`` while no message of its
+priority or above waits in the queue; merging once makes the duplicates harmless. The same rule
+brings back, before the visibility timeout, the passes of a worker node that died as a whole.
 """
 
 from __future__ import annotations
 
 import logging
 import threading
+import time
+from dataclasses import dataclass
 
 import numpy as np
 import redis
+from celery import Celery
 
 from renderer.film.buffer import SampleBuffer
-from services.store import JobStore, pass_member
+from services.queue import enqueue, waiting_ahead
+from services.store import ACTIVE, JobStore, pass_member
 
 log = logging.getLogger(__name__)
 
@@ -37,6 +53,7 @@ def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int) -> bool
     merged_key = store.k("job", job_id, "merged")
     member = pass_member(tile, pass_index)
     job_key = store.job_key(job_id)
+    samples_key = store.k("job", job_id, "tile_samples")
     with r.pipeline() as pipe:
         while True:
             try:
@@ -65,33 +82,86 @@ def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int) -> bool
                     acc.add(buf)
                 # Samples per pixel this pass planned: drawn ones, added or dropped as non-finite.
                 spp_added = int((buf.count + buf.dropped).max()) if buf.count.size else 0
+                # tile_samples changes only in this transaction, under the same WATCH: the tile
+                # becomes done in the same EXEC that gives it its last samples, so no process
+                # killed in between can leave a complete tile shown as running.
+                tile_spp = int(pipe.hget(samples_key, str(tile)) or 0) + spp_added
+                tile_done = tile_spp >= int(pipe.hget(job_key, "spp") or 0)
                 pipe.multi()
                 pipe.set(acc_key, acc.to_bytes())
                 pipe.sadd(merged_key, member)
                 pipe.delete(pass_key)
                 pipe.srem(store.k("pending"), pass_key)
-                pipe.hincrby(store.k("job", job_id, "tile_samples"), str(tile), spp_added)
+                pipe.hincrby(samples_key, str(tile), spp_added)
+                if tile_done:
+                    pipe.hset(store.k("job", job_id, "tile_state"), str(tile), "done")
                 pipe.hincrby(job_key, "tasks_merged", 1)
                 pipe.hincrby(job_key, "samples_merged", int(buf.count.sum()))
                 pipe.hincrby(job_key, "dropped", int(buf.dropped.sum()))
                 pipe.hincrby(job_key, "version", 1)
+                pipe.hset(job_key, "active_at", time.time())  # the stall clock starts again
                 pipe.execute()
                 break
             except redis.WatchError:
                 continue
-    # After the transaction: bookkeeping that is idempotent by itself.
-    meta = store.get_job(job_id)
-    if meta is not None:
-        samples = int(r.hget(store.k("job", job_id, "tile_samples"), str(tile)) or 0)
-        if samples >= meta.plan.spp:
-            store.set_tile_state(job_id, tile, "done")
-        store.finish_if_complete(job_id)
+    # After the transaction, idempotent by itself (and redone by the sweeper if this process dies
+    # first): the job done once every pass is merged.
+    store.finish_if_complete(job_id)
     return True
 
 
-def sweep(store: JobStore) -> int:
-    """Merge every pass buffer listed as pending; finish jobs whose last merge was interrupted.
-    Returns how many passes this sweep merged."""
+@dataclass(frozen=True)
+class StallRule:
+    """When the sweeper re-queues a job's passes (``Settings.stall_timeout``,
+    ``Settings.max_stall_requeues``) and the Celery app it sends them with."""
+
+    celery: Celery
+    timeout: float
+    max_requeues: int
+
+
+def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
+                    now: float | None = None) -> list[tuple[int, int]]:
+    """If the job is stalled, send its unmerged passes again and return them; past
+    ``max_requeues`` stalls in a row, fail the job with the reason instead.
+
+    Stalled: queued or running, no pass of it started or merged for ``rule.timeout`` (longer than
+    a pass may run), and no message at its priority level or above in the queue, so that none of
+    its passes can be waiting behind other work. The re-queue does not spend a try of a pass
+    (``attempts`` counts deliveries that run), and a pass delivered twice is merged once."""
+    now = time.time() if now is None else now
+    h = store.r.hmget(store.job_key(job_id), "status", "priority", "created_at", "active_at",
+                      "requeued_at")
+    if h[0] is None or h[0].decode() not in ACTIVE:
+        return []
+    since = max(float(v) for v in h[2:] if v)
+    if now - since < rule.timeout:
+        return []  # the cheap test first: the queue is looked at only for idle jobs
+    priority = int(h[1] or 0)
+    if waiting_ahead(rule.celery, store.r, priority):
+        return []
+    stalls = store.claim_stall(job_id, rule.timeout, now)
+    if not stalls:
+        return []  # another sweeper claimed it, or the job moved meanwhile
+    if stalls > rule.max_requeues:
+        store.fail_job(job_id, f"stalled: no pass started or merged for {rule.timeout:g} s "
+                       f"after {rule.max_requeues} re-queues of its unmerged passes")
+        return []
+    meta = store.get_job(job_id)
+    if meta is None:
+        return []
+    todo = store.unmerged(job_id, meta.plan)
+    enqueue(rule.celery, job_id, todo, priority)
+    store.count(stall_requeues=1, passes_requeued=len(todo))
+    log.warning("job %s stalled for %.0f s (%d in a row): %d unmerged passes sent again",
+                job_id, now - since, stalls, len(todo))
+    return todo
+
+
+def sweep(store: JobStore, stall: StallRule | None = None) -> int:
+    """Merge every pass buffer listed as pending; finish jobs whose last merge was interrupted;
+    with a ``stall`` rule, re-queue the passes of stalled jobs. Returns how many passes this
+    sweep merged."""
     merged = 0
     for raw in store.r.smembers(store.k("pending")):
         key = raw.decode()
@@ -105,28 +175,30 @@ def sweep(store: JobStore) -> int:
         except Exception:  # a corrupt buffer must not stop the sweeper
             log.exception("cannot merge %s", key)
     for job_id in store.active_job_ids():
-        store.finish_if_complete(job_id)
+        if not store.finish_if_complete(job_id) and stall is not None:
+            requeue_stalled(store, stall, job_id)
     return merged
 
 
 class Sweeper:
     """The service's background merger: ``sweep`` at start and every ``interval`` seconds."""
 
-    def __init__(self, store: JobStore, interval: float):
+    def __init__(self, store: JobStore, interval: float, stall: StallRule | None = None):
         self.store = store
         self.interval = interval
+        self.stall = stall
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
-        sweep(self.store)  # carry on from Redis before serving
+        sweep(self.store, self.stall)  # carry on from Redis before serving
         self._thread = threading.Thread(target=self._run, name="lucent-sweeper", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
         while not self._stop.wait(self.interval):
             try:
-                sweep(self.store)
+                sweep(self.store, self.stall)
             except redis.RedisError as err:
                 log.warning("sweep failed: %s", err)
 

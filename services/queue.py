@@ -3,6 +3,7 @@ kernels (the API process stays light)."""
 
 from __future__ import annotations
 
+import redis
 from celery import Celery
 
 from services.planner import celery_priority
@@ -28,3 +29,17 @@ def enqueue(app: Celery, job_id: str, tasks: list[tuple[int, int]], priority: in
         for tile, pass_index in tasks:
             app.send_task(TASK, args=(job_id, tile, pass_index), priority=level,
                           producer=producer)
+
+
+def waiting_ahead(app: Celery, client: redis.Redis, priority: int) -> int:
+    """Messages in Celery's queue that a worker takes before or along with the passes of a job of
+    this priority: 0 means none of the job's passes is waiting in the queue (each is running,
+    held by a worker, or lost). kombu keeps one Redis list per priority level (``celery``,
+    ``celery:1``, ... ``celery:9``, with ``priority_steps`` 0..9 and ``sep`` ``:``) and serves
+    them in that order; a job's passes are all sent at its level."""
+    queue = app.conf.task_default_queue
+    sep = app.conf.broker_transport_options.get("sep", ":")
+    pipe = client.pipeline()
+    for level in range(celery_priority(priority) + 1):
+        pipe.llen(queue if level == 0 else f"{queue}{sep}{level}")
+    return sum(pipe.execute())

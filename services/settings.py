@@ -11,14 +11,23 @@ not acknowledged to another worker once ``visibility_timeout`` has passed; with
 ``task_acks_late`` that clock runs from delivery to the end of the task, so a visibility timeout
 shorter than the longest pass would deliver every long pass twice (harmless, as merging is exactly
 once, but wasted work).
+
+``stall_timeout`` must exceed ``task_time_limit`` too: the service's sweeper re-queues the
+unmerged passes of a job that has had no pass start or merge for that long while none of its
+passes can be waiting in Celery's queue. A message can be lost for good (a worker node killed
+between Redis popping it and kombu recording it as unacknowledged, see ``services.merger``); the
+time limit bounds a pass still running, so a shorter stall time would re-run passes in progress.
+Below ``visibility_timeout`` (the default) it also brings back, sooner, the passes of a worker
+node that died as a whole.
 """
 
 from __future__ import annotations
 
 from functools import lru_cache
+from typing import Annotated
 
-from pydantic import AliasChoices, Field, model_validator
-from pydantic_settings import BaseSettings, SettingsConfigDict
+from pydantic import AliasChoices, Field, field_validator, model_validator
+from pydantic_settings import BaseSettings, NoDecode, SettingsConfigDict
 
 
 class Settings(BaseSettings):
@@ -40,7 +49,11 @@ class Settings(BaseSettings):
     """Prefix of every key the farm writes (not Celery's own queue keys)."""
 
     api_token: str | None = None
-    """When set, every ``/api`` route needs ``Authorization: Bearer <token>``."""
+    """When set, every ``/api`` route and ``/metrics`` need ``Authorization: Bearer <token>``."""
+
+    cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
+    """Origins (``https://farm.example.org``) whose pages may call the API from a browser,
+    comma-separated; empty (the default): no CORS headers, so only same-origin pages can."""
 
     # --- Job limits -----------------------------------------------------------------------------
     default_tile_size: int = 32
@@ -54,6 +67,15 @@ class Settings(BaseSettings):
 
     max_body_bytes: int = Field(default=64 * 1024 * 1024, ge=1024)
     """The largest request body (HTTP 413 above it): inline meshes make scenes big."""
+
+    # --- Cost limits (``services.cost``) --------------------------------------------------------
+    max_samples_per_job: int = Field(default=2**34, ge=1)
+    """The most pixel-samples (width x height x spp) one job may plan: 2^34 is a 4096² frame at
+    1024 spp, about 1.7e10 camera paths (HTTP 422 on ``render.spp`` above it)."""
+
+    max_queued_samples: int = Field(default=2**36, ge=1)
+    """The most pixel-samples all queued and running jobs together may still have to render; a
+    submission that would go over is refused with HTTP 429 until the backlog drains."""
 
     # --- Tasks ----------------------------------------------------------------------------------
     max_attempts: int = Field(default=3, ge=1)
@@ -69,6 +91,15 @@ class Settings(BaseSettings):
     visibility_timeout: float = 3600.0
     """Seconds after which Redis redelivers an unacknowledged task (see the module docstring)."""
 
+    stall_timeout: float = 420.0
+    """Seconds a queued or running job may go with no pass of it starting or merging, and none
+    of its passes waiting in Celery's queue, before the sweeper re-queues its unmerged passes
+    (a message lost by the broker; a worker node lost as a whole). Above ``task_time_limit``."""
+
+    max_stall_requeues: int = Field(default=3, ge=1)
+    """Stall re-queues of one job in a row (no pass started or merged in between) before the job
+    fails with the reason: a pass that is lost every time does not loop forever."""
+
     heartbeat_interval: float = 2.0
     """Seconds between worker heartbeats; a worker silent for 3 intervals is shown as lost."""
 
@@ -81,6 +112,14 @@ class Settings(BaseSettings):
     sweep_interval: float = 1.0
     """Seconds between the service's sweeps: pass buffers left unmerged, jobs left unfinished."""
 
+    @field_validator("cors_origins", mode="before")
+    @classmethod
+    def _split_origins(cls, value: object) -> object:
+        # LUCENT_CORS_ORIGINS="https://a.example,https://b.example"
+        if isinstance(value, str):
+            return [o.strip() for o in value.split(",") if o.strip()]
+        return value
+
     @model_validator(mode="after")
     def _check(self) -> Settings:
         if self.environment != "development" and not self.api_token:
@@ -91,6 +130,12 @@ class Settings(BaseSettings):
                 f"(got {self.task_soft_time_limit}, {self.task_time_limit}, "
                 f"{self.visibility_timeout})"
             )
+        if not self.task_time_limit < self.stall_timeout:
+            raise ValueError("need task_time_limit < stall_timeout (a running pass is not "
+                             f"stalled; got {self.task_time_limit}, {self.stall_timeout})")
+        if not self.sweep_interval < self.stall_timeout:
+            raise ValueError("need sweep_interval < stall_timeout "
+                             f"(got {self.sweep_interval}, {self.stall_timeout})")
         return self
 
 

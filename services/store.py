@@ -4,7 +4,8 @@
 Key                                Type    What
 =================================  ======  =================================================
 ``{p}:jobs``                       zset    job id -> submission time (the job list)
-``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``
+``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``,
+                                           ``active_at``, ``stalls`` (the stall re-queues)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
 ``{p}:job:{id}:tile_state``        hash    tile -> queued / running / done / failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
@@ -53,6 +54,35 @@ for i = 5, #ARGV do
   end
 end
 return 0
+"""
+
+# Claim a stall re-queue of a job (atomic, so that two sweepers never re-queue it twice).
+# KEYS[1] job hash; ARGV[1] now, ARGV[2] stall timeout. A job is stalled when it is queued or
+# running and nothing of it happened (a pass started or merged: ``active_at``; a re-queue:
+# ``requeued_at``; its creation) for the timeout. The count of stalls in a row starts again once
+# a pass of the job has started or merged since the last re-queue. Returns the count, or 0.
+_CLAIM_STALL = """
+local h = redis.call('HMGET', KEYS[1], 'status', 'created_at', 'active_at', 'requeued_at',
+                     'stalls')
+if h[1] ~= 'queued' and h[1] ~= 'running' then return 0 end
+local active = tonumber(h[3]) or 0
+local requeued = tonumber(h[4]) or 0
+local since = math.max(tonumber(h[2]) or 0, active, requeued)
+if tonumber(ARGV[1]) - since < tonumber(ARGV[2]) then return 0 end
+local stalls = tonumber(h[5]) or 0
+if active > requeued then stalls = 0 end
+stalls = stalls + 1
+redis.call('HSET', KEYS[1], 'stalls', stalls, 'requeued_at', ARGV[1])
+return stalls
+"""
+
+
+# Count a delivery of a pass (KEYS[1] attempts hash, ARGV[1] tile:pass) and note the job alive
+# (KEYS[2] job hash, ARGV[2] now) unless its hash is gone: a deleted job is not brought back.
+_ADD_ATTEMPT = """
+local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
+if redis.call('EXISTS', KEYS[2]) == 1 then redis.call('HSET', KEYS[2], 'active_at', ARGV[2]) end
+return n
 """
 
 
@@ -120,6 +150,8 @@ class JobStore:
         self.r = client
         self.prefix = prefix
         self._transition = client.register_script(_TRANSITION)
+        self._claim_stall = client.register_script(_CLAIM_STALL)
+        self._add_attempt = client.register_script(_ADD_ATTEMPT)
 
     @classmethod
     def from_url(cls, url: str, prefix: str = "lucent") -> JobStore:
@@ -215,24 +247,37 @@ class JobStore:
             return False
         return self.transition(job_id, "done", ACTIVE, "finished_at")
 
+    def unmerged(self, job_id: str, plan: Plan) -> list[tuple[int, int]]:
+        """The job's (tile, pass) pairs not merged yet, in the plan's order."""
+        merged = {m.decode() for m in self.r.smembers(self.k("job", job_id, "merged"))}
+        return [(t, p) for t, p in plan.order() if pass_member(t, p) not in merged]
+
     def reopen_job(self, job_id: str) -> list[tuple[int, int]]:
-        """For a retry: the job back to running, attempts and tile errors cleared; returns the
-        (tile, pass) pairs not merged yet, which the caller enqueues again."""
+        """For a retry: the job back to running, attempts, tile errors and stalls cleared;
+        returns the (tile, pass) pairs not merged yet, which the caller enqueues again."""
         meta = self.get_job(job_id)
         if meta is None:
             return []
-        merged = {m.decode() for m in self.r.smembers(self.k("job", job_id, "merged"))}
-        todo = [(t, p) for t, p in meta.plan.order() if pass_member(t, p) not in merged]
+        todo = self.unmerged(job_id, meta.plan)
         states = self.tile_states(job_id)
         pipe = self.r.pipeline()
         pipe.delete(self.k("job", job_id, "attempts"), self.k("job", job_id, "tile_error"))
         for t in {t for t, _ in todo}:
             if states.get(t) != "done":
                 pipe.hset(self.k("job", job_id, "tile_state"), str(t), "queued")
-        pipe.hset(self.job_key(job_id), mapping={"error": "", "finished_at": ""})
+        pipe.hset(self.job_key(job_id), mapping={"error": "", "finished_at": "", "stalls": 0,
+                                                 "active_at": time.time()})
         pipe.execute()
         self.transition(job_id, "running", ("failed", "cancelled"))
         return todo
+
+    def claim_stall(self, job_id: str, stall_timeout: float, now: float | None = None) -> int:
+        """If the job is queued or running and nothing of it happened for ``stall_timeout``
+        seconds, record a stall re-queue now and return how many stalls in a row this makes
+        (no pass started or merged in between); else 0. Atomic: of several sweepers that see
+        the same stall, one claims it."""
+        now = time.time() if now is None else now
+        return int(self._claim_stall(keys=[self.job_key(job_id)], args=[now, stall_timeout]))
 
     # --- tiles ----------------------------------------------------------------------------------
     def tile_states(self, job_id: str) -> dict[int, str]:
@@ -267,8 +312,11 @@ class JobStore:
         self.r.hset(self.k("job", job_id, "tile_error"), str(tile), reason)
 
     def add_attempt(self, job_id: str, tile: int, pass_index: int) -> int:
-        return int(self.r.hincrby(self.k("job", job_id, "attempts"),
-                                  pass_member(tile, pass_index), 1))
+        """Count a delivery of the pass that is about to run; it is also a sign of life of the
+        job (``active_at``: the sweeper's stall clock starts again)."""
+        return int(self._add_attempt(
+            keys=[self.k("job", job_id, "attempts"), self.job_key(job_id)],
+            args=[pass_member(tile, pass_index), time.time()]))
 
     def is_merged(self, job_id: str, tile: int, pass_index: int) -> bool:
         return bool(self.r.sismember(self.k("job", job_id, "merged"),

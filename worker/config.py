@@ -10,6 +10,18 @@
   the tracer fails its job instead of looping.
 - Time limits: soft (``SoftTimeLimitExceeded`` in the task, a failed try) then hard (the process is
   killed). ``visibility_timeout`` must exceed the hard limit (see ``services.settings``).
+  ``task_acks_on_timeout = False``: a pass killed by the hard limit goes back on the queue (its
+  next delivery is a counted try). Celery's default acknowledges it as failed, and the pass, never
+  merged, would leave its job running forever (a kernel stuck in numba never sees the soft limit:
+  the signal is handled only when control returns to Python).
+- Redelivery of a pass whose worker node vanished (its ack never comes): kombu looks for tasks
+  unacknowledged for longer than ``visibility_timeout`` every ``unacked_restore_interval`` x
+  ``unacked_restore_throttle`` seconds (default 10 x 10). Here every tenth of the visibility
+  timeout, at most every 10 s, so a lost pass comes back within 1.1 x the timeout. A message the
+  node took with it before kombu recorded it as unacknowledged (killed between ``BRPOP`` and
+  ``QoS.append``) never comes back this way: the service's sweeper re-queues the unmerged passes
+  of a job stalled for ``Settings.stall_timeout`` (``services.merger.requeue_stalled``), which
+  also brings back a dead node's passes before the visibility timeout.
 - Priorities: Redis emulates them with one list per level; 0 is served first.
   ``services.planner.celery_priority`` maps a job's priority 0–9 (9 most urgent) onto them.
 """
@@ -30,6 +42,8 @@ def celery_config(settings: Settings) -> dict[str, Any]:
             "priority_steps": list(range(10)),
             "sep": ":",
             "queue_order_strategy": "priority",
+            "unacked_restore_interval": min(10.0, settings.visibility_timeout / 10),
+            "unacked_restore_throttle": 1,
         },
         "task_soft_time_limit": settings.task_soft_time_limit,
         "task_time_limit": settings.task_time_limit,
@@ -53,6 +67,7 @@ accept_content = ["json"]
 event_serializer = "json"
 
 task_acks_late = True
+task_acks_on_timeout = False
 worker_prefetch_multiplier = 1
 task_reject_on_worker_lost = True
 task_default_priority = 9

@@ -12,8 +12,9 @@ from __future__ import annotations
 import logging
 import time
 
+import redis
 from celery import signals
-from celery.exceptions import SoftTimeLimitExceeded
+from celery.exceptions import Reject, SoftTimeLimitExceeded
 
 from renderer.film.buffer import SampleBuffer
 from services.merger import merge_pass
@@ -43,12 +44,26 @@ def _shutdown_process(**_: object) -> None:
     runtime.STATE.stop_heartbeat()
 
 
+# Redis unreachable (restarting, a network cut): nothing about the pass can be recorded.
+REDIS_DOWN = (redis.ConnectionError, redis.TimeoutError)
+
+
 @app.task(name="worker.tasks.render_pass", bind=True)
 def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
     """Render, store and merge pass ``pass_index`` of tile ``tile`` of job ``job_id``.
 
     Returns what happened (``merged``, ``duplicate``, ``skipped: <status>``, ``failed``), for logs.
     """
+    try:
+        return _render_pass(job_id, tile, pass_index)
+    except REDIS_DOWN as err:
+        # Put the message back rather than let Celery acknowledge a failed task: acknowledged,
+        # the pass would never run again and its job would never finish. If Redis is still down
+        # the message stays unacknowledged, and comes back after the visibility timeout.
+        raise Reject(f"Redis unreachable: {err}", requeue=True) from err
+
+
+def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
     t_task = time.perf_counter()
     state = runtime.STATE
     store = state.store
@@ -61,7 +76,9 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
     # Delivered again after it was merged (a redelivery): nothing to do.
     if store.is_merged(job_id, tile, pass_index):
         return "duplicate"
-    # Count every delivery, so that a pass that keeps killing its worker stops being retried.
+    # Count every delivery, so that a pass that keeps killing its worker stops being retried. Only
+    # deliveries that run are counted (one lost by the broker, then re-queued by the sweeper, is
+    # not), and counting one marks the job alive for the sweeper's stall rule.
     attempt = store.add_attempt(job_id, tile, pass_index)
     if attempt > settings.max_attempts:
         store.fail_tile(job_id, tile, f"pass {pass_index} gave up after {attempt - 1} tries "
@@ -73,7 +90,9 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
     state.set_task(f"{job_id}/{tile}/{pass_index}")
     try:
         return _render_and_merge(state, meta, tile, pass_index, t_task)
-    except Exception as err:  # every failure is recorded on the tile
+    except REDIS_DOWN:
+        raise  # not the pass's fault: no try is spent on recording it
+    except Exception as err:  # every other failure is recorded on the tile
         reason = ("timed out" if isinstance(err, SoftTimeLimitExceeded)
                   else f"{type(err).__name__}: {err}")
         if attempt >= settings.max_attempts:

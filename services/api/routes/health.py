@@ -1,4 +1,7 @@
-"""``/healthz`` (the process is up), ``/readyz`` (Redis answers), ``/metrics`` (Prometheus)."""
+"""``/healthz`` (the process is up), ``/readyz`` (Redis answers), ``/metrics`` (Prometheus).
+
+The probes are open; ``/metrics`` tells how busy the farm is and sits behind the API token when
+one is set (Prometheus sends it with ``authorization: {credentials_file: ...}``)."""
 
 from __future__ import annotations
 
@@ -12,6 +15,7 @@ from services.api.deps import StoreDep
 from services.store import STATUSES
 
 router = APIRouter(tags=["health"])
+metrics_router = APIRouter(tags=["health"])
 
 
 @router.get("/healthz")
@@ -29,7 +33,7 @@ def readyz(store: StoreDep, response: Response) -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/metrics", response_class=PlainTextResponse)
+@metrics_router.get("/metrics", response_class=PlainTextResponse)
 def metrics(store: StoreDep) -> str:
     """Prometheus text format (version 0.0.4)."""
     jobs, _ = store.list_jobs(limit=1_000_000)

@@ -14,6 +14,7 @@ from fastapi.responses import JSONResponse
 from renderer.materials.auto import auto_choices
 from renderer.scene import Limits, SceneError, load_scene
 from services.api.deps import CeleryDep, SettingsDep, StoreDep
+from services.cost import check_cost
 from services.merger import assemble
 from services.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
 from services.planner import Plan
@@ -33,9 +34,11 @@ def scene_loc(path: str) -> list[str | int]:
     return loc
 
 
-def _unprocessable(errors: list[tuple[list[str | int], str, str]]) -> JSONResponse:
+def _unprocessable(errors: list[tuple[list[str | int], str, str]],
+                   status_code: int = status.HTTP_422_UNPROCESSABLE_CONTENT,
+                   headers: dict[str, str] | None = None) -> JSONResponse:
     return JSONResponse(
-        status_code=status.HTTP_422_UNPROCESSABLE_CONTENT,
+        status_code=status_code, headers=headers,
         content={"detail": [{"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in errors]},
     )
 
@@ -71,8 +74,9 @@ def _get_or_404(store: JobStore, job_id: str) -> JobMeta:
     return meta
 
 
-@router.post("", status_code=status.HTTP_201_CREATED, response_model=JobPublic,
-             responses={422: {"description": "invalid or over-limit scene; `loc` names the field"}})
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=JobPublic, responses={
+    422: {"description": "invalid or over-limit scene; `loc` names the field"},
+    429: {"description": "the farm's backlog is full (LUCENT_MAX_QUEUED_SAMPLES)"}})
 def create_job(body: JobCreate, store: StoreDep, celery: CeleryDep, settings: SettingsDep):
     """Validate the scene, plan tiles × passes and queue them. Nothing is queued if the scene is
     invalid or over a limit."""
@@ -89,6 +93,12 @@ def create_job(body: JobCreate, store: StoreDep, celery: CeleryDep, settings: Se
                "or passes")
         return _unprocessable([(["body", "tile_size"], msg, "limit"),
                                (["body", "spp_per_pass"], msg, "limit")])
+    refused = check_cost(plan, store, settings)
+    if refused is not None:
+        # 429 (a full backlog) clears by itself as jobs finish; 422 needs a smaller job.
+        headers = {"Retry-After": "60"} if refused.status == 429 else None
+        return _unprocessable([(list(loc), refused.msg, "limit") for loc in refused.locs],
+                              refused.status, headers)
     job_id = uuid.uuid4().hex
     # What `auto` picks for each material (the workers compile the same choice)
     methods = {name: f"{c.method}: {c.reason}, expected relMSE {c.expected_error:.3g}"

@@ -1,0 +1,699 @@
+"""Faults, with nothing lost: each test ends with its job done, every pixel holding exactly its
+``spp`` samples, every pass merged once and the image equal to the local render — or, where the
+fault is one the farm cannot survive, with the job failed or reported lost, never hanging.
+
+Each test has its own embedded Redis (some restart it, one puts a proxy in front of it) and its
+own worker nodes, started with short time limits so that redeliveries come within seconds:
+``visibility_timeout`` 8 s (hard limit 6 s, soft 4 s; a pass here takes milliseconds), stall
+time 8 s, heartbeats every 0.25 s. ``faulty_worker`` is the worker app with a test-only fault in
+one pass.
+"""
+
+from __future__ import annotations
+
+import base64
+import contextlib
+import copy
+import io
+import json
+import os
+import random
+import re
+import signal
+import socket
+import subprocess
+import sys
+import threading
+import time
+import uuid
+from collections.abc import Iterator
+from pathlib import Path
+
+import numpy as np
+import pytest
+import redis
+from fastapi.testclient import TestClient
+
+from renderer.render import render
+from services.client import Client, JobLost
+from services.launcher import EmbeddedRedis, free_port, terminate, worker_command, worker_env
+from services.main import create_app
+from services.merger import StallRule, assemble, requeue_stalled
+from services.planner import Plan, celery_priority
+from services.queue import TASK, celery_client
+from services.settings import Settings
+from services.store import JobStore
+
+psutil = pytest.importorskip("psutil")
+
+HERE = Path(__file__).resolve().parent
+ROOT = HERE.parents[1]
+VISIBILITY_TIMEOUT = 8.0
+STALL_TIMEOUT = 8.0
+# The same short limits for the workers (their environment) and the API (its Settings).
+TIMINGS = {"visibility_timeout": VISIBILITY_TIMEOUT, "task_soft_time_limit": 4.0,
+           "task_time_limit": 6.0, "stall_timeout": STALL_TIMEOUT}
+FAULT_ENV = {
+    **{f"LUCENT_{name.upper()}": str(value) for name, value in TIMINGS.items()},
+    "LUCENT_HEARTBEAT_INTERVAL": "0.25",
+    "LUCENT_API_TOKEN": "",
+}
+TIMEOUT = 120.0
+
+
+def _until(predicate, timeout: float, what: str, interval: float = 0.05):
+    """``predicate()`` until truthy; a Redis that is down for a moment counts as not yet."""
+    deadline = time.monotonic() + timeout
+    while True:
+        try:
+            value = predicate()
+        except redis.RedisError:
+            value = None
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(interval)
+
+
+class Nodes:
+    """Worker nodes (``celery worker`` processes) on one Redis and key prefix."""
+
+    def __init__(self, redis_url: str, prefix: str, log_dir: Path):
+        self.redis_url, self.prefix, self.log_dir = redis_url, prefix, log_dir
+        self.procs: list[subprocess.Popen] = []
+
+    def start(self, concurrency: int = 2, redis_url: str | None = None, app: str | None = None,
+              **env: str) -> subprocess.Popen:
+        cmd = worker_command(concurrency, name=f"n{len(self.procs)}-{self.prefix}@%h")
+        extra = {**FAULT_ENV, "LUCENT_KEY_PREFIX": self.prefix, **env}
+        if app:  # the test-only app in tests/farm
+            cmd[cmd.index("worker.celery_app")] = app
+            extra["PYTHONPATH"] = os.pathsep.join([str(HERE), str(ROOT)])
+        log = open(self.log_dir / f"node{len(self.procs)}.log", "w")  # noqa: SIM115
+        proc = subprocess.Popen(cmd, cwd=ROOT, stdout=log, stderr=subprocess.STDOUT,
+                                env=worker_env(redis_url or self.redis_url, 1, extra))
+        log.close()
+        self.procs.append(proc)
+        return proc
+
+    def pool(self, proc: subprocess.Popen) -> list[int]:
+        return [c.pid for c in psutil.Process(proc.pid).children()]
+
+    def wait_warm(self, store: JobStore, proc: subprocess.Popen, n: int) -> list[int]:
+        """Until ``n`` pool processes of ``proc`` beat as idle or busy; their pids."""
+        def warm():
+            assert proc.poll() is None, self.logs()
+            beating = {int(w["pid"]) for w in store.workers()
+                       if w.get("state") in ("idle", "busy")}
+            pids = [p for p in self.pool(proc) if p in beating]
+            return pids if len(pids) >= n else None
+        return _until(warm, 240.0, "warm worker processes", interval=0.1)
+
+    def kill(self, proc: subprocess.Popen) -> None:
+        """SIGKILL the node and its pool at once: a machine losing power."""
+        children = self.pool(proc)
+        proc.kill()
+        for pid in children:
+            with contextlib.suppress(ProcessLookupError):
+                os.kill(pid, signal.SIGKILL)
+        proc.wait()
+
+    def logs(self) -> str:
+        return "\n".join(p.read_text()[-2000:] for p in sorted(self.log_dir.glob("node*.log")))
+
+    def stop(self) -> None:
+        for proc in self.procs:
+            if proc.poll() is None:
+                self.kill(proc)
+
+
+@pytest.fixture
+def prefix() -> str:
+    return f"lucent-fault-{uuid.uuid4().hex[:8]}"
+
+
+@pytest.fixture
+def own_redis(tmp_path: Path) -> Iterator[EmbeddedRedis]:
+    server = EmbeddedRedis().start()
+    yield server
+    server.stop()
+
+
+@pytest.fixture
+def nodes(own_redis: EmbeddedRedis, prefix: str, tmp_path: Path) -> Iterator[Nodes]:
+    n = Nodes(own_redis.url, prefix, tmp_path)
+    yield n
+    n.stop()
+
+
+def _api(redis_url: str, prefix: str) -> TestClient:
+    """The API on that Redis: its sweeper merges leftovers, finishes jobs and re-queues the
+    passes of jobs stalled for ``STALL_TIMEOUT`` every 0.2 s."""
+    return TestClient(create_app(Settings(redis_url=redis_url, key_prefix=prefix,
+                                          sweep_interval=0.2, api_token=None, **TIMINGS)))
+
+
+def _scene(cornell: dict, width: int, height: int, spp: int) -> dict:
+    scene = copy.deepcopy(cornell)
+    scene["film"] = {"width": width, "height": height}
+    scene["render"]["spp"] = spp
+    return scene
+
+
+def _submit(api: TestClient, scene: dict, tile_size: int, spp_per_pass: int) -> str:
+    r = api.post("/api/jobs", json={"scene": scene, "tile_size": tile_size,
+                                    "spp_per_pass": spp_per_pass})
+    assert r.status_code == 201, r.text
+    return r.json()["id"]
+
+
+def _finished(store: JobStore, job_id: str, timeout: float = TIMEOUT) -> str:
+    return _until(lambda: (s := store.get_status(job_id)) in ("done", "failed", "cancelled")
+                  and s, timeout, f"job {job_id} to finish", interval=0.1)
+
+
+def _assert_nothing_lost(api: TestClient, store: JobStore, job_id: str, scene: dict) -> None:
+    """Done, each pass merged once, every pixel exactly spp samples, the local render's image."""
+    job = api.get(f"/api/jobs/{job_id}").json()
+    assert job["status"] == "done", job
+    assert job["tasks_merged"] == job["tasks_total"]
+    assert store.r.scard(store.k("job", job_id, "merged")) == job["tasks_total"]
+    assert {t["state"] for t in job["tile_states"]} == {"done"}
+    frame, _ = assemble(store, job_id)
+    assert (frame.count + frame.dropped == scene["render"]["spp"]).all()
+    _until(lambda: store.r.scard(store.k("pending")) == 0, 10, "no pass buffer left")
+    image = np.load(io.BytesIO(api.get(f"/api/jobs/{job_id}/image.npy").content))
+    np.testing.assert_allclose(image, render(scene), rtol=1e-5, atol=1e-7)
+
+
+def _stuck(store: JobStore, job_id: str) -> str:
+    """What a job that does not finish is waiting for: its passes not merged, their tries, and
+    the broker's queue and unacknowledged messages."""
+    meta = store.get_job(job_id)
+    merged = {m.decode() for m in store.r.smembers(store.k("job", job_id, "merged"))}
+    missing = [f"{t}:{p}" for t, p in meta.plan.order() if f"{t}:{p}" not in merged]
+    tries = _attempts(store, job_id)
+    return (f"{meta.status}, not merged: {[(m, tries.get(m)) for m in missing]}, "
+            f"queued {store.r.llen('celery')}, unacked {store.r.hlen('unacked')}")
+
+
+def _attempts(store: JobStore, job_id: str) -> dict[str, int]:
+    h = store.r.hgetall(store.k("job", job_id, "attempts"))
+    return {k.decode(): int(v) for k, v in h.items()}
+
+
+def _queue_keys(priority: int) -> list[str]:
+    """Celery's Redis list that holds the messages of a job of this priority (kombu keeps one
+    list per level, named ``celery``, ``celery:1``, ... with ``sep`` ``:``)."""
+    level = celery_priority(priority)
+    return ["celery" if level == 0 else f"celery:{level}"]
+
+
+def _queued_passes(store: JobStore, priority: int) -> dict[tuple[str, int, int], bytes]:
+    """The ``render_pass`` messages waiting at a job priority's level: (job, tile, pass) -> the
+    raw message (Celery protocol 2: the body is base64 JSON ``[args, kwargs, embed]``)."""
+    out = {}
+    for key in _queue_keys(priority):
+        for raw in store.r.lrange(key, 0, -1):
+            message = json.loads(raw)
+            assert message["headers"]["task"] == TASK
+            args = json.loads(base64.b64decode(message["body"]))[0]
+            out[tuple(args)] = raw
+    return out
+
+
+# --- 0. a message lost by the broker: the sweeper's stall rule -----------------------------------
+# A kombu consumer that dies as its node would if SIGKILLed between BRPOP and the unacked record.
+_DIE_IN_APPEND = """
+import os, signal, sys
+from kombu import Connection, Queue
+from kombu.transport import redis as transport
+
+def append(qos, message, delivery_tag):  # where kombu writes the message to ``unacked``
+    os.kill(os.getpid(), signal.SIGKILL)
+
+transport.QoS.append = append
+with Connection(sys.argv[1]) as conn:
+    with conn.Consumer(Queue("lost"), callbacks=[lambda body, message: message.ack()]):
+        conn.drain_events(timeout=30)
+"""
+
+
+def test_kombu_loses_a_message_popped_before_its_unacked_record(own_redis):
+    """Why the stall rule exists, shown with kombu itself: a consumer killed after ``BRPOP`` took
+    the message and before ``QoS.append`` recorded it leaves it in no queue and in no unacked
+    hash, so ``restore_visible`` (the visibility timeout) can never bring it back."""
+    from kombu import Connection
+
+    with Connection(own_redis.url) as conn:
+        conn.SimpleQueue("lost").put({"tile": 0})
+        client = redis.Redis.from_url(own_redis.url)
+        assert client.llen("lost") == 1
+        proc = subprocess.run([sys.executable, "-c", _DIE_IN_APPEND, own_redis.url], cwd=ROOT,
+                              timeout=60, capture_output=True)
+        assert proc.returncode == -signal.SIGKILL, proc.stderr.decode()
+        assert client.llen("lost") == 0
+        assert client.hlen("unacked") == 0 and client.zcard("unacked_index") == 0
+        client.close()
+
+
+def test_settings_nest_the_stall_time() -> None:
+    """A running pass (up to the hard limit) is not a stall; nor can a sweep miss one."""
+    Settings(task_time_limit=6, stall_timeout=6.5, visibility_timeout=8, task_soft_time_limit=4)
+    with pytest.raises(ValueError, match="task_time_limit < stall_timeout"):
+        Settings(task_time_limit=6, stall_timeout=6, visibility_timeout=8,
+                 task_soft_time_limit=4)
+    with pytest.raises(ValueError, match="sweep_interval < stall_timeout"):
+        Settings(sweep_interval=500)
+    assert Settings().stall_timeout == Settings().task_time_limit + 60
+
+
+def test_stall_rule_requeues_then_fails_the_job(own_redis, prefix):
+    """``requeue_stalled`` on a real Redis and Celery client, no workers, clock given: a job is
+    re-queued only once idle for the stall time with nothing of its level or above queued; only
+    its unmerged passes, as real ``render_pass`` messages, without spending a try; a pass
+    starting restarts the count; past ``max_stall_requeues`` stalls in a row the job fails with
+    the reason."""
+    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None,
+                        max_stall_requeues=2, **TIMINGS)
+    store = JobStore.from_url(own_redis.url, prefix)
+    rule = StallRule(celery_client(settings), settings.stall_timeout,
+                     settings.max_stall_requeues)
+    plan = Plan(16, 16, 8, 8, 4)  # 4 tiles x 2 passes
+    priority = 5
+    store.create_job("j", "", priority, plan, "{}")
+    step = STALL_TIMEOUT + 0.5
+    # The clock given starts in the past, so that a pass started now (real time) is later.
+    t0 = time.time() - 10 * step
+    store.r.hset(store.job_key("j"), "created_at", t0)
+    store.r.sadd(store.k("job", "j", "merged"), "0:0")  # one pass merged already
+    todo = [tp for tp in plan.order() if tp != (0, 0)]
+
+    def level_key(level: int) -> str:
+        return "celery" if level == 0 else f"celery:{level}"
+
+    # Idle for less than the stall time: nothing.
+    assert requeue_stalled(store, rule, "j", now=t0 + STALL_TIMEOUT - 0.1) == []
+    # Idle long enough, but a message of a higher priority (served first) waits: nothing.
+    store.r.lpush(level_key(celery_priority(priority + 1)), b"other")
+    assert requeue_stalled(store, rule, "j", now=t0 + step) == []
+    store.r.delete(level_key(celery_priority(priority + 1)))
+    # Lower-priority messages do not hold it back: its unmerged passes go out, in plan order.
+    store.r.lpush(level_key(celery_priority(priority - 1)), b"other")
+    assert requeue_stalled(store, rule, "j", now=t0 + step) == todo
+    queued = _queued_passes(store, priority)
+    assert sorted(queued) == sorted(("j", t, p) for t, p in todo)
+    assert store.r.hget(store.job_key("j"), "stalls") == b"1"
+    assert store.r.hlen(store.k("job", "j", "attempts")) == 0  # no try spent
+    # Its messages waiting now: not stalled however long; lost again: the second stall.
+    assert requeue_stalled(store, rule, "j", now=t0 + 3 * step) == []
+    store.r.delete(*_queue_keys(priority))
+    assert requeue_stalled(store, rule, "j", now=t0 + 1.5 * step) == []  # clock restarted
+    assert requeue_stalled(store, rule, "j", now=t0 + 2 * step) == todo
+    assert store.r.hget(store.job_key("j"), "stalls") == b"2"
+    # A pass that starts is a sign of life: the next stall counts from 1 again.
+    store.r.delete(*_queue_keys(priority))
+    store.add_attempt("j", 1, 0)
+    active = float(store.r.hget(store.job_key("j"), "active_at"))
+    assert requeue_stalled(store, rule, "j", now=active + step) == todo
+    assert store.r.hget(store.job_key("j"), "stalls") == b"1"
+    # Lost every time: stalls 2, then the third in a row fails the job with the reason.
+    store.r.delete(*_queue_keys(priority))
+    assert requeue_stalled(store, rule, "j", now=active + 2 * step) == todo
+    store.r.delete(*_queue_keys(priority))
+    assert requeue_stalled(store, rule, "j", now=active + 3 * step) == []
+    meta = store.get_job("j")
+    assert meta.status == "failed"
+    assert meta.error == (f"stalled: no pass started or merged for {STALL_TIMEOUT:g} s after 2 "
+                          "re-queues of its unmerged passes")
+    assert not _queued_passes(store, priority)
+    assert requeue_stalled(store, rule, "j", now=active + 9 * step) == []  # failed: left alone
+    store.r.close()
+
+
+@pytest.mark.slow
+def test_a_lost_message_is_sent_again_when_its_job_stalls(own_redis, nodes, prefix, cornell):
+    """The loss a worker node SIGKILLed between kombu's BRPOP and its ``unacked`` record causes,
+    made deterministic: the job is submitted before any worker runs and one of its messages is
+    removed from Celery's queue by hand. A node renders the rest; then, nothing queued and no pass
+    started or merged for the stall time, the sweeper sends the unmerged pass again. The job
+    completes with nothing lost, the lost pass tried once (the re-queue spent no try) and no
+    other pass re-queued while it was waiting for the worker to start."""
+    scene = _scene(cornell, 32, 24, 16)
+    store = JobStore.from_url(own_redis.url, prefix)
+    with _api(own_redis.url, prefix) as api:
+        job_id = _submit(api, scene, 16, 8)  # 4 tiles x 2 passes
+        lost = (job_id, 1, 1)
+        assert store.r.lrem(_queue_keys(0)[0], 1, _queued_passes(store, 0)[lost]) == 1
+        node = nodes.start(1)
+        nodes.wait_warm(store, node, 1)
+        assert _finished(store, job_id, timeout=60) == "done", _stuck(store, job_id)
+        # Re-queued once, after the other seven were merged: the one pass, nothing else.
+        assert store.r.hget(store.job_key(job_id), "stalls") == b"1"
+        plan = store.get_job(job_id).plan
+        assert _attempts(store, job_id) == {f"{t}:{p}": 1 for t, p in plan.order()}
+        assert store.metrics()["passes_requeued"] == 1
+        _assert_nothing_lost(api, store, job_id, scene)
+    store.r.close()
+
+
+# --- 1. workers SIGKILLed at random moments, repeatedly ------------------------------------------
+@pytest.mark.slow
+def test_workers_killed_repeatedly(own_redis, nodes, prefix, cornell):
+    """Six SIGKILLs at random moments of one job (seeded): pool processes (Celery forks a new
+    one; the task comes back at once, ``task_reject_on_worker_lost``) and whole nodes (restarted;
+    their tasks come back after the visibility timeout)."""
+    kills = ["pool", "pool", "pool", "pool", "node", "node"]
+    rng = random.Random(7)
+    rng.shuffle(kills)
+    moments = sorted(rng.uniform(0.05, 0.85) for _ in kills)
+    # Each kill costs at most one try of the passes in flight: with more tries than kills no pass
+    # can run out of them (the cap itself is tested below).
+    env = {"LUCENT_MAX_ATTEMPTS": str(len(kills) + 1)}
+    scene = _scene(cornell, 64, 48, 512)
+    node = nodes.start(2, **env)
+    store = JobStore.from_url(own_redis.url, prefix)
+    nodes.wait_warm(store, node, 2)
+    with _api(own_redis.url, prefix) as api:
+        job_id = _submit(api, scene, 16, 8)  # 12 tiles x 64 passes = 768 tasks
+        total = store.get_job(job_id).plan.n_tasks
+        kills_done = 0
+        for kind, moment in zip(kills, moments, strict=True):
+            # Both pool processes up again (a new one warms its JIT first), then the moment.
+            warm = nodes.wait_warm(store, node, 2)
+            _until(lambda m=moment: store.get_job(job_id).tasks_merged >= m * total, TIMEOUT,
+                   f"{moment:.0%} of the job")
+            time.sleep(rng.uniform(0.0, 0.03))  # anywhere in a task: render, write or merge
+            if store.get_status(job_id) != "running":
+                break  # done before the last moments: later kills would test nothing
+            kills_done += 1
+            if kind == "pool":
+                os.kill(rng.choice(warm), signal.SIGKILL)
+            else:
+                nodes.kill(node)
+                node = nodes.start(2, **env)
+            time.sleep(1.0)  # the victims' heartbeats expire (3 x 0.25 s) before the next choice
+        assert kills_done >= 4
+        assert _finished(store, job_id) == "done", _stuck(store, job_id)
+        assert max(_attempts(store, job_id).values()) >= 2  # the kills did cost passes a try
+        _assert_nothing_lost(api, store, job_id, scene)
+
+
+# --- 2. a worker cut off from the network mid-task -----------------------------------------------
+class Partition:
+    """A TCP proxy in front of Redis that can be cut and healed, for one worker node.
+
+    Cut, it forwards nothing in either direction and accepts no new upstream connection, but
+    closes nothing: as in a network partition, no FIN or RST reaches either side, the bytes
+    already sent wait (here in the proxy, there in TCP retransmissions) and are delivered when the
+    partition heals. ``cut_on``: cut just before the ``n``-th client write that matches this
+    pattern, which is held with the rest, so the cut falls at a chosen point of a task."""
+
+    def __init__(self, upstream_port: int, cut_on: re.Pattern[bytes], n: int):
+        self.upstream_port = upstream_port
+        self.cut_on, self.n, self.seen = cut_on, n, 0
+        self.trigger = b""
+        self.open = threading.Event()
+        self.open.set()
+        self.cut_done = threading.Event()
+        self.listener = socket.create_server(("127.0.0.1", 0))
+        self.port = self.listener.getsockname()[1]
+        self._sockets: list[socket.socket] = []
+        self._lock = threading.Lock()
+        threading.Thread(target=self._accept, daemon=True).start()
+
+    @property
+    def url(self) -> str:
+        return f"redis://127.0.0.1:{self.port}/0"
+
+    def heal(self) -> None:
+        self.open.set()
+
+    def close(self) -> None:
+        self.open.set()
+        self.listener.close()
+        for s in self._sockets:
+            with contextlib.suppress(OSError):
+                s.close()
+
+    def _accept(self) -> None:
+        while True:
+            try:
+                client, _ = self.listener.accept()
+            except OSError:
+                return
+            threading.Thread(target=self._connect, args=(client,), daemon=True).start()
+
+    def _connect(self, client: socket.socket) -> None:
+        self.open.wait()
+        upstream = socket.create_connection(("127.0.0.1", self.upstream_port))
+        self._sockets += [client, upstream]
+        threading.Thread(target=self._pump, args=(client, upstream, True), daemon=True).start()
+        threading.Thread(target=self._pump, args=(upstream, client, False), daemon=True).start()
+
+    def _pump(self, src: socket.socket, dst: socket.socket, from_client: bool) -> None:
+        try:
+            while data := src.recv(65536):
+                if from_client and self.cut_on.search(data):
+                    with self._lock:
+                        self.seen += 1
+                        if self.seen == self.n:
+                            self.trigger = data
+                            self.open.clear()
+                            self.cut_done.set()
+                self.open.wait()
+                dst.sendall(data)
+        except OSError:
+            pass
+        finally:
+            for s in (src, dst):
+                with contextlib.suppress(OSError):
+                    s.shutdown(socket.SHUT_RDWR)
+
+
+# put_pass: SET the pass buffer and SADD its key to the pending set, in one write.
+PUT_PASS = re.compile(
+    rb"SADD\r\n\$\d+\r\n[^\r\n]*:pending\r\n\$\d+\r\n[^\r\n]*:pass:(\d+):(\d+)\r\n")
+
+
+@pytest.mark.slow
+def test_worker_cut_off_mid_task(own_redis, nodes, prefix, cornell):
+    """Node A reaches Redis through a ``Partition`` that is cut just as A sends its second
+    rendered pass. A's task blocks, hits the soft then the hard time limit and is killed; the
+    message, unacknowledged, comes back after the visibility timeout to node B (on Redis directly),
+    which renders and merges it, and the job completes. Then the partition heals and A's pass,
+    held in flight all along, reaches Redis late: it is stored and listed as pending like any pass,
+    and the sweeper drops it (already merged) instead of counting it a second time."""
+    proxy = Partition(own_redis.port, PUT_PASS, n=2)
+    store = JobStore.from_url(own_redis.url, prefix)
+    try:
+        node_a = nodes.start(1, redis_url=proxy.url)
+        nodes.wait_warm(store, node_a, 1)
+        node_b = nodes.start(1)
+        nodes.wait_warm(store, node_b, 1)
+        scene = _scene(cornell, 32, 32, 256)
+        with _api(own_redis.url, prefix) as api:
+            job_id = _submit(api, scene, 16, 16)  # 4 tiles x 16 passes = 64 tasks
+            n_tasks = store.get_job(job_id).plan.n_tasks
+            assert proxy.cut_done.wait(TIMEOUT), nodes.logs()
+            match = PUT_PASS.search(proxy.trigger)
+            tile, pass_index = int(match[1]), int(match[2])
+            assert _finished(store, job_id) == "done", nodes.logs()
+            assert _attempts(store, job_id)[f"{tile}:{pass_index}"] == 2  # A's try, then B's
+        # No service (no sweeper) while the partition heals, to see the late pass land.
+        late_key = store.pass_key(job_id, tile, pass_index)
+        proxy.heal()
+        _until(lambda: store.r.sismember(store.k("pending"), late_key), 30, "A's late pass")
+        assert store.get_job(job_id).tasks_merged == n_tasks
+        with _api(own_redis.url, prefix) as api:  # its sweeper: merged already, dropped
+            _until(lambda: not store.r.exists(late_key), 10, "the late pass dropped")
+            _assert_nothing_lost(api, store, job_id, scene)
+        assert store.get_job(job_id).samples_merged == 32 * 32 * 256
+    finally:
+        store.r.close()
+        nodes.stop()
+        proxy.close()
+
+
+# --- 3. Redis restarted mid-job ------------------------------------------------------------------
+def _restart_redis(server: EmbeddedRedis, appendonly: bool) -> EmbeddedRedis:
+    """SIGKILL redis-server (no shutdown save) and start a new one on the same port and folder."""
+    assert server.proc is not None
+    server.proc.kill()
+    server.proc.wait()
+    time.sleep(1.0)  # down long enough for every client to see it gone
+    return EmbeddedRedis(port=server.port, data_dir=server.data_dir,
+                         appendonly=appendonly).start()
+
+
+@pytest.mark.slow
+def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
+    """With ``appendonly yes`` (the deploy files' Redis) a Redis killed and restarted mid-job
+    comes back with the queue, the jobs and the accumulations; passes in flight during the
+    outage are re-run (their acknowledgements were lost with the connections) and merged once."""
+    data = tmp_path / "redis"
+    data.mkdir()
+    server = EmbeddedRedis(data_dir=str(data), appendonly=True).start()
+    nodes = Nodes(server.url, prefix, tmp_path)
+    store = JobStore.from_url(server.url, prefix)
+    try:
+        node = nodes.start(2)
+        nodes.wait_warm(store, node, 2)
+        scene = _scene(cornell, 64, 48, 128)
+        with _api(server.url, prefix) as api:
+            job_id = _submit(api, scene, 16, 4)  # 12 tiles x 32 passes = 384 tasks
+            total = store.get_job(job_id).plan.n_tasks
+            _until(lambda: store.get_job(job_id).tasks_merged >= total // 3, TIMEOUT,
+                   "a third of the job")
+            server = _restart_redis(server, appendonly=True)
+            assert store.get_job(job_id).tasks_merged >= total // 3  # nothing merged was lost
+            assert _finished(store, job_id) == "done", nodes.logs()
+            assert node.poll() is None
+            _assert_nothing_lost(api, store, job_id, scene)
+    finally:
+        store.r.close()
+        nodes.stop()
+        server.stop()
+
+
+@pytest.mark.slow
+def test_redis_restarted_without_persistence_loses_the_job_clearly(tmp_path, prefix, cornell):
+    """Without persistence a restarted Redis is empty: the job (its hash, scene, tiles,
+    accumulations) and its queued passes are gone. What documents that here: the API answers 404
+    for the job, ``lucent submit --wait``'s client stops with ``JobLost`` instead of polling
+    forever, the passes that were in flight are discarded (not left pending), and the same
+    workers render a new job."""
+    server = EmbeddedRedis().start()
+    nodes = Nodes(server.url, prefix, tmp_path)
+    store = JobStore.from_url(server.url, prefix)
+    try:
+        node = nodes.start(2)
+        nodes.wait_warm(store, node, 2)
+        scene = _scene(cornell, 64, 48, 128)
+        with _api(server.url, prefix) as api:
+            job_id = _submit(api, scene, 16, 4)
+            total = store.get_job(job_id).plan.n_tasks
+            _until(lambda: store.get_job(job_id).tasks_merged >= total // 3, TIMEOUT,
+                   "a third of the job")
+            server = _restart_redis(server, appendonly=False)
+            assert api.get(f"/api/jobs/{job_id}").status_code == 404
+            client = Client("http://testserver")
+            client.http = api
+            with pytest.raises(JobLost, match="gone from the server"):
+                client.wait(job_id, progress=False)
+            assert store.r.llen("celery") == 0
+            _until(lambda: store.r.scard(store.k("pending")) == 0, 30,
+                   "in-flight passes discarded")
+            assert not store.r.exists(store.job_key(job_id))
+            # The farm itself is fine: the same workers render the next job.
+            small = _scene(cornell, 32, 24, 16)
+            again = _submit(api, small, 16, 8)
+            assert _finished(store, again) == "done", nodes.logs()
+            assert node.poll() is None
+            _assert_nothing_lost(api, store, again, small)
+    finally:
+        store.r.close()
+        nodes.stop()
+        server.stop()
+
+
+# --- 4. the API restarted mid-job ----------------------------------------------------------------
+@pytest.mark.slow
+def test_api_process_killed_mid_job(own_redis, nodes, prefix, cornell, tmp_path):
+    """The API as its own uvicorn process, SIGKILLed mid-job (no lifespan shutdown) and started
+    again: the workers never needed it, and the new one serves the finished job."""
+    import httpx
+
+    store = JobStore.from_url(own_redis.url, prefix)
+    node = nodes.start(2)
+    nodes.wait_warm(store, node, 2)
+    port = free_port()
+    env = worker_env(own_redis.url, 1, {**FAULT_ENV, "LUCENT_KEY_PREFIX": prefix})
+
+    def serve() -> subprocess.Popen:
+        return subprocess.Popen(
+            [sys.executable, "-m", "uvicorn", "services.main:app", "--port", str(port),
+             "--log-level", "warning"], cwd=ROOT, env=env,
+            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+
+    def up(http: httpx.Client) -> bool:
+        with contextlib.suppress(httpx.HTTPError):
+            return http.get("/readyz").status_code == 200
+        return False
+
+    scene = _scene(cornell, 64, 48, 128)
+    api = serve()
+    try:
+        with httpx.Client(base_url=f"http://127.0.0.1:{port}", timeout=30) as http:
+            _until(lambda: up(http), 60, "the API")
+            r = http.post("/api/jobs", json={"scene": scene, "tile_size": 16, "spp_per_pass": 4})
+            job_id = r.json()["id"]
+            total = r.json()["tasks_total"]
+            _until(lambda: store.get_job(job_id).tasks_merged >= total // 4, TIMEOUT,
+                   "a quarter of the job")
+            api.kill()
+            api.wait()
+            assert store.get_status(job_id) == "running"
+            api = serve()
+            _until(lambda: up(http), 60, "the API again")
+            _until(lambda: http.get(f"/api/jobs/{job_id}").json()["status"] == "done", TIMEOUT,
+                   "the job")
+        with _api(own_redis.url, prefix) as check:
+            _assert_nothing_lost(check, store, job_id, scene)
+    finally:
+        terminate(api, 10.0)
+        store.r.close()
+
+
+# --- 5. a task that hangs is stopped by the time limit and re-run --------------------------------
+@pytest.mark.slow
+@pytest.mark.parametrize(("mode", "limit"), [("sleep", "soft"), ("hang", "hard")])
+def test_a_hanging_pass_is_stopped_and_run_again(own_redis, nodes, prefix, cornell, mode, limit):
+    """One pass hangs on its first try. ``sleep`` (in Python) is interrupted by the soft limit
+    (4 s): the task records the timeout and sends itself again. ``hang`` ignores the soft limit
+    (like a kernel that never returns to Python) and is killed at the hard limit (6 s): the
+    message goes back on the queue (``task_acks_on_timeout = False``). Either way the second try
+    renders it and the job completes."""
+    scene = _scene(cornell, 32, 24, 16)
+    store = JobStore.from_url(own_redis.url, prefix)
+    with _api(own_redis.url, prefix) as api:
+        tile = 0
+        node = nodes.start(2, app="faulty_worker", LUCENT_TEST_FAULT=f"{tile}:1:{mode}")
+        nodes.wait_warm(store, node, 2)
+        job_id = _submit(api, scene, 16, 8)  # 2 tiles x 2 passes
+        assert _finished(store, job_id, timeout=60) == "done", nodes.logs()
+        assert _attempts(store, job_id)[f"{tile}:1"] == 2
+        if limit == "soft":
+            assert "timed out" in store.tile_errors(job_id)[tile]
+        _assert_nothing_lost(api, store, job_id, scene)
+
+
+# --- 6. a scene that crashes the tracer fails its job after a bounded number of tries -------------
+@pytest.mark.slow
+@pytest.mark.parametrize("mode", ["raise", "segv"])
+def test_a_crashing_pass_fails_its_job_after_max_attempts(own_redis, nodes, prefix, cornell,
+                                                          mode):
+    """A pass that fails on every try — by an exception (the task retries itself) or by killing
+    its process with SIGSEGV (Celery redelivers it) — is tried exactly ``max_attempts`` (3)
+    times; then its tile and its job fail with the reason, and the node goes on working."""
+    scene = _scene(cornell, 32, 24, 16)
+    store = JobStore.from_url(own_redis.url, prefix)
+    with _api(own_redis.url, prefix) as api:
+        node = nodes.start(2, app="faulty_worker", LUCENT_TEST_FAULT=f"1:0:{mode}")
+        nodes.wait_warm(store, node, 2)
+        job_id = _submit(api, scene, 16, 8)
+        assert _finished(store, job_id, timeout=90) == "failed", nodes.logs()
+        job = api.get(f"/api/jobs/{job_id}").json()
+        tries = _attempts(store, job_id)["1:0"]
+        if mode == "raise":
+            assert tries == 3
+            assert "RuntimeError: the tracer failed" in job["error"]
+            assert "after 3 tries" in job["error"]
+        else:  # three deliveries died with their process; the fourth gives up without running
+            assert tries == 4
+            assert "gave up after 3 tries" in job["error"]
+        assert job["error"].startswith("tile 1: pass 0")
+        assert node.poll() is None
+        again = _submit(api, scene, 32, 16)  # tile 0 only: the fault is in tile 1
+        assert _finished(store, again) == "done"

@@ -1,0 +1,318 @@
+"""Hostile input: whatever a client sends, the API answers 4xx (naming the field where there is
+one) and never 5xx, and nothing over a limit is queued.
+
+- property-based fuzzing of every operation from the OpenAPI schema (schemathesis), bounded;
+- bodies too big (declared or streamed), JSON nested 100 000 deep, malformed bytes;
+- ``NaN``, ``Infinity`` and ``-Infinity`` (and ``1e400``) in every number of a scene and every
+  field of the request;
+- giant inline meshes, and scenes designed to be slow: 10⁶ spp, thousands of lights, a huge
+  ``max_depth``, a giant film, and a job within every per-field limit but over the cost limits.
+"""
+
+from __future__ import annotations
+
+import copy
+import json
+import uuid
+from collections.abc import Iterator
+
+import pytest
+import schemathesis
+from fastapi import FastAPI
+from fastapi.testclient import TestClient
+from hypothesis import HealthCheck, settings
+from schemathesis.python.asgi import shutdown_lifespans
+
+from services.cost import queued_samples
+from services.main import create_app
+from services.planner import Plan
+from services.settings import Settings
+
+# --- fuzzing from the OpenAPI schema ------------------------------------------------------------
+
+# Examples per operation, valid and invalid ones (schemathesis's positive and negative modes):
+# the 13 operations take about 6 s here. The point is breadth on every run, not depth on one.
+FUZZ_EXAMPLES = 100
+
+# The schema is the app's own (building the app connects to nothing); the app that answers is
+# built per module on the test Redis, without a token so that every operation is reached.
+fuzzed = schemathesis.openapi.from_dict(
+    create_app(Settings(redis_url="redis://127.0.0.1:1/0", environment="development",
+                        api_token=None)).openapi())
+
+
+@pytest.fixture(scope="module")
+def fuzzed_app(redis_base_url: str) -> Iterator[FastAPI]:
+    yield create_app(Settings(redis_url=redis_base_url, environment="development",
+                              api_token=None, key_prefix=f"lucent-test-fuzz-{uuid.uuid4().hex}"))
+    shutdown_lifespans()  # schemathesis started the app's lifespan (its sweeper) on first call
+
+
+@fuzzed.parametrize()
+@settings(max_examples=FUZZ_EXAMPLES, deadline=None, database=None,
+          suppress_health_check=list(HealthCheck))
+def test_fuzzed_requests_never_get_a_5xx(case, fuzzed_app):
+    response = case.call(app=fuzzed_app)
+    assert response.status_code < 500, (case.method, case.formatted_path, response.text[:500])
+
+
+# --- helpers ------------------------------------------------------------------------------------
+
+
+def post_raw(client: TestClient, body: bytes | str, **kwargs):
+    return client.post("/api/jobs", content=body, headers={"content-type": "application/json"},
+                       **kwargs)
+
+
+def locs(response) -> list[list]:
+    return [d["loc"] for d in response.json()["detail"]]
+
+
+def assert_nothing_queued(client: TestClient) -> None:
+    assert client.get("/api/jobs").json()["count"] == 0
+    assert client.get("/healthz").status_code == 200
+
+
+def numeric_leaves(value, path=()) -> Iterator[tuple]:
+    """The path of every number in a JSON document (booleans are not numbers)."""
+    if isinstance(value, dict):
+        for k, v in value.items():
+            yield from numeric_leaves(v, (*path, k))
+    elif isinstance(value, list):
+        for i, v in enumerate(value):
+            yield from numeric_leaves(v, (*path, i))
+    elif isinstance(value, int | float) and not isinstance(value, bool):
+        yield path
+
+
+def replaced(document: dict, path: tuple, value) -> dict:
+    out = copy.deepcopy(document)
+    target = out
+    for key in path[:-1]:
+        target = target[key]
+    target[path[-1]] = value
+    return out
+
+
+# --- size and shape -----------------------------------------------------------------------------
+
+
+@pytest.fixture
+def small_body_client(settings: Settings) -> Iterator[TestClient]:
+    small = settings.model_copy(update={"max_body_bytes": 64 * 1024})
+    with TestClient(create_app(small)) as c:
+        yield c
+
+
+def test_a_huge_body_is_413_whether_declared_or_streamed(small_body_client, tiny_scene):
+    huge = json.dumps({"scene": tiny_scene, "name": "x" * 100_000}).encode()
+    r = post_raw(small_body_client, huge)  # Content-Length declared: refused before reading
+    assert r.status_code == 413
+    assert "LUCENT_MAX_BODY_BYTES" in r.json()["detail"]
+
+    def chunks():  # no Content-Length: Transfer-Encoding: chunked
+        for i in range(0, len(huge), 4096):
+            yield huge[i:i + 4096]
+
+    r = post_raw(small_body_client, chunks())
+    assert r.status_code == 413
+    assert "LUCENT_MAX_BODY_BYTES" in r.json()["detail"]
+    # A streamed body under the limit still gets through to validation.
+    r = post_raw(small_body_client, iter([json.dumps({"scene": tiny_scene}).encode()]))
+    assert r.status_code == 201, r.text
+
+
+@pytest.mark.parametrize("body", [
+    '{"scene": {"a": ' + "[" * 100_000 + "]" * 100_000 + "}}",
+    '{"scene": ' + '{"a": ' * 100_000 + "1" + "}" * 100_000 + "}",
+    "[" * 100_000 + "]" * 100_000,
+    '{"scene": {}, "name": ' + "[" * 100_000 + "]" * 100_000 + "}",
+], ids=["array-in-scene", "objects-as-scene", "array-as-body", "array-as-name"])
+def test_deeply_nested_json_is_a_4xx(client, body):
+    r = post_raw(client, body)
+    assert 400 <= r.status_code < 500, r.text[:300]
+    assert_nothing_queued(client)
+
+
+def test_nesting_inside_a_scene_is_422_naming_the_field(client, tiny_scene):
+    deep: object = 1.0
+    for _ in range(150):  # deep, but parseable: the scene models refuse it by its place
+        deep = [deep]
+    tiny_scene["camera"]["fov"] = deep
+    r = client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 422
+    assert locs(r) == [["body", "scene", "camera", "fov"]]
+
+
+@pytest.mark.parametrize("body", [b'{"scene": "\xff\xfe"}', b"\x00\x01", b'{"scene": {}',
+                                  b"", b"null", b"[]", b'"scene"', b"1e400"])
+def test_malformed_bodies_are_a_4xx(client, body):
+    r = post_raw(client, body)
+    assert 400 <= r.status_code < 500, r.text[:300]
+    assert_nothing_queued(client)
+
+
+def test_huge_integers_are_a_4xx(client, tiny_scene):
+    # Python refuses to parse integers over 4300 digits (a quadratic-time conversion).
+    body = json.dumps({"scene": tiny_scene}).replace('"spp": 16', '"spp": ' + "9" * 5000)
+    assert 400 <= post_raw(client, body).status_code < 500
+    tiny_scene["render"]["spp"] = 10**100
+    r = client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 422
+    assert locs(r) == [["body", "scene", "render", "spp"]]
+
+
+# --- non-finite numbers -------------------------------------------------------------------------
+
+
+@pytest.mark.parametrize("literal", ["NaN", "Infinity", "-Infinity"])
+def test_non_finite_literals_anywhere_in_a_scene_are_422_naming_the_field(client, tiny_scene,
+                                                                          literal):
+    value = float(literal.replace("Infinity", "inf"))
+    paths = list(numeric_leaves(tiny_scene))
+    assert len(paths) > 50  # camera, film, render, materials, every object
+    for path in paths:
+        # json.dumps writes the non-standard literal itself: what a hostile client would send.
+        r = post_raw(client, json.dumps({"scene": replaced(tiny_scene, path, value)}))
+        assert r.status_code == 422, (path, r.status_code, r.text[:300])
+        assert ["body", "scene", *path] in locs(r), (path, r.json())
+    assert_nothing_queued(client)
+
+
+@pytest.mark.parametrize("literal", ["NaN", "Infinity", "-Infinity", "1e400"])
+@pytest.mark.parametrize("field", ["name", "tile_size", "spp_per_pass", "priority"])
+def test_non_finite_literals_in_the_request_are_422_naming_the_field(client, tiny_scene, field,
+                                                                     literal):
+    body = json.dumps({"scene": tiny_scene})[:-1] + f', "{field}": {literal}}}'
+    r = post_raw(client, body)
+    assert r.status_code == 422, r.text[:300]
+    (detail,) = r.json()["detail"]
+    assert detail["loc"] == ["body", field]
+    # The echo of what was sent is itself valid JSON: the literal's name as a string.
+    assert detail["input"] == ("Infinity" if literal == "1e400" else literal)
+
+
+def test_non_finite_query_parameters_are_a_4xx(client):
+    for exposure in ("nan", "inf", "-inf", "1e400"):
+        r = client.get("/api/jobs/nope/image.png", params={"exposure": exposure})
+        assert r.status_code in (404, 422), r.text
+    for limit in ("nan", "inf", "1e400", "9" * 5000):
+        assert client.get("/api/jobs", params={"limit": limit}).status_code == 422
+
+
+# --- giant meshes -------------------------------------------------------------------------------
+
+
+def grid_mesh(n: int) -> dict:
+    """An n x n grid of quads (2 n² triangles, (n + 1)² vertices): an open sheet."""
+    vertices = [[i / n, j / n, 0.0] for j in range(n + 1) for i in range(n + 1)]
+    triangles = []
+    for j in range(n):
+        for i in range(n):
+            a = j * (n + 1) + i
+            triangles += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
+    return {"type": "mesh", "vertices": vertices, "triangles": triangles, "material": "white"}
+
+
+def test_a_mesh_over_the_triangle_limit_is_refused_before_parsing(client, tiny_scene,
+                                                                  monkeypatch):
+    monkeypatch.setenv("LUCENT_MAX_TRIANGLES", "1000")
+    tiny_scene["objects"].append(grid_mesh(23))  # 1058 triangles
+    assert_refused_by_limit(client, tiny_scene, ["objects"], "LUCENT_MAX_TRIANGLES")
+    tiny_scene["objects"][-1] = grid_mesh(22)  # 968 triangles: accepted
+    assert client.post("/api/jobs", json={"scene": tiny_scene}).status_code == 201
+
+
+def test_a_giant_mesh_is_capped_by_the_body_limit(small_body_client, tiny_scene):
+    tiny_scene["objects"].append(grid_mesh(100))  # 20 000 triangles, ~0.5 MB of JSON
+    r = small_body_client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 413
+    assert small_body_client.get("/api/jobs").json()["count"] == 0
+
+
+# --- scenes designed to be slow -----------------------------------------------------------------
+
+
+def assert_refused_by_limit(client: TestClient, scene: dict, loc: list, variable: str) -> None:
+    r = client.post("/api/jobs", json={"scene": scene})
+    assert r.status_code == 422
+    (detail,) = r.json()["detail"]
+    assert detail["loc"] == ["body", "scene", *loc]
+    assert variable in detail["msg"]
+    assert_nothing_queued(client)
+
+
+def test_a_million_spp_is_refused(client, tiny_scene):
+    tiny_scene["render"]["spp"] = 1_000_000
+    assert_refused_by_limit(client, tiny_scene, ["render", "spp"], "LUCENT_MAX_SPP")
+
+
+def test_thousands_of_lights_are_refused(client, tiny_scene):
+    light = {"type": "point", "position": [0, 0.9, 0], "intensity": [1, 1, 1]}
+    tiny_scene["lights"] = [light] * 5000
+    assert_refused_by_limit(client, tiny_scene, ["lights"], "LUCENT_MAX_LIGHTS")
+
+
+def test_a_huge_max_depth_is_refused(client, tiny_scene):
+    tiny_scene["render"]["max_depth"] = 10**9
+    assert_refused_by_limit(client, tiny_scene, ["render", "max_depth"], "LUCENT_MAX_DEPTH")
+
+
+def test_a_giant_film_is_refused(client, tiny_scene):
+    tiny_scene["film"] = {"width": 1_000_000, "height": 1_000_000}
+    r = client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 422
+    assert {tuple(loc) for loc in locs(r)} >= {("body", "scene", "film", "width"),
+                                               ("body", "scene", "film", "height")}
+
+
+def test_a_job_within_every_field_limit_is_capped_by_its_cost(client, tiny_scene):
+    """4096² pixels at 65 536 spp: every per-field limit allows it, the cost limit does not."""
+    tiny_scene["film"] = {"width": 4096, "height": 4096}
+    tiny_scene["render"]["spp"] = 65_536
+    r = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 1024,
+                                       "spp_per_pass": 65_536})
+    assert r.status_code == 422
+    assert locs(r) == [["body", "scene", "render", "spp"], ["body", "scene", "film"]]
+    assert "LUCENT_MAX_SAMPLES_PER_JOB" in r.json()["detail"][0]["msg"]
+    assert_nothing_queued(client)
+
+
+def test_the_per_job_cost_limit_is_exact(settings, tiny_scene):
+    samples = 32 * 24 * 16  # the tiny scene's width x height x spp
+    for limit, expected in ((samples, 201), (samples - 1, 422)):
+        capped = settings.model_copy(update={"max_samples_per_job": limit,
+                                             "key_prefix": f"{settings.key_prefix}-{limit}"})
+        with TestClient(create_app(capped)) as c:
+            r = c.post("/api/jobs", json={"scene": tiny_scene})
+            assert r.status_code == expected, r.text
+            if expected == 422:
+                assert f"= {samples} pixel-samples exceed the limit {limit}" in r.text
+
+
+def test_a_full_backlog_is_429_until_it_drains(settings, tiny_scene):
+    samples = 32 * 24 * 16
+    with TestClient(create_app(settings.model_copy(
+            update={"max_queued_samples": 2 * samples}))) as c:
+        first = c.post("/api/jobs", json={"scene": tiny_scene}).json()
+        assert c.post("/api/jobs", json={"scene": tiny_scene}).status_code == 201
+        r = c.post("/api/jobs", json={"scene": tiny_scene})
+        assert r.status_code == 429
+        assert r.headers["retry-after"] == "60"
+        (detail,) = r.json()["detail"]
+        assert detail["loc"] == ["body", "scene"]
+        assert "LUCENT_MAX_QUEUED_SAMPLES" in detail["msg"]
+        assert c.get("/api/jobs").json()["count"] == 2  # the refused job was not created
+        # A cancelled job leaves the backlog: there is room again.
+        assert c.delete(f"/api/jobs/{first['id']}").status_code == 200
+        assert c.post("/api/jobs", json={"scene": tiny_scene}).status_code == 201
+
+
+def test_the_backlog_counts_what_active_jobs_have_left(store):
+    plan = Plan(width=10, height=10, spp=8, tile_size=8, spp_per_pass=4)  # 800 pixel-samples
+    for job_id in ("queued", "running", "done", "cancelled"):
+        store.create_job(job_id, "", 0, plan, "{}")
+    store.r.hset(store.job_key("running"), mapping={"status": "running", "samples_merged": 300})
+    store.r.hset(store.job_key("done"), mapping={"status": "done", "samples_merged": 800})
+    store.cancel_job("cancelled")
+    assert queued_samples(store) == 800 + 500
