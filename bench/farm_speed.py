@@ -106,7 +106,9 @@ def main() -> None:
     print(f"{args.scene}: {scene['film']['width']}x{scene['film']['height']}, "
           f"{scene['render']['spp']} spp, {cores} cores; medians of {args.repeats} runs")
     for tile, per_pass in [(32, 8), (64, 16)]:
-        body = {"scene": scene, "tile_size": tile, "spp_per_pass": per_pass}
+        # equal passes, as measured before passes grew (bench.scaling measures growing ones)
+        body = {"scene": scene, "tile_size": tile, "spp_per_pass": per_pass,
+                "max_spp_per_pass": per_pass}
         measure(f"prefork {cores}x1 thread, tile {tile}/{per_pass} spp", cores, 1, body,
                 args.repeats)
         measure(f"1 process x{cores} threads, tile {tile}/{per_pass} spp", 1, cores, body,

@@ -4,7 +4,7 @@ worker node runs in its own network namespace, so that every byte between it and
 real network interface (a veth pair).
 
     flock /tmp/lucent-cpu.lock .venv/bin/python -m bench.scaling \\
-        [--scene examples/cornell_box.json] [--workers 1,2] [--tiles 32,64] [--passes 8,16] \\
+        [--scene examples/cornell_box.json] [--workers 1,2] [--tiles 32,64] [--passes 8,16,8-64] \\
         [--repeats 3] [--per-node 1] [--netns [--subnet 10.213.0.0/24]] [--csv out.csv]
 
 For each worker count the benchmark starts an embedded Redis and ``N / --per-node`` worker nodes
@@ -191,7 +191,12 @@ def client_addresses(r: redis.Redis) -> set[str]:
     return {c["addr"].rsplit(":", 1)[0] for c in r.client_list()}
 
 
-def measure_farm(processes: int, shapes: list[tuple[int, int]], scene: dict, repeats: int,
+def pass_label(first: int, largest: int) -> str:
+    """``8 spp`` (equal passes) or ``8-64 spp`` (passes growing from 8 to at most 64)."""
+    return f"{first} spp" if largest <= first else f"{first}-{largest} spp"
+
+
+def measure_farm(processes: int, shapes: list[tuple[int, int, int]], scene: dict, repeats: int,
                  per_node: int, netns: bool, subnet: str) -> list[dict]:
     """Start a farm of ``processes`` worker processes and time every (tile, pass) shape on it."""
     sizes = node_sizes(processes, per_node)
@@ -220,33 +225,38 @@ def measure_farm(processes: int, shapes: list[tuple[int, int]], scene: dict, rep
         with TestClient(create_app(settings)) as client:
             # Untimed: loads the kernels and compiles a scene in every process.
             run_job(client, {"scene": scene, "tile_size": shapes[0][0],
-                             "spp_per_pass": shapes[0][1]})
-            for tile, per_pass in shapes:
-                body = {"scene": scene, "tile_size": tile, "spp_per_pass": per_pass}
+                             "spp_per_pass": shapes[0][1], "max_spp_per_pass": shapes[0][2]})
+            for tile, per_pass, largest in shapes:
+                body = {"scene": scene, "tile_size": tile, "spp_per_pass": per_pass,
+                        "max_spp_per_pass": largest}
                 veth_before = network.veth_bytes() if network else 0
                 runs = timed_runs(client, store, body, repeats, processes)
                 veth_mb = (network.veth_bytes() - veth_before) / 1e6 / repeats if network else None
                 med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
                 row = {"mode": "netns" if network else "loopback", "workers": processes,
                        "nodes": len(sizes), "tile": tile, "spp_per_pass": per_pass,
+                       "max_spp_per_pass": largest,
                        "tasks": int(med["tasks"]), "done_s": med["done"],
                        "preview_s": med["preview"], "samples_per_s": med["samples"] / med["done"],
                        "overhead_ms": med["overhead_ms"],
                        "wall_overhead_ms": med["wall_overhead_ms"], "veth_mb_per_job": veth_mb}
                 rows.append(row)
                 print(f"  {processes:>3} workers ({len(sizes)} nodes), tile {tile:>3} px / "
-                      f"{per_pass:>3} spp: done {row['done_s']:.2f} s, "
+                      f"{pass_label(per_pass, largest):>10}: done {row['done_s']:.2f} s, "
                       f"{row['samples_per_s'] / 1e6:.2f} M samples/s, {row['tasks']} tasks, "
                       f"overhead {row['overhead_ms']:.1f} / {row['wall_overhead_ms']:.1f} ms"
                       + (f", {veth_mb:.1f} MB over the veths" if network else ""), flush=True)
     return rows
 
 
+def _shape(row: dict) -> tuple[int, int, int]:
+    return row["tile"], row["spp_per_pass"], row.get("max_spp_per_pass", row["spp_per_pass"])
+
+
 def add_speedups(rows: list[dict]) -> None:
     """Speedup against the smallest worker count of the same shape; efficiency per process."""
     for row in rows:
-        same = [r for r in rows if (r["tile"], r["spp_per_pass"]) == (row["tile"],
-                                                                         row["spp_per_pass"])]
+        same = [r for r in rows if _shape(r) == _shape(row)]
         base = min(same, key=lambda r: r["workers"])
         row["speedup"] = base["done_s"] / row["done_s"]
         row["efficiency"] = row["speedup"] * base["workers"] / row["workers"]
@@ -258,8 +268,9 @@ def markdown_table(rows: list[dict]) -> str:
             "efficiency", "in-task overhead", "wall-clock overhead"] + (["veth MB/job"] * netns)
     lines = ["| " + " | ".join(head) + " |",
              "|---|---|" + "---:|" * (len(head) - 2)]
-    for r in sorted(rows, key=lambda r: (r["tile"], r["spp_per_pass"], r["workers"])):
-        cells = [f"{r['workers']} ({r['nodes']})", f"{r['tile']} px / {r['spp_per_pass']} spp",
+    for r in sorted(rows, key=lambda r: (*_shape(r), r["workers"])):
+        cells = [f"{r['workers']} ({r['nodes']})",
+                 f"{r['tile']} px / {pass_label(*_shape(r)[1:])}",
                  str(r["tasks"]), f"{r['done_s']:.2f} s", f"{r['samples_per_s'] / 1e6:.2f} M",
                  f"{r['speedup']:.2f}×", f"{100 * r['efficiency']:.0f} %",
                  f"{r['overhead_ms']:.1f} ms", f"{r['wall_overhead_ms']:.1f} ms"]
@@ -287,6 +298,23 @@ def _ints(text: str) -> list[int]:
     return values
 
 
+def _passes(text: str) -> list[tuple[int, int]]:
+    """``8,16,8-64`` -> [(8, 8), (16, 16), (8, 64)]: (first pass, largest pass)."""
+    out = []
+    for item in (v.strip() for v in text.split(",") if v.strip()):
+        first, _, largest = item.partition("-")
+        try:
+            pair = (int(first), int(largest or first))
+        except ValueError:
+            raise argparse.ArgumentTypeError(f"expected N or N-M, got {item!r}") from None
+        if min(pair) < 1 or pair[1] < pair[0]:
+            raise argparse.ArgumentTypeError(f"expected 1 <= N <= M, got {item!r}")
+        out.append(pair)
+    if not out:
+        raise argparse.ArgumentTypeError(f"expected N or N-M, got {text!r}")
+    return out
+
+
 def _raise_exit(signum: int, _frame: object) -> None:
     raise SystemExit(128 + signum)
 
@@ -297,7 +325,9 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--workers", type=_ints, default=[1, 2],
                         help="worker process counts, e.g. 1,2,4,8,16 (default 1,2)")
     parser.add_argument("--tiles", type=_ints, default=[32, 64], help="tile sizes in pixels")
-    parser.add_argument("--passes", type=_ints, default=[8, 16], help="samples per pass")
+    parser.add_argument("--passes", type=_passes, default=[(8, 8), (16, 16), (8, 64)],
+                        help="samples per pass: N (equal passes) or N-M (growing from N to at "
+                             "most M, services.planner), comma-separated (default 8,16,8-64)")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per row (median)")
     parser.add_argument("--per-node", type=int, default=1,
                         help="pool processes per worker node (and per namespace with --netns)")
@@ -310,7 +340,7 @@ def main(argv: list[str] | None = None) -> None:
     # SIGTERM unwinds like Ctrl-C, so that workers, Redis and namespaces are cleaned up.
     signal.signal(signal.SIGTERM, _raise_exit)
     scene = json.loads(Path(args.scene).read_text())
-    shapes = [(t, p) for t in args.tiles for p in args.passes]
+    shapes = [(t, p, m) for t in args.tiles for p, m in args.passes]
     mode = (f"netns: every worker node in its own network namespace ({args.subnet})"
             if args.netns else "loopback: workers and Redis on 127.0.0.1")
     print(f"{args.scene}: {scene['film']['width']}x{scene['film']['height']}, "

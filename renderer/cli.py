@@ -147,6 +147,7 @@ def cmd_submit(args: argparse.Namespace) -> int:
 
     options = {k: v for k, v in (("name", args.name), ("tile_size", args.tile_size),
                                  ("spp_per_pass", args.spp_per_pass),
+                                 ("max_spp_per_pass", args.max_spp_per_pass),
                                  ("priority", args.priority)) if v is not None}
     return submit_and_wait(args.scene, args.server, token=os.environ.get("LUCENT_API_TOKEN"),
                            wait=args.wait, outputs=[args.output] if args.output else [],
@@ -214,7 +215,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", help="write the image when done (.exr, .png or .npy)")
     p.add_argument("--name")
     p.add_argument("--tile-size", type=int)
-    p.add_argument("--spp-per-pass", type=int)
+    p.add_argument("--spp-per-pass", type=int, help="samples of the first pass (default 8)")
+    p.add_argument("--max-spp-per-pass", type=int,
+                   help="the largest pass: passes double the samples so far up to it (default 64)")
     p.add_argument("--priority", type=int, help="0-9, 9 runs first")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_submit)

@@ -15,7 +15,11 @@ class JobCreate(BaseModel):
     tile_size: int | None = Field(default=None, ge=8, le=1024,
                                   description="tile edge in pixels (default 32)")
     spp_per_pass: int | None = Field(default=None, ge=1, le=65_536,
-                                     description="samples per pixel in one task")
+                                     description="samples per pixel of the first pass (default 8)")
+    max_spp_per_pass: int | None = Field(
+        default=None, ge=1, le=65_536,
+        description="the largest pass: passes grow from spp_per_pass, each as many samples as "
+                    "all before it, up to this (default 64; equal to spp_per_pass: equal passes)")
     priority: int = Field(default=0, ge=0, le=9, description="9 runs first")
 
 
@@ -40,6 +44,8 @@ class JobPublic(BaseModel):
     spp: int
     tile_size: int
     spp_per_pass: int
+    max_spp_per_pass: int
+    passes: int = Field(description="passes per tile")
     tiles: int
     tasks_total: int
     tasks_merged: int

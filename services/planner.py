@@ -1,9 +1,16 @@
 """The planner: a frame cut into tiles, each tile's samples into passes, and the order they run in.
 
-Tiles are numbered in row-major order (tile ``t`` covers columns ``(t % nx) * size`` ...); pass
-``p`` of a tile renders samples ``[p * spp_per_pass, min(spp, (p + 1) * spp_per_pass))`` of every
-pixel. Sample indices are global, so the passes of a tile add up to ``render_tile`` over
-``[0, spp)`` and the farm's image equals ``lucent render`` of the same scene.
+Tiles are numbered in row-major order (tile ``t`` covers columns ``(t % nx) * size`` ...). A
+tile's samples are cut into passes that grow: ``spp_per_pass`` samples in pass 0 and in pass 1,
+then each pass as many as all before it (so every pass halves the noise variance of the tile, the
+progressive schedule of a converging preview), until a pass would exceed ``max_spp_per_pass``;
+from there on every pass has ``max_spp_per_pass`` samples, the last cut to ``spp``. With
+``max_spp_per_pass`` equal to ``spp_per_pass`` (or 0) the passes are all equal. Pass 0 stays small
+for a fast first preview while long jobs run few, large tasks: a task's fixed cost (fetching the
+scene, encoding and merging its buffer, the broker round trips: ~10 ms, docs/performance.md) is
+paid once per pass, not once per ``spp_per_pass`` samples. Pass ``p`` renders the global sample
+indices ``[start_p, start_p + count_p)`` of every pixel, so the passes of a tile add up to
+``render_tile`` over ``[0, spp)`` and the farm's image equals ``lucent render`` of the same scene.
 
 The order: pass 0 of every tile first (a whole, coarse preview early), then pass 1 of every tile,
 ...; within a pass, tiles nearest the centre of the frame first (where the subject usually is).
@@ -12,6 +19,7 @@ The order: pass 0 of every tile first (a whole, coarse preview early), then pass
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import cached_property
 
 
 @dataclass(frozen=True)
@@ -21,6 +29,23 @@ class Plan:
     spp: int
     tile_size: int
     spp_per_pass: int
+    max_spp_per_pass: int = 0
+    """The largest pass; 0 or anything up to ``spp_per_pass``: every pass ``spp_per_pass``."""
+
+    @cached_property
+    def passes(self) -> tuple[tuple[int, int], ...]:
+        """``(sample_start, sample_count)`` of every pass of a tile, in order."""
+        base = max(1, self.spp_per_pass)
+        cap = max(base, self.max_spp_per_pass)
+        out = []
+        start = 0
+        while start < self.spp:
+            # pass 0 and 1: base; then the samples so far, doubling the total; at most cap
+            count = base if start < base else min(cap, start)
+            count = min(count, self.spp - start)
+            out.append((start, count))
+            start += count
+        return tuple(out)
 
     @property
     def tiles_x(self) -> int:
@@ -37,7 +62,7 @@ class Plan:
     @property
     def n_passes(self) -> int:
         """Passes per tile (every tile has the same)."""
-        return -(-self.spp // self.spp_per_pass)
+        return len(self.passes)
 
     @property
     def n_tasks(self) -> int:
@@ -55,8 +80,7 @@ class Plan:
         """``(sample_start, sample_count)`` of a pass."""
         if not 0 <= pass_index < self.n_passes:
             raise IndexError(f"pass {pass_index} out of range (0..{self.n_passes - 1})")
-        start = pass_index * self.spp_per_pass
-        return start, min(self.spp_per_pass, self.spp - start)
+        return self.passes[pass_index]
 
     def tiles_by_distance(self) -> list[int]:
         """Tile indices, nearest the frame's centre first (ties in row-major order)."""

@@ -129,8 +129,9 @@ class JobMeta:
             name=d.get("name", ""),
             status=d["status"],
             priority=int(d.get("priority", 0)),
+            # max_spp_per_pass: absent in jobs stored before passes grew (equal passes)
             plan=Plan(int(d["width"]), int(d["height"]), int(d["spp"]), int(d["tile_size"]),
-                      int(d["spp_per_pass"])),
+                      int(d["spp_per_pass"]), int(d.get("max_spp_per_pass", 0))),
             tasks_merged=int(d.get("tasks_merged", 0)),
             samples_merged=int(d.get("samples_merged", 0)),
             dropped=int(d.get("dropped", 0)),
@@ -178,6 +179,7 @@ class JobStore:
             "id": job_id, "name": name, "status": "queued", "priority": priority,
             "width": plan.width, "height": plan.height, "spp": plan.spp,
             "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
+            "max_spp_per_pass": plan.max_spp_per_pass,
             "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),

@@ -73,6 +73,10 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
     meta = store.get_job(job_id)
     if meta is None or meta.status in FINAL:
         return f"skipped: {meta.status if meta else 'no such job'}"
+    # Not a pass of this job's plan (a message sent for another plan of the same id, by hand or
+    # by an older service): nothing to render, and no reason to fail the job's tiles over it.
+    if not (0 <= tile < meta.plan.n_tiles and 0 <= pass_index < meta.plan.n_passes):
+        return "skipped: no such pass"
     # Delivered again after it was merged (a redelivery): nothing to do.
     if store.is_merged(job_id, tile, pass_index):
         return "duplicate"

@@ -184,8 +184,10 @@ export function renderJob(view, jobId) {
     retryBtn.disabled = !["failed", "cancelled"].includes(job.status);
     const rows = [
       ["Size", `${job.width}×${job.height}, ${job.spp} spp`],
-      ["Tiles × passes", `${job.tiles} × ${job.tasks_total / job.tiles} (${job.tile_size} px, `
-        + `${job.spp_per_pass} spp a pass)`],
+      ["Tiles × passes", `${job.tiles} × ${job.passes} (${job.tile_size} px, `
+        + (job.max_spp_per_pass > job.spp_per_pass
+          ? `${job.spp_per_pass}–${job.max_spp_per_pass} spp a pass)`
+          : `${job.spp_per_pass} spp a pass)`)],
       ["Passes merged", `${job.tasks_merged} / ${job.tasks_total}`],
       ["Samples/s", fmtRate(job.samples_per_second)],
       ["Elapsed", fmtDuration(elapsed(job))],

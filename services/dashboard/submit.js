@@ -50,8 +50,10 @@ export function renderSubmit(view) {
         value: "0" }),
       ...field("tile_size", "Tile size (px)", { type: "number", min: "8", max: "1024",
         placeholder: "32" }),
-      ...field("spp_per_pass", "Samples a pass", { type: "number", min: "1",
-        placeholder: "8" })),
+      ...field("spp_per_pass", "Samples of the first pass", { type: "number", min: "1",
+        placeholder: "8" }),
+      ...field("max_spp_per_pass", "Largest pass", { type: "number", min: "1",
+        placeholder: "64" })),
     formError, submit);
   view.append(h("h1", {}, "Submit a scene"), h("section", { class: "panel" }, form));
 
@@ -125,7 +127,7 @@ export function renderSubmit(view) {
       return;
     }
     const body = { scene: parsed, name: document.getElementById("f-name").value.trim() };
-    for (const k of ["priority", "tile_size", "spp_per_pass"]) {
+    for (const k of ["priority", "tile_size", "spp_per_pass", "max_spp_per_pass"]) {
       const v = document.getElementById(`f-${k}`).value;
       if (v !== "") body[k] = Number(v);
     }

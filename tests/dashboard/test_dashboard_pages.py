@@ -16,8 +16,8 @@ from PIL import Image
 ROOT = Path(__file__).resolve().parents[2]
 
 ROOT_EXAMPLE = "cornell_box"
-# The example at half its size (edited in the page), cut into 20 tiles x 4 passes: a few seconds
-# on 2 worker processes.
+# The example at half its size (edited in the page), cut into 20 tiles x 3 passes (16, 16 and 32
+# samples): a few seconds on 2 worker processes.
 FAST = {"tile_size": "32", "spp_per_pass": "16"}
 
 # Mean of a canvas copy of the <img>: the preview as the browser decoded it; -1 while a new

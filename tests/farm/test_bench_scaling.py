@@ -4,6 +4,7 @@ the speedup arithmetic. The benchmark's timings themselves are recorded in docs/
 
 from __future__ import annotations
 
+import argparse
 import os
 import shutil
 import subprocess
@@ -12,7 +13,7 @@ import sys
 import pytest
 import redis
 
-from bench.scaling import NetnsNetwork, add_speedups, node_sizes
+from bench.scaling import NetnsNetwork, _passes, add_speedups, node_sizes, pass_label
 from services.launcher import EmbeddedRedis
 
 
@@ -102,3 +103,19 @@ def test_speedup_is_against_the_smallest_count_of_the_same_shape():
     assert rows[1]["efficiency"] == pytest.approx(10 / 6 * 2 / 4)
     assert rows[2]["efficiency"] == pytest.approx(0.5)
     assert rows[3]["efficiency"] == 1.0
+
+
+def test_pass_shapes_parse_equal_and_growing_passes():
+    assert _passes("8,16,8-64") == [(8, 8), (16, 16), (8, 64)]
+    assert [pass_label(*p) for p in _passes("8, 8-64")] == ["8 spp", "8-64 spp"]
+    assert _passes("8-") == [(8, 8)]  # no largest given: equal passes
+    for bad in ("", "0", "16-8", "x"):
+        with pytest.raises(argparse.ArgumentTypeError):
+            _passes(bad)
+
+
+def test_growing_passes_are_a_shape_of_their_own():
+    rows = [{"tile": 32, "spp_per_pass": 8, "max_spp_per_pass": m, "workers": w, "done_s": t}
+            for m, w, t in [(8, 1, 10.0), (8, 2, 5.0), (64, 1, 6.0), (64, 2, 4.0)]]
+    add_speedups(rows)
+    assert [r["speedup"] for r in rows] == [1.0, 2.0, 1.0, 1.5]

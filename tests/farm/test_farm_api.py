@@ -149,6 +149,53 @@ def test_plan_covers_the_frame_once_and_goes_centre_first():
     assert celery_priority(9) == 0 and celery_priority(0) == 9
 
 
+def test_passes_grow_from_the_first_to_the_largest_and_cover_every_sample():
+    # 8, 8, then the samples so far (16, 32), then the largest (64) until spp
+    plan = Plan(width=8, height=8, spp=1000, tile_size=8, spp_per_pass=8, max_spp_per_pass=64)
+    assert plan.passes[:6] == ((0, 8), (8, 8), (16, 16), (32, 32), (64, 64), (128, 64))
+    assert plan.passes[-1] == (960, 40)
+    assert plan.n_passes == 19 and plan.n_tasks == 19
+    for spp, first, largest in [(1000, 8, 64), (64, 8, 64), (17, 3, 5), (5, 8, 64), (1, 1, 1),
+                                (300, 7, 7), (300, 7, 0), (4096, 1, 1000)]:
+        p = Plan(width=8, height=8, spp=spp, tile_size=8, spp_per_pass=first,
+                 max_spp_per_pass=largest)
+        starts = [s for s, _ in p.passes]
+        counts = [c for _, c in p.passes]
+        # Contiguous, from 0 to spp, none empty, none above the larger of first and largest.
+        assert starts == [0] + list(np.cumsum(counts)[:-1]), (spp, first, largest)
+        assert sum(counts) == spp and min(counts) >= 1
+        assert max(counts) <= max(first, largest)
+        assert [p.sample_range(i) for i in range(p.n_passes)] == list(p.passes)
+        # Each pass after the second doubles the samples so far, until it reaches the largest.
+        for (start, count), nxt in zip(p.passes[1:], p.passes[2:], strict=False):
+            assert nxt[1] == min(max(first, largest), start + count, spp - nxt[0])
+    # Equal passes: largest 0 or equal to the first, the plan of before passes grew.
+    assert Plan(8, 8, 20, 8, 8).passes == ((0, 8), (8, 8), (16, 4))
+    assert Plan(8, 8, 20, 8, 8, 8).passes == Plan(8, 8, 20, 8, 8).passes
+    with pytest.raises(IndexError):
+        Plan(8, 8, 20, 8, 8).sample_range(3)
+
+
+def test_a_submission_gets_growing_passes_by_default(client, tiny_scene):
+    tiny_scene["render"]["spp"] = 64
+    job = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32}).json()
+    # 8, 8, 16, 32 samples: 4 passes of 1 tile (the default first pass 8, largest 64)
+    assert (job["spp_per_pass"], job["max_spp_per_pass"], job["passes"]) == (8, 64, 4)
+    assert job["tasks_total"] == 4
+    equal = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32,
+                                           "spp_per_pass": 8, "max_spp_per_pass": 8}).json()
+    assert (equal["passes"], equal["tasks_total"]) == (8, 8)
+    # A first pass above the default largest is the largest too.
+    big = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32,
+                                         "spp_per_pass": 128}).json()
+    assert (big["spp_per_pass"], big["max_spp_per_pass"], big["passes"]) == (64, 64, 1)
+    r = client.post("/api/jobs", json={"scene": tiny_scene, "spp_per_pass": 16,
+                                       "max_spp_per_pass": 8})
+    assert r.status_code == 422
+    assert r.json()["detail"][0]["loc"] == ["body", "max_spp_per_pass"]
+    assert "smaller than the first" in r.json()["detail"][0]["msg"]
+
+
 # --- exactly-once merging -----------------------------------------------------------------------
 
 

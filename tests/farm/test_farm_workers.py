@@ -60,11 +60,29 @@ def test_a_task_delivered_twice_is_merged_once(farm, farm_client, wait_for_job, 
                                             "spp_per_pass": 4})
     job_id = r.json()["id"]
     # Every (tile, pass) delivered a second time, as Redis does after a visibility timeout.
-    plan = Plan(32, 24, 16, 16, 4)
+    plan = farm.store().get_job(job_id).plan
+    assert plan == Plan(32, 24, 16, 16, 4, 64) and plan.n_passes == 3  # 4, 4, 8 samples
     enqueue(farm_client.app.state.celery, job_id, plan.order(), 0)
     job = wait_for_job(farm_client, job_id)
     assert job["status"] == "done"
     assert job["tasks_merged"] == plan.n_tasks
+    _assert_complete(farm, job_id, tiny_scene, _image(farm_client, job_id))
+
+
+def test_a_message_for_a_pass_outside_the_plan_is_skipped(farm, farm_client, wait_for_job,
+                                                          tiny_scene):
+    """Messages naming passes the job's plan does not have (the equal passes of an older plan)
+    render nothing, spend no try and fail no tile: the job completes exactly as planned."""
+    r = farm_client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 16,
+                                            "spp_per_pass": 4})
+    job_id = r.json()["id"]
+    stale = [(t, p) for t, p in Plan(32, 24, 16, 16, 4).order() if p >= 3] + [(99, 0)]
+    # At the most urgent priority, so that they are taken before the job's own last passes.
+    enqueue(farm_client.app.state.celery, job_id, stale, 9)
+    job = wait_for_job(farm_client, job_id)
+    assert job["status"] == "done", job
+    assert job["tasks_merged"] == job["tasks_total"] == 4 * 3  # 2 x 2 tiles, 4 + 4 + 8 spp
+    assert all(t["error"] is None for t in job["tile_states"])
     _assert_complete(farm, job_id, tiny_scene, _image(farm_client, job_id))
 
 

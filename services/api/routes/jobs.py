@@ -57,7 +57,9 @@ def to_public(meta: JobMeta) -> JobPublic:
     return JobPublic(
         id=meta.id, name=meta.name, status=meta.status, priority=meta.priority,  # type: ignore[arg-type]
         width=plan.width, height=plan.height, spp=plan.spp, tile_size=plan.tile_size,
-        spp_per_pass=plan.spp_per_pass, tiles=plan.n_tiles, tasks_total=plan.n_tasks,
+        spp_per_pass=plan.spp_per_pass,
+        max_spp_per_pass=max(plan.spp_per_pass, plan.max_spp_per_pass), passes=plan.n_passes,
+        tiles=plan.n_tiles, tasks_total=plan.n_tasks,
         tasks_merged=meta.tasks_merged, samples_planned=meta.samples_planned,
         samples_merged=meta.samples_merged,
         progress=meta.samples_merged / meta.samples_planned if meta.samples_planned else 1.0,
@@ -84,15 +86,22 @@ def create_job(body: JobCreate, store: StoreDep, celery: CeleryDep, settings: Se
         scene = load_scene(body.scene, limits=Limits())  # mesh paths are refused
     except SceneError as err:
         return _unprocessable([(scene_loc(p), m, "scene") for p, m in err.errors])
+    first = min(body.spp_per_pass or settings.default_spp_per_pass, scene.render.spp)
+    # The largest pass: as asked, else the default but never below the first pass
+    largest = body.max_spp_per_pass or max(first, settings.default_max_spp_per_pass)
+    if largest < first:
+        return _unprocessable([(["body", "max_spp_per_pass"],
+                                f"the largest pass ({largest}) is smaller than the first "
+                                f"(spp_per_pass {first})", "value_error")])
     plan = Plan(scene.film.width, scene.film.height, scene.render.spp,
-                body.tile_size or settings.default_tile_size,
-                min(body.spp_per_pass or settings.default_spp_per_pass, scene.render.spp))
+                body.tile_size or settings.default_tile_size, first, largest)
     if plan.n_tasks > settings.max_tasks_per_job:
         msg = (f"{plan.n_tiles} tiles x {plan.n_passes} passes = {plan.n_tasks} tasks exceed the "
                f"limit {settings.max_tasks_per_job} (LUCENT_MAX_TASKS_PER_JOB): use larger tiles "
                "or passes")
         return _unprocessable([(["body", "tile_size"], msg, "limit"),
-                               (["body", "spp_per_pass"], msg, "limit")])
+                               (["body", "spp_per_pass"], msg, "limit"),
+                               (["body", "max_spp_per_pass"], msg, "limit")])
     refused = check_cost(plan, store, settings)
     if refused is not None:
         # 429 (a full backlog) clears by itself as jobs finish; 422 needs a smaller job.
