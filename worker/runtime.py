@@ -58,6 +58,16 @@ class WorkerState:
         return self._store
 
     # --- compiled scenes (LRU by job id) --------------------------------------------------------
+    def cached(self, job_id: str):
+        """The job's ``CompiledScene`` if this process has compiled it, else None (a job's scene
+        never changes, so a cached one needs no fetch of the scene from Redis: for a scene with
+        a large inline mesh that fetch would cost more than the pass)."""
+        with self._lock:
+            compiled = self._compiled.get(job_id)
+            if compiled is not None:
+                self._compiled.move_to_end(job_id)
+            return compiled
+
     def compiled(self, job_id: str, scene_json: dict):
         """The job's ``CompiledScene``, compiled once per process. Raises ``SceneError`` or
         ``CompileError`` for a scene that cannot be rendered."""

@@ -89,7 +89,8 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
                         "(its worker was lost or timed out each time)")
         return "failed"
 
-    store.mark_started(job_id)
+    if meta.status == "queued":  # the job's first pass (one round trip fewer for the others)
+        store.mark_started(job_id)
     store.set_tile_running(job_id, tile)
     state.set_task(f"{job_id}/{tile}/{pass_index}")
     try:
@@ -126,11 +127,13 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
 
     store = state.store
     job_id = meta.id
-    scene_json = store.get_scene(job_id)
-    if scene_json is None:
-        return "skipped: no scene"
+    compiled = state.cached(job_id)
     try:
-        compiled = state.compiled(job_id, scene_json)
+        if compiled is None:
+            scene_json = store.get_scene(job_id)
+            if scene_json is None:
+                return "skipped: no scene"
+            compiled = state.compiled(job_id, scene_json)
     except (SceneError, CompileError) as err:
         # Not renderable, whichever tile asks: fail the job with the reason, keep the worker.
         store.fail_job(job_id, str(err))

@@ -14,6 +14,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
+# The first bytes of a serialized buffer (``SampleBuffer.to_bytes``), format 1.
+MAGIC = b"LSB1\0\0\0\0"
+_HEADER = len(MAGIC) + 16  # the magic, then x0, y0, height, width as int32
+
 
 @dataclass
 class SampleBuffer:
@@ -83,15 +87,45 @@ class SampleBuffer:
         return int(self.dropped.sum())
 
     def to_bytes(self) -> bytes:
-        """A compact, pickle-free serialization (numpy's .npz format)."""
-        out = io.BytesIO()
-        np.savez(out, origin=np.array([self.x0, self.y0]), sum=self.sum, sum_sq=self.sum_sq,
-                 count=self.count, dropped=self.dropped)
-        return out.getvalue()
+        """A compact, pickle-free serialization: a 24-byte header (``MAGIC``, then x0, y0,
+        height, width as little-endian int32) and the four arrays' raw little-endian bytes, in
+        the order sum, sum_sq (float64), count, dropped (int64).
+
+        The farm writes and reads one of these per pass and three per merge; numpy's ``.npz``
+        (a zip archive of .npy files) took 0.7 ms to write and 1.7 ms to read for a 32-px tile,
+        ~5 ms of a task's ~10 ms overhead; this format takes a few microseconds.
+        """
+        h, w = self.height, self.width
+        header = np.array([self.x0, self.y0, h, w], "<i4").tobytes()
+        return b"".join((MAGIC, header,
+                         np.ascontiguousarray(self.sum, "<f8").tobytes(),
+                         np.ascontiguousarray(self.sum_sq, "<f8").tobytes(),
+                         np.ascontiguousarray(self.count, "<i8").tobytes(),
+                         np.ascontiguousarray(self.dropped, "<i8").tobytes()))
 
     @classmethod
     def from_bytes(cls, data: bytes) -> SampleBuffer:
-        with np.load(io.BytesIO(data), allow_pickle=False) as z:
-            x0, y0 = (int(v) for v in z["origin"])
-            return cls(x0=x0, y0=y0, sum=z["sum"], sum_sq=z["sum_sq"], count=z["count"],
-                       dropped=z["dropped"])
+        """Read ``to_bytes``'s format, or the ``.npz`` of earlier versions (still read: pass
+        buffers and accumulations that a running farm stored before an upgrade). The arrays are
+        writable copies. Raises ``ValueError`` for anything else, whatever its length."""
+        if data[:2] == b"PK":  # a zip: the .npz format of earlier versions
+            with np.load(io.BytesIO(data), allow_pickle=False) as z:
+                x0, y0 = (int(v) for v in z["origin"])
+                return cls(x0=x0, y0=y0, sum=z["sum"], sum_sq=z["sum_sq"], count=z["count"],
+                           dropped=z["dropped"])
+        if data[:len(MAGIC)] != MAGIC or len(data) < _HEADER:
+            raise ValueError("not a sample buffer (bad magic or truncated header)")
+        x0, y0, h, w = (int(v) for v in np.frombuffer(data, "<i4", 4, len(MAGIC)))
+        if h < 0 or w < 0 or len(data) != _HEADER + 64 * h * w:
+            raise ValueError(f"a sample buffer of {len(data)} bytes cannot hold {w}x{h} pixels")
+        n = h * w
+        at = [_HEADER]
+
+        def take(dtype: str, count: int, shape: tuple[int, ...]) -> np.ndarray:
+            arr = np.frombuffer(data, dtype, count, at[0]).reshape(shape).astype(dtype[1:])
+            at[0] += 8 * count
+            return arr
+
+        return cls(x0=x0, y0=y0, sum=take("<f8", 3 * n, (h, w, 3)),
+                   sum_sq=take("<f8", 3 * n, (h, w, 3)), count=take("<i8", n, (h, w)),
+                   dropped=take("<i8", n, (h, w)))

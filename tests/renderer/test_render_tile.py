@@ -2,13 +2,14 @@
 
 from __future__ import annotations
 
+import io
 import json
 from pathlib import Path
 
 import numpy as np
 import pytest
 
-from renderer.film.buffer import SampleBuffer
+from renderer.film.buffer import MAGIC, SampleBuffer
 from renderer.integrators.path import render_tile_kernel
 from renderer.render import render, render_buffer, render_tile
 from renderer.scene import load_scene
@@ -82,6 +83,35 @@ def test_buffer_serialization_round_trip(glass):
     assert (b.x0, b.y0) == (1, 2)
     for name in ("sum", "sum_sq", "count", "dropped"):
         np.testing.assert_array_equal(getattr(a, name), getattr(b, name))
+        assert getattr(b, name).dtype == getattr(a, name).dtype
+        assert getattr(b, name).flags.writeable  # the merger adds into it
+    # The layout is the documented one: header, then the raw little-endian arrays.
+    data = a.to_bytes()
+    assert data[:8] == MAGIC and len(data) == 24 + 4 * 5 * (3 * 8 + 3 * 8 + 8 + 8)
+    assert np.frombuffer(data, "<i4", 4, 8).tolist() == [1, 2, 4, 5]
+    np.testing.assert_array_equal(np.frombuffer(data, "<f8", 60, 24).reshape(4, 5, 3), a.sum)
+    b.add(a)  # writable: merging into a decoded buffer works
+    np.testing.assert_array_equal(b.count, 2 * a.count)
+
+
+def test_buffers_stored_as_npz_by_earlier_versions_are_still_read(glass):
+    a = render_tile(glass, 1, 2, 5, 4, 0, 2)
+    out = io.BytesIO()
+    np.savez(out, origin=np.array([1, 2]), sum=a.sum, sum_sq=a.sum_sq, count=a.count,
+             dropped=a.dropped)
+    b = SampleBuffer.from_bytes(out.getvalue())
+    assert (b.x0, b.y0) == (1, 2)
+    np.testing.assert_array_equal(b.sum, a.sum)
+    np.testing.assert_array_equal(b.count, a.count)
+
+
+@pytest.mark.parametrize("cut", [0, 7, 23, 24, 100, -1])
+def test_a_truncated_or_foreign_buffer_is_a_value_error(glass, cut):
+    data = render_tile(glass, 1, 2, 5, 4, 0, 2).to_bytes()
+    with pytest.raises(ValueError):
+        SampleBuffer.from_bytes(data[:cut] if cut >= 0 else data + b"x")
+    with pytest.raises(ValueError):
+        SampleBuffer.from_bytes(b"\x93NUMPY" + data[8:])  # a bare .npy or anything else
 
 
 def test_tile_outside_the_frame_is_refused(glass):
