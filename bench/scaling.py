@@ -4,8 +4,9 @@ worker node runs in its own network namespace, so that every byte between it and
 real network interface (a veth pair).
 
     flock /tmp/lucent-cpu.lock .venv/bin/python -m bench.scaling \\
-        [--scene examples/cornell_box.json] [--workers 1,2] [--tiles 32,64] [--passes 8,16,8-64] \\
-        [--repeats 3] [--per-node 1] [--netns [--subnet 10.213.0.0/24]] [--csv out.csv]
+        [--scene examples/cornell_box.json] [--spp N] [--workers 1,2] [--tiles 32,64] \\
+        [--passes 8,16,8-64] [--repeats 3] [--per-node 1] [--netns [--subnet 10.213.0.0/24]] \\
+        [--csv out.csv]
 
 For each worker count the benchmark starts an embedded Redis and ``N / --per-node`` worker nodes
 (``celery … worker --concurrency per-node``, one numba thread a process, as ``lucent worker``
@@ -322,6 +323,7 @@ def _raise_exit(signum: int, _frame: object) -> None:
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--scene", default="examples/cornell_box.json")
+    parser.add_argument("--spp", type=int, help="render.spp instead of the scene's")
     parser.add_argument("--workers", type=_ints, default=[1, 2],
                         help="worker process counts, e.g. 1,2,4,8,16 (default 1,2)")
     parser.add_argument("--tiles", type=_ints, default=[32, 64], help="tile sizes in pixels")
@@ -340,6 +342,8 @@ def main(argv: list[str] | None = None) -> None:
     # SIGTERM unwinds like Ctrl-C, so that workers, Redis and namespaces are cleaned up.
     signal.signal(signal.SIGTERM, _raise_exit)
     scene = json.loads(Path(args.scene).read_text())
+    if args.spp:
+        scene["render"]["spp"] = args.spp
     shapes = [(t, p, m) for t in args.tiles for p, m in args.passes]
     mode = (f"netns: every worker node in its own network namespace ({args.subnet})"
             if args.netns else "loopback: workers and Redis on 127.0.0.1")
