@@ -30,7 +30,7 @@ def main() -> None:
     with DashboardFarm(workers=2) as farm, httpx.Client(base_url=farm.url, timeout=60) as api, \
             sync_playwright() as pw:
         half = {"width": 160, "height": 120}
-        done = farm.submit(api, "cornell_box", tile_size=32, spp_per_pass=16)
+        done = farm.submit(api, "cornell_box", tile_size=32)  # the default passes: 8-64 spp
         farm.wait(api, done["id"])
         glass = farm.submit(api, "glass_sphere", film=half, spp=32, tile_size=32)
         farm.wait(api, glass["id"])

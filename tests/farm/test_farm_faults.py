@@ -172,8 +172,11 @@ def _submit(api: TestClient, scene: dict, tile_size: int, spp_per_pass: int) -> 
 
 
 def _finished(store: JobStore, job_id: str, timeout: float = TIMEOUT) -> str:
-    return _until(lambda: (s := store.get_status(job_id)) in ("done", "failed", "cancelled")
-                  and s, timeout, f"job {job_id} to finish", interval=0.1)
+    try:
+        return _until(lambda: (s := store.get_status(job_id)) in ("done", "failed", "cancelled")
+                      and s, timeout, f"job {job_id} to finish", interval=0.1)
+    except AssertionError as err:  # say what it waits for
+        raise AssertionError(f"{err}: {_stuck(store, job_id)}") from None
 
 
 def _assert_nothing_lost(api: TestClient, store: JobStore, job_id: str, scene: dict) -> None:
@@ -197,8 +200,10 @@ def _stuck(store: JobStore, job_id: str) -> str:
     merged = {m.decode() for m in store.r.smembers(store.k("job", job_id, "merged"))}
     missing = [f"{t}:{p}" for t, p in meta.plan.order() if f"{t}:{p}" not in merged]
     tries = _attempts(store, job_id)
+    queued = {key: n for key in ["celery"] + [f"celery:{level}" for level in range(1, 10)]
+              if (n := store.r.llen(key))}
     return (f"{meta.status}, not merged: {[(m, tries.get(m)) for m in missing]}, "
-            f"queued {store.r.llen('celery')}, unacked {store.r.hlen('unacked')}")
+            f"queued {queued}, unacked {store.r.hlen('unacked')}")
 
 
 def _attempts(store: JobStore, job_id: str) -> dict[str, int]:
@@ -551,7 +556,11 @@ def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
                    "a third of the job")
             server = _restart_redis(server, appendonly=True)
             assert store.get_job(job_id).tasks_merged >= total // 3  # nothing merged was lost
-            assert _finished(store, job_id) == "done", nodes.logs()
+            try:
+                status = _finished(store, job_id)
+            except AssertionError as err:
+                raise AssertionError(f"{err}\n{nodes.logs()}") from None
+            assert status == "done", nodes.logs()
             assert node.poll() is None
             _assert_nothing_lost(api, store, job_id, scene)
     finally:
