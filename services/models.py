@@ -44,8 +44,10 @@ class JobPublic(BaseModel):
     spp: int
     tile_size: int
     spp_per_pass: int
-    max_spp_per_pass: int
+    max_spp_per_pass: int = Field(description="the largest pass allowed")
     passes: int = Field(description="passes per tile")
+    largest_pass: int = Field(description="samples of the job's largest pass (at most "
+                                          "max_spp_per_pass)")
     tiles: int
     tasks_total: int
     tasks_merged: int

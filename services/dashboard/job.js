@@ -185,8 +185,8 @@ export function renderJob(view, jobId) {
     const rows = [
       ["Size", `${job.width}×${job.height}, ${job.spp} spp`],
       ["Tiles × passes", `${job.tiles} × ${job.passes} (${job.tile_size} px, `
-        + (job.max_spp_per_pass > job.spp_per_pass
-          ? `${job.spp_per_pass}–${job.max_spp_per_pass} spp a pass)`
+        + (job.largest_pass > job.spp_per_pass
+          ? `${job.spp_per_pass}–${job.largest_pass} spp a pass)`
           : `${job.spp_per_pass} spp a pass)`)],
       ["Passes merged", `${job.tasks_merged} / ${job.tasks_total}`],
       ["Samples/s", fmtRate(job.samples_per_second)],

@@ -92,6 +92,8 @@ def test_submit_an_example_and_watch_it_reach_100_percent(dashboard, page, artif
     page.select_option("#colour-by", "samples")
     assert page.inner_text("#tile-legend").endswith("64 spp")
     assert page.inner_text("#job-methods").startswith("None reported")
+    # FAST's first pass of 16 samples, then 16 and 32: the passes as they are, not the cap.
+    assert "20 × 3 (32 px, 16–32 spp a pass)" in page.inner_text("#job-facts")
     shot(page, artifacts, "job")
     no_page_errors(page)
 

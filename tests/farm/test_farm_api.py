@@ -181,10 +181,10 @@ def test_a_submission_gets_growing_passes_by_default(client, tiny_scene):
     job = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32}).json()
     # 8, 8, 16, 32 samples: 4 passes of 1 tile (the default first pass 8, largest 64)
     assert (job["spp_per_pass"], job["max_spp_per_pass"], job["passes"]) == (8, 64, 4)
-    assert job["tasks_total"] == 4
+    assert job["tasks_total"] == 4 and job["largest_pass"] == 32
     equal = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32,
                                            "spp_per_pass": 8, "max_spp_per_pass": 8}).json()
-    assert (equal["passes"], equal["tasks_total"]) == (8, 8)
+    assert (equal["passes"], equal["tasks_total"], equal["largest_pass"]) == (8, 8, 8)
     # A first pass above the default largest is the largest too.
     big = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32,
                                          "spp_per_pass": 128}).json()
