@@ -140,11 +140,11 @@ def _find_libllvm() -> str | None:
         candidates.append(found if os.path.isabs(found) else f"/usr/lib/x86_64-linux-gnu/{found}")
     for libdir in ("/usr/lib/x86_64-linux-gnu", "/usr/lib64", "/usr/lib", "/usr/local/lib"):
         candidates += glob.glob(os.path.join(libdir, "libLLVM*.so*"))
-    usable = [(_llvm_major(p) or 0, p) for p in candidates
-              if os.path.isfile(p) and (_llvm_major(p) or 0) >= _MIN_LLVM]
+    majors = {p: _llvm_major(p) or 0 for p in candidates if os.path.isfile(p)}
+    usable = [p for p, major in majors.items() if major >= _MIN_LLVM]
     if not usable:
         return None
-    path = max(usable, key=lambda vp: vp[0])[1]
+    path = max(usable, key=majors.__getitem__)
     # Must be set before Dr.Jit initialises its LLVM backend.
     os.environ["DRJIT_LIBLLVM_PATH"] = path
     return path

@@ -32,11 +32,16 @@ class Plan:
     max_spp_per_pass: int = 0
     """The largest pass; 0 or anything up to ``spp_per_pass``: every pass ``spp_per_pass``."""
 
+    @property
+    def pass_cap(self) -> int:
+        """The largest pass allowed: ``max_spp_per_pass``, never below ``spp_per_pass``."""
+        return max(1, self.spp_per_pass, self.max_spp_per_pass)
+
     @cached_property
     def passes(self) -> tuple[tuple[int, int], ...]:
         """``(sample_start, sample_count)`` of every pass of a tile, in order."""
         base = max(1, self.spp_per_pass)
-        cap = max(base, self.max_spp_per_pass)
+        cap = self.pass_cap
         out = []
         start = 0
         while start < self.spp:

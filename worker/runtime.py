@@ -71,10 +71,9 @@ class WorkerState:
     def compiled(self, job_id: str, scene_json: dict):
         """The job's ``CompiledScene``, compiled once per process. Raises ``SceneError`` or
         ``CompileError`` for a scene that cannot be rendered."""
-        with self._lock:
-            if job_id in self._compiled:
-                self._compiled.move_to_end(job_id)
-                return self._compiled[job_id]
+        cached = self.cached(job_id)
+        if cached is not None:
+            return cached
         from renderer.scene import load_scene
         from renderer.scene.compile import compile_scene
 

@@ -535,6 +535,18 @@ def _restart_redis(server: EmbeddedRedis, appendonly: bool) -> EmbeddedRedis:
                          appendonly=appendonly).start()
 
 
+def _restart_redis_a_third_into_a_job(server: EmbeddedRedis, api: TestClient, store: JobStore,
+                                      scene: dict, appendonly: bool
+                                      ) -> tuple[EmbeddedRedis, str, int]:
+    """Submit the job (12 tiles x 32 passes = 384 tasks), restart Redis once a third of it is
+    merged; the new server, the job's id and its task count."""
+    job_id = _submit(api, scene, 16, 4)
+    total = store.get_job(job_id).plan.n_tasks
+    _until(lambda: store.get_job(job_id).tasks_merged >= total // 3, TIMEOUT,
+           "a third of the job")
+    return _restart_redis(server, appendonly=appendonly), job_id, total
+
+
 @pytest.mark.slow
 def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
     """With ``appendonly yes`` (the deploy files' Redis) a Redis killed and restarted mid-job
@@ -550,11 +562,8 @@ def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
         nodes.wait_warm(store, node, 2)
         scene = _scene(cornell, 64, 48, 128)
         with _api(server.url, prefix) as api:
-            job_id = _submit(api, scene, 16, 4)  # 12 tiles x 32 passes = 384 tasks
-            total = store.get_job(job_id).plan.n_tasks
-            _until(lambda: store.get_job(job_id).tasks_merged >= total // 3, TIMEOUT,
-                   "a third of the job")
-            server = _restart_redis(server, appendonly=True)
+            server, job_id, total = _restart_redis_a_third_into_a_job(server, api, store, scene,
+                                                                      appendonly=True)
             assert store.get_job(job_id).tasks_merged >= total // 3  # nothing merged was lost
             try:
                 status = _finished(store, job_id)
@@ -584,11 +593,8 @@ def test_redis_restarted_without_persistence_loses_the_job_clearly(tmp_path, pre
         nodes.wait_warm(store, node, 2)
         scene = _scene(cornell, 64, 48, 128)
         with _api(server.url, prefix) as api:
-            job_id = _submit(api, scene, 16, 4)
-            total = store.get_job(job_id).plan.n_tasks
-            _until(lambda: store.get_job(job_id).tasks_merged >= total // 3, TIMEOUT,
-                   "a third of the job")
-            server = _restart_redis(server, appendonly=False)
+            server, job_id, _ = _restart_redis_a_third_into_a_job(server, api, store, scene,
+                                                                  appendonly=False)
             assert api.get(f"/api/jobs/{job_id}").status_code == 404
             client = Client("http://testserver")
             client.http = api

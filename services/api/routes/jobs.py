@@ -58,7 +58,7 @@ def to_public(meta: JobMeta) -> JobPublic:
         id=meta.id, name=meta.name, status=meta.status, priority=meta.priority,  # type: ignore[arg-type]
         width=plan.width, height=plan.height, spp=plan.spp, tile_size=plan.tile_size,
         spp_per_pass=plan.spp_per_pass,
-        max_spp_per_pass=max(plan.spp_per_pass, plan.max_spp_per_pass), passes=plan.n_passes,
+        max_spp_per_pass=plan.pass_cap, passes=plan.n_passes,
         largest_pass=max(count for _, count in plan.passes),
         tiles=plan.n_tiles, tasks_total=plan.n_tasks,
         tasks_merged=meta.tasks_merged, samples_planned=meta.samples_planned,
