@@ -6,6 +6,14 @@
   NaN checks on samples); fastmath would let LLVM assume neither exists.
 - ``error_model="numpy"``: division by zero gives inf/NaN instead of raising, as the slab test and
   the dropped-sample accounting expect.
+- ``_nrt=False`` for the serial kernels (every device function of the tracer): numba's runtime
+  reference-counts every array it takes out of the ``SceneArrays`` tuple, an atomic increment and
+  decrement per access, hundreds of them in ``trace_path``. The kernels only borrow the arrays
+  their caller owns, so they run without the runtime: the render is bit-identical and 1.5x faster
+  (docs/performance.md, "Where the time goes"). Such a kernel cannot allocate an array (numba
+  refuses to compile it) and must not return one (its caller would release a reference it never
+  took: tests/renderer/test_jit.py checks every compiled signature). A serial kernel that
+  allocates is an ``alloc_kernel``; the parallel kernel keeps the runtime for its per-thread stacks.
 """
 
 from __future__ import annotations
@@ -16,10 +24,16 @@ JIT_OPTIONS = {"cache": True, "nogil": True, "fastmath": False, "error_model": "
 
 
 def kernel(fn):
-    """Compile ``fn`` as a serial numba kernel (or device function called from kernels)."""
-    return njit(**JIT_OPTIONS)(fn)
+    """Compile ``fn`` as a serial numba kernel (or device function called from kernels) that runs
+    without numba's runtime: it takes arrays, never allocates or returns one."""
+    return njit(_nrt=False, **JIT_OPTIONS)(fn)
 
 
 def parallel_kernel(fn):
     """Compile ``fn`` as a numba kernel whose ``prange`` loops run on numba's thread pool."""
     return njit(parallel=True, **JIT_OPTIONS)(fn)
+
+
+def alloc_kernel(fn):
+    """Compile ``fn`` as a serial kernel that allocates arrays (needs numba's runtime)."""
+    return njit(**JIT_OPTIONS)(fn)

@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from renderer.geometry.shapes import INF, intersect_prim
-from renderer.jit import kernel
+from renderer.jit import alloc_kernel, kernel
 
 N_BUCKETS = 16
 MAX_LEAF = 8
@@ -35,7 +35,7 @@ def _centroid(lo, hi, i, axis):
     return 0.5 * (lo[i, axis] + hi[i, axis])
 
 
-@kernel
+@alloc_kernel
 def build_bvh(lo, hi):
     """Build over primitive bounds ``lo``/``hi`` (n, 3). Returns the node arrays and the order.
 
@@ -333,7 +333,7 @@ def occluded(bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis, prim_kind, prim_ge
     return False
 
 
-@kernel
+@alloc_kernel
 def bvh_depth(node_offset, node_count):
     """The deepest level of the tree: the traversal stack never holds more entries than this."""
     n = node_offset.shape[0]

@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from renderer.jit import kernel
+from renderer.jit import alloc_kernel, kernel
 
 SPHERE = 0
 QUAD = 1
@@ -140,7 +140,7 @@ def spawn_offset(p, n, w, prim_scale):
     return (p[0] + eps * n[0], p[1] + eps * n[1], p[2] + eps * n[2])
 
 
-@kernel
+@alloc_kernel
 def prim_bounds(kind, geo):
     """Axis-aligned bounds (lo, hi), each (n, 3), of every primitive.
 

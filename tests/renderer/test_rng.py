@@ -13,13 +13,13 @@ import math
 import numpy as np
 import pytest
 
-from renderer.jit import kernel
+from renderer.jit import alloc_kernel
 from renderer.rng import mix64, sample_key, uniform
 
 N_PIX, N_SAMP, N_DIM = 1000, 250, 4  # 10⁶ values in all
 
 
-@kernel
+@alloc_kernel
 def _table(seed, pixel0, n_pix, sample0, n_samp, n_dim):
     """uniform(sample_key(seed, pixel, sample), dim) for a block of pixels, samples and dims."""
     out = np.empty((n_pix, n_samp, n_dim))
@@ -31,7 +31,7 @@ def _table(seed, pixel0, n_pix, sample0, n_samp, n_dim):
     return out
 
 
-@kernel
+@alloc_kernel
 def _keys(seed, n_pix, n_samp):
     out = np.empty(n_pix * n_samp, np.uint64)
     for i in range(n_pix):

@@ -25,7 +25,7 @@ import numpy as np
 import pytest
 
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, intersect_prim, surface_point
-from renderer.jit import kernel
+from renderer.jit import alloc_kernel
 from renderer.lights import AREA, BACKGROUND, POINT, area_light_pdf, sample_light
 from renderer.materials.bsdf import DIFFUSE, PHONG, bsdf_eval, bsdf_pdf, bsdf_sample
 from renderer.sampling import (
@@ -48,7 +48,7 @@ COSINE, SPHERE_WARP, CONE, PHONG_LOBE = 0, 1, 2, 3
 # --- numba loops: call one kernel N times --------------------------------------------------------
 
 
-@kernel
+@alloc_kernel
 def _warp_many(which, u, param):
     n = u.shape[0]
     out = np.empty((n, 3))
@@ -67,7 +67,7 @@ def _warp_many(which, u, param):
     return out
 
 
-@kernel
+@alloc_kernel
 def _warp_pdf_many(which, w, param):
     """The renderer's own pdf of each direction (about +z)."""
     n = w.shape[0]
@@ -84,7 +84,7 @@ def _warp_pdf_many(which, w, param):
     return out
 
 
-@kernel
+@alloc_kernel
 def _triangle_many(u):
     n = u.shape[0]
     out = np.empty((n, 2))
@@ -95,7 +95,7 @@ def _triangle_many(u):
     return out
 
 
-@kernel
+@alloc_kernel
 def _discrete_many(cdf, u):
     out = np.empty(u.shape[0], np.int64)
     for i in range(u.shape[0]):
@@ -103,7 +103,7 @@ def _discrete_many(cdf, u):
     return out
 
 
-@kernel
+@alloc_kernel
 def _bsdf_sample_many(kind, param, wo, n, u):
     """wi (NaN where ok is False), weight, pdf and ok of bsdf_sample for each row (uc, u1, u2)."""
     m = u.shape[0]
@@ -125,7 +125,7 @@ def _bsdf_sample_many(kind, param, wo, n, u):
     return wi_out, weight, pdf, ok
 
 
-@kernel
+@alloc_kernel
 def _bsdf_eval_pdf_many(kind, param, wo, n, wi):
     """bsdf_eval (f·cos θi) and bsdf_pdf for each row of wi."""
     m = wi.shape[0]
@@ -141,7 +141,7 @@ def _bsdf_eval_pdf_many(kind, param, wo, n, wi):
     return f, pdf
 
 
-@kernel
+@alloc_kernel
 def _light_sample_many(light_kind, light_prim, light_data, light_cdf, light_pmf, prim_kind,
                        prim_geo, p, u):
     m = u.shape[0]
@@ -162,7 +162,7 @@ def _light_sample_many(light_kind, light_prim, light_data, light_cdf, light_pmf,
     return wi_out, li_out, pdf, t_max, delta
 
 
-@kernel
+@alloc_kernel
 def _area_light_pdf_many(light_pmf, li, kind, geo, p, w):
     """area_light_pdf of the point each direction w reaches on the light (0 where it misses)."""
     m = w.shape[0]
@@ -176,7 +176,7 @@ def _area_light_pdf_many(light_pmf, li, kind, geo, p, w):
     return out
 
 
-@kernel
+@alloc_kernel
 def _area_light_pdf_at(light_pmf, li, kind, geo, p, wi, t):
     """area_light_pdf at the points p + t·wi the light sampler chose, normals from the shape."""
     m = wi.shape[0]

@@ -36,7 +36,7 @@ from renderer.geometry.shapes import (
     prim_bounds,
     surface_point,
 )
-from renderer.jit import kernel
+from renderer.jit import alloc_kernel
 
 # --- reference: exact sphere roots ---------------------------------------------------------------
 
@@ -204,7 +204,7 @@ def test_triangle_barycentrics_and_normals(rng):
 # --- BVH ------------------------------------------------------------------------------------------
 
 
-@kernel
+@alloc_kernel
 def _brute_closest(prim_kind, prim_geo, o, d, t_max):
     """The closest hit over all primitives, in index order, with the BVH's strict t < best rule."""
     best_t = t_max
@@ -219,7 +219,7 @@ def _brute_closest(prim_kind, prim_geo, o, d, t_max):
     return best_t, best, best_u, best_v
 
 
-@kernel
+@alloc_kernel
 def _compare_many(bvh, prim_kind, prim_geo, origins, dirs, t_max_factor):
     """(t, prim, u, v) of the BVH and of brute force for every ray, and occluded() against a
     t_max of t_max_factor × the brute-force t (inf when the ray misses)."""

@@ -26,7 +26,7 @@ import numpy as np
 import pytest
 from scipy import integrate, optimize
 
-from renderer.jit import kernel
+from renderer.jit import alloc_kernel
 from renderer.materials.burley import (
     burley_cdf,
     burley_d,
@@ -52,7 +52,7 @@ U_ALL = np.concatenate([U_EDGES, np.linspace(0.0, 1.0, 1001)[:-1], np.geomspace(
 # --- numba loops and NumPy references -------------------------------------------------------------
 
 
-@kernel
+@alloc_kernel
 def _radii(u, d):
     out = np.empty(u.shape[0])
     for i in range(u.shape[0]):
@@ -60,7 +60,7 @@ def _radii(u, d):
     return out
 
 
-@kernel
+@alloc_kernel
 def _points(u, d):
     out = np.empty((u.shape[0], 2))
     for i in range(u.shape[0]):
@@ -70,7 +70,7 @@ def _points(u, d):
     return out
 
 
-@kernel
+@alloc_kernel
 def _pdf_area_many(p, d):
     out = np.empty(p.shape[0])
     for i in range(p.shape[0]):

@@ -20,14 +20,14 @@ import math
 import numpy as np
 import pytest
 
-from renderer.jit import kernel
+from renderer.jit import alloc_kernel
 from renderer.materials.diffuse import diffuse_eval
 from renderer.materials.phong import phong_eval, phong_sample
 
 NORMAL = tuple(np.array([-0.4, 0.1, 0.9]) / np.linalg.norm([-0.4, 0.1, 0.9]))
 
 
-@kernel
+@alloc_kernel
 def _albedo(param, wo, n, t, b, mu, mu_w, n_phi, diffuse):
     """ρ(wo) per channel: Σ over Gauss–Legendre nodes mu (weights mu_w, on [0, 1]) × n_phi
     midpoints of φ of eval(wo, wi), wi = sinθ(cosφ t + sinφ b) + cosθ n."""
@@ -48,7 +48,7 @@ def _albedo(param, wo, n, t, b, mu, mu_w, n_phi, diffuse):
     return acc * dphi
 
 
-@kernel
+@alloc_kernel
 def _mean_weight(param, wo, n, u):
     """Mean and per-channel variance of phong_sample's weight over the rows (uc, u1, u2) of u;
     a refused sample weighs 0."""
