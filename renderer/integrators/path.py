@@ -420,8 +420,14 @@ def trace_path(S, o, d, key, stack, max_depth):
             # direction; the rest (1 − F, cancelled by its probability) goes under the surface.
             f_o, _ = fresnel_dielectric(cos_o, mp[0])
             if uniform(key, dim + 3) >= f_o:
-                ok, p_o, n_o, prim_o, w = diffusion_probe(S, mat, p, n, mp,
-                                                          key ^ np.uint64(dim), stack)
+                if mp[10] > 0.0:
+                    # Effectively opaque (auto, renderer/materials/opaque.py): the profile is
+                    # narrower than a pixel, so the light leaves where it entered, with
+                    # probability A: the separable BSSRDF's zero-radius limit, a BRDF
+                    ok, p_o, n_o, prim_o, w = True, p, n, prim, (mp[12], mp[13], mp[14])
+                else:
+                    ok, p_o, n_o, prim_o, w = diffusion_probe(S, mat, p, n, mp,
+                                                              key ^ np.uint64(dim), stack)
                 if not ok:
                     break
                 br *= w[0]

@@ -9,19 +9,29 @@ the method's expected error. A method is chosen only if that is at or below the 
 ``render.target_error`` (default ``DEFAULT_TARGET``), cheapest first; otherwise ``volumetric``,
 the unbiased reference, which reaches any target given time.
 
-Two regimes need no subsurface model at all, and are rendered as what they are:
+Three regimes need no subsurface model at all, and are rendered as what they are:
 - albedo 0 everywhere: nothing scatters, so the medium is exactly an absorbing glass (Beer–Lambert
   with σa = density): a ``dielectric``, no error;
 - effectively clear: the optical size τ = density × size is so small that the fraction of light that
   scatters, ≈ albedo·τ, is below the target: a ``dielectric`` with σa = density·(1 − albedo) (the
-  little scattered light is taken to go on forward).
+  little scattered light is taken to go on forward);
+- effectively opaque: 99 % of the light that enters leaves again within a pixel of where it went
+  in (the radius of the ``diffusion`` method's profile that holds 99 % of its energy, against the
+  width of a pixel at the object's distance from the camera) and within a tenth of the object's
+  size: an opaque surface, a Fresnel coat over the semi-infinite medium's exact albedo
+  (renderer/materials/opaque.py), whose error against ``volumetric`` on dense spheres is
+  ``OPAQUE_ERROR`` (``python -m bench.opaque``, docs/images/accuracy/opaque.csv).
 """
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 
 import numpy as np
+
+from renderer.materials.burley import burley_r_max
+from renderer.materials.diffusion import diffusion_parameters
 
 DEFAULT_TARGET = 0.01
 
@@ -32,6 +42,10 @@ DEFAULT_TARGET = 0.01
 # (2.2), by the backlit slab for diffusion (0.41). tests/renderer/materials/test_auto_evidence.py
 # ties these numbers to the committed CSV.
 BIAS_FLOOR = {"backlight": 0.474, "diffusion": 0.41, "single_scatter": 2.21}
+# Largest object relMSE of the opaque surface against volumetric over the dense spheres of
+# docs/images/accuracy/opaque.csv (tests/renderer/materials/test_opaque.py ties it to the CSV).
+OPAQUE_ERROR = 0.00847
+OPAQUE_QUANTILE = 0.99  # of the profile's energy that must leave within a pixel
 
 
 @dataclass
@@ -41,9 +55,24 @@ class AutoChoice:
     expected_error: float
 
 
-def choose_method(albedo, density: float, size: float, target: float | None) -> AutoChoice:
+def opaque_reach(albedo, density: float, g: float, ior: float) -> float:
+    """How far from its entry point ``OPAQUE_QUANTILE`` of the light that enters leaves: the
+    widest channel's diffusion profile radius holding that much of its energy."""
+    _, d, _ = diffusion_parameters(albedo, density, g, ior)
+    return max(float(burley_r_max(float(x), OPAQUE_QUANTILE)) for x in d)
+
+
+def opaque_limit(footprint: float, size: float) -> float:
+    """The reach below which a material is effectively opaque: a pixel, and a tenth of the
+    object (no light through it, none around its edges)."""
+    return min(footprint, 0.1 * size)
+
+
+def choose_method(albedo, density: float, size: float, target: float | None, *, g: float = 0.0,
+                  ior: float = 1.0, footprint: float = 0.0) -> AutoChoice:
     """The method ``auto`` renders a material with; ``size`` is the smallest half-extent of the
-    objects that use it (the radius of a sphere)."""
+    objects that use it (the radius of a sphere), ``footprint`` the width of a pixel at the
+    nearest of them (0: unknown, never opaque)."""
     target = DEFAULT_TARGET if target is None else target
     tau = density * size
     a = max(albedo)
@@ -54,6 +83,13 @@ def choose_method(albedo, density: float, size: float, target: float | None) -> 
     if a * tau <= target:
         return AutoChoice("dielectric", f"{where}: effectively clear, scattered fraction "
                           f"{a * tau:.3g} <= target {target:g}", a * tau)
+    if footprint > 0.0 and OPAQUE_ERROR <= target:
+        reach = opaque_reach(albedo, density, g, ior)
+        if reach <= opaque_limit(footprint, size):
+            return AutoChoice("opaque", f"{where}: effectively opaque, {OPAQUE_QUANTILE:.0%} of "
+                              f"the light leaves within {reach:.3g} of where it entered, under a "
+                              f"pixel ({footprint:.3g}); measured error {OPAQUE_ERROR:g} <= target "
+                              f"{target:g}", OPAQUE_ERROR)
     for method, floor in BIAS_FLOOR.items():
         if floor <= target:
             return AutoChoice(method, f"{where}: measured bias floor {floor:g} <= target "
@@ -74,13 +110,44 @@ def _object_half_extent(obj) -> float:
     return float(np.min(verts.max(axis=0) - verts.min(axis=0))) / 2
 
 
+def _bounding_sphere(obj) -> tuple[np.ndarray, float]:
+    if obj.type == "sphere":
+        return np.asarray(obj.center, dtype=np.float64), float(obj.radius)
+    if obj.type == "box":
+        from renderer.scene.compile import rotation_matrix  # compile imports this module
+
+        lo, hi = np.asarray(obj.min, np.float64), np.asarray(obj.max, np.float64)
+        c = (lo + hi) / 2
+        if obj.rotate is not None:
+            c = rotation_matrix(obj.rotate.axis, obj.rotate.angle) @ c
+        return c + np.asarray(obj.translate, np.float64), float(np.linalg.norm(hi - lo)) / 2
+    if obj.type == "quad":
+        o, e1, e2 = (np.asarray(v, np.float64) for v in (obj.origin, obj.edge1, obj.edge2))
+        return o + (e1 + e2) / 2, float(np.linalg.norm(e1 + e2)) / 2
+    verts, _ = obj.arrays()
+    lo, hi = verts.min(axis=0), verts.max(axis=0)
+    return (lo + hi) / 2, float(np.linalg.norm(hi - lo)) / 2
+
+
+def pixel_footprint(scene, objects) -> float:
+    """The height of one pixel at the nearest of ``objects`` (their bounding spheres), in scene
+    units; 0 when the camera is inside one."""
+    cam = scene.camera
+    pos = np.asarray(cam.position, dtype=np.float64)
+    dist = min((float(np.linalg.norm(c - pos)) - r for c, r in map(_bounding_sphere, objects)),
+               default=0.0)
+    return max(dist, 0.0) * 2 * math.tan(math.radians(cam.fov) / 2) / scene.film.height
+
+
 def auto_choice(scene, name: str):
     """What ``method: "auto"`` picks for material ``name`` of a validated scene (cheap: no BVH),
     the same choice ``compile_scene`` renders: the farm's API reports it at submission."""
     m = scene.materials[name]
-    sizes = [_object_half_extent(o) for o in scene.objects if o.material == name]
+    objects = [o for o in scene.objects if o.material == name]
+    sizes = [_object_half_extent(o) for o in objects]
     return choose_method(m.albedo, m.density, min(sizes) if sizes else 0.0,
-                         scene.render.target_error)
+                         scene.render.target_error, g=m.g, ior=m.ior,
+                         footprint=pixel_footprint(scene, objects))
 
 
 def auto_choices(scene) -> dict:

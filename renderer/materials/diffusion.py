@@ -18,7 +18,8 @@ tangent with 1/4; the radius from one of the three channels' profiles), and the 
 by the multiple-importance density over all 9 axis×channel strategies (King et al., "BSSRDF
 Importance Sampling", 2013; as in pbrt-v3 and Cycles).
 
-Parameter layout in ``mat_param``: 0 ior, 1:4 albedo, 4 density, 5 g, 7 c, 12:15 A, 16:19 d.
+Parameter layout in ``mat_param``: 0 ior, 1:4 albedo, 4 density, 5 g, 7 c, 10 "opaque" flag (the
+zero-radius limit, renderer/materials/opaque.py), 12:15 A, 16:19 d.
 """
 
 from __future__ import annotations

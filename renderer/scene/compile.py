@@ -31,6 +31,7 @@ from renderer.materials.bsdf import (
     TRANSLUCENT,
 )
 from renderer.materials.diffusion import diffusion_parameters
+from renderer.materials.opaque import opaque_albedo
 from renderer.scene.schema import DielectricMaterial
 
 SceneArrays = namedtuple(
@@ -110,7 +111,19 @@ def _resolve_auto(scene, name: str, m):
     if choice.method == "dielectric":
         absorption = tuple(float(m.density * (1.0 - a)) for a in m.albedo)
         return DielectricMaterial(ior=m.ior, absorption=absorption), choice
+    if choice.method == "opaque":
+        return m.model_copy(update={"method": "diffusion"}), choice
     return m.model_copy(update={"method": choice.method}), choice
+
+
+def _opaque_row(m) -> np.ndarray:
+    """The ``diffusion`` row of an effectively opaque material, switched to its zero-radius limit
+    (renderer/materials/opaque.py): A is the semi-infinite medium's albedo from a walk, not the
+    dipole's."""
+    _, p = _material_row("", m)
+    p[10] = 1.0
+    p[12:15] = [opaque_albedo(a, m.g, m.ior) for a in m.albedo]
+    return p
 
 
 def _material_row(name: str, m) -> tuple[int, np.ndarray]:
@@ -193,6 +206,8 @@ def compile_scene(scene) -> CompiledScene:
         if m.type == "translucent" and m.method == "auto":
             m, auto[name] = _resolve_auto(scene, name, m)
         mat_kind[i], mat_param[i] = _material_row(name, m)
+        if name in auto and auto[name].method == "opaque":
+            mat_param[i] = _opaque_row(m)
 
     # Objects → primitives
     kinds, geos, mats, emissions = [], [], [], []
