@@ -13,11 +13,13 @@ extrapolated from the first rung as error ∝ 1/time when even that one is below
 renderer whose error stops falling above the target (a biased method's floor) never reaches it and
 is reported so, with its floor.
 
-Renderers: Mitsuba 3 ``llvm_ad_rgb`` (``path`` / ``volpath`` through ``renderer.mitsuba_bridge``),
-Lucent as the example is written (the ``volumetric`` method for the translucent scenes), and Lucent
-with every translucent material switched to ``method: auto`` (what the farm does when the user does
-not choose). Both renderers use all cores. Mitsuba is an optional extra: without it the target is
-Lucent's own error at ``--target-spp``. Record results in docs/performance.md.
+Renderers: Mitsuba 3 ``llvm_ad_rgb`` (``path`` / ``volpath`` through ``renderer.mitsuba_bridge``)
+with its default ``independent`` sampler (the target's) and with ``ldsampler`` (its (0,2)-sequence
+sampler), Lucent as the example is written (the ``volumetric`` method for the translucent scenes),
+Lucent with ``render.sampler: sobol``, and Lucent with every translucent material switched to
+``method: auto`` (what the farm does when the user does not choose). Both renderers use all
+cores. Mitsuba is an optional extra: without it the target is Lucent's own error at
+``--target-spp``. Record results in docs/performance.md.
 """
 
 from __future__ import annotations
@@ -39,10 +41,14 @@ ROOT = Path(__file__).resolve().parents[1]
 DATA = ROOT / "tests" / "data"
 
 
-def scene_at_reference(name: str, ref: np.ndarray, method: str | None = None) -> dict:
-    """The example at the reference's resolution; ``method`` replaces every translucent method."""
+def scene_at_reference(name: str, ref: np.ndarray, method: str | None = None,
+                       sampler: str | None = None) -> dict:
+    """The example at the reference's resolution; ``method`` replaces every translucent method,
+    ``sampler`` sets ``render.sampler``."""
     scene = json.loads((ROOT / "examples" / f"{name}.json").read_text())
     scene["film"] = {"width": ref.shape[1], "height": ref.shape[0]}
+    if sampler is not None:
+        scene["render"]["sampler"] = sampler
     if method is not None:
         for material in scene["materials"].values():
             if material["type"] == "translucent":
@@ -124,10 +130,14 @@ def main() -> int:
         try:
             runs[f"mitsuba {args.variant}"] = ladder_mitsuba(
                 scene_at_reference(name, ref), args.ladder, args.variant)
+            runs[f"mitsuba {args.variant} ld"] = ladder_mitsuba(
+                scene_at_reference(name, ref, sampler="sobol"), args.ladder, args.variant)
         except ImportError as err:
             print(f"mitsuba not installed ({err}); pip install 'lucent-farm[mitsuba]'")
         base = scene_at_reference(name, ref)
         runs["lucent"] = ladder_lucent(base, args.ladder)
+        runs["lucent sobol"] = ladder_lucent(scene_at_reference(name, ref, sampler="sobol"),
+                                             args.ladder)
         if any(m["type"] == "translucent" for m in base["materials"].values()):
             runs["lucent auto"] = ladder_lucent(scene_at_reference(name, ref, "auto"),
                                                 args.ladder)

@@ -59,6 +59,8 @@ def cmd_render(args: argparse.Namespace) -> int:
         return 1
     if args.seed is not None:
         scene.render.seed = args.seed
+    if args.sampler is not None:
+        scene.render.sampler = args.sampler
     spp = args.spp if args.spp is not None else scene.render.spp
     if spp < 1:
         print("--spp must be >= 1", file=sys.stderr)
@@ -179,6 +181,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("-o", "--output", required=True, help="image file: .exr, .png, .pfm or .npy")
     p.add_argument("--spp", type=int, help="samples per pixel (default: the scene's render.spp)")
     p.add_argument("--seed", type=int, help="random seed (default: the scene's render.seed)")
+    p.add_argument("--sampler", choices=["independent", "sobol"],
+                   help="random numbers of a sample (default: the scene's render.sampler)")
     p.add_argument("--threads", type=int, help="render threads (default: all cores)")
     p.add_argument("--exposure", type=float, default=0.0,
                    help="PNG only: exposure in stops, the image is scaled by 2^EV (default 0)")

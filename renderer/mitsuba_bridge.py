@@ -26,7 +26,8 @@ Mapping (Lucent → Mitsuba 3)
    - ``hdrfilm``, ``rfilter="box"`` (radius 0.5: uniform jitter in the pixel square),
      ``pixel_format="rgb"``, ``component_format="float32"``.
  * - render {spp=64, seed=0}
-   - ``independent`` sampler, ``sample_count=spp``, ``seed``.
+   - ``independent`` sampler (``ldsampler`` for ``render.sampler: sobol``), ``sample_count=spp``,
+     ``seed``.
  * - render.max_depth (=-1)
    - Lucent counts scattering events (0 = emitters seen directly, 1 = direct lighting); Mitsuba
      counts path segments (1 = emitters only, 2 = direct). Mitsuba ``max_depth`` = Lucent + 1;
@@ -491,7 +492,8 @@ def to_mitsuba_dict(
         "fov": float(camera.get("fov", 39.0)),
         "to_world": mi.ScalarTransform4f(cam_to_world),
         "sampler": {
-            "type": "independent",
+            # Lucent's sobol sampler ↔ Mitsuba's (0,2)-sequence sampler with padding
+            "type": "ldsampler" if render.get("sampler") == "sobol" else "independent",
             "sample_count": int(render.get("spp", 64)),
             "seed": int(render.get("seed", 0)),
         },

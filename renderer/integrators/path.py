@@ -57,13 +57,15 @@ from renderer.materials.burley import (
 )
 from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.phase import hg_pdf, hg_sample
-from renderer.rng import mix64, sample_key, uniform
+from renderer.rng import block_seed, mix64, sample_key, sobol_sample, uniform
 from renderer.sampling import INV_4PI, phong_lobe, power_heuristic
 from renderer.vecmath import onb, to_world
 
 RR_DEPTH = 5
 RR_MAX = 0.95  # at surfaces; inside media the survival probability is not capped (see there)
 DIMS_PER_BOUNCE = 8
+PIXEL_SEED_SALT = np.uint64(0x5D1E5EEDC0FFEE11)
+SOBOL_VERTICES = 2  # vertices whose samples the sobol sampler stratifies
 # A guard against a path that never ends (a ray trapped between two perfect mirrors with
 # roulette surviving at 0.95 still ends, but only with probability one). Every scattering event
 # past RR_DEPTH survives with probability ≤ 0.95, so a path of 2¹⁸ segments (scattering events
@@ -265,8 +267,32 @@ def diffusion_probe(S, mat, p, n, mp, key, stack):
 
 
 @kernel
-def trace_path(S, o, d, key, stack, max_depth):
-    """Radiance arriving at o from direction −d along one sampled path. S is ``SceneArrays``."""
+def draw(S, key, dim, k, sidx, pseed):
+    """Value ``k`` of the block of dimensions that starts at ``dim``: independent (``uniform``),
+    except at the first ``SOBOL_VERTICES`` vertices under the sobol sampler, where the light
+    sample (k 0: the light, k 1-2: the point on it), the BSDF sample (k 3: the lobe, k 4-5: the
+    direction) and the free flight (k 7) of each vertex come from their own shuffled, scrambled
+    (0,2)-sequences (roulette, k 6, stays independent)."""
+    vertex = (dim - 2) // DIMS_PER_BOUNCE
+    if S.sampler[0] == 1 and vertex < SOBOL_VERTICES and k != 6:
+        base = 1 + 5 * vertex  # block 0 is the camera's
+        if k == 0:
+            return sobol_sample(sidx, block_seed(pseed, base), 0)
+        if k <= 2:
+            return sobol_sample(sidx, block_seed(pseed, base + 1), k - 1)
+        if k == 3:
+            return sobol_sample(sidx, block_seed(pseed, base + 2), 0)
+        if k <= 5:
+            return sobol_sample(sidx, block_seed(pseed, base + 3), k - 4)
+        return sobol_sample(sidx, block_seed(pseed, base + 4), 0)
+    return uniform(key, dim + k)
+
+
+@kernel
+def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
+    """Radiance arriving at o from direction −d along one sampled path. S is ``SceneArrays``;
+    ``sidx`` (the sample's index) and ``pseed`` (its pixel's seed) feed the sobol sampler's
+    first vertex (``draw``)."""
     lr = lg = lb = 0.0  # radiance gathered so far
     br = bg = bb = 1.0  # throughput β
     depth = 0  # scattering events so far
@@ -301,7 +327,7 @@ def trace_path(S, o, d, key, stack, max_depth):
         elif medium >= 0:
             mm = S.mat_param[medium]
             single = S.mat_kind[medium] == SINGLE_SCATTER
-            s_flight = -math.log(1.0 - uniform(key, dim + 7)) / mm[4]
+            s_flight = -math.log(1.0 - draw(S, key, dim, 7, sidx, pseed)) / mm[4]
             if s_flight < t:
                 if max_depth >= 0 and depth >= max_depth:
                     break
@@ -316,8 +342,8 @@ def trace_path(S, o, d, key, stack, max_depth):
                     # Index-matched boundary: light sampling from inside the medium
                     wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
                         S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf,
-                        S.prim_kind, S.prim_geo, p, uniform(key, dim), uniform(key, dim + 1),
-                        uniform(key, dim + 2))
+                        S.prim_kind, S.prim_geo, p, draw(S, key, dim, 0, sidx, pseed),
+                        draw(S, key, dim, 1, sidx, pseed), draw(S, key, dim, 2, sidx, pseed))
                     if pdf_l > 0.0:
                         if t_max < math.inf:
                             t_max *= 1.0 - SHADOW_SLACK
@@ -333,7 +359,8 @@ def trace_path(S, o, d, key, stack, max_depth):
                     unweighted = False
                 else:
                     unweighted = True
-                wi, prev_pdf = hg_sample(d, g, uniform(key, dim + 3), uniform(key, dim + 4))
+                wi, prev_pdf = hg_sample(d, g, draw(S, key, dim, 3, sidx, pseed),
+                                         draw(S, key, dim, 4, sidx, pseed))
                 prev_p = p
                 o = p
                 d = wi
@@ -342,7 +369,8 @@ def trace_path(S, o, d, key, stack, max_depth):
                     # No cap below 1 in a medium: at albedo 0.999 a walk needs hundreds of events,
                     # and a 0.95 cap would make their weight heavy-tailed (1/0.95^k) for nothing;
                     # the albedo itself brings β and so the survival probability down.
-                    alive, br, bg, bb = roulette(br, bg, bb, eta_scale, 1.0, uniform(key, dim + 6))
+                    alive, br, bg, bb = roulette(br, bg, bb, eta_scale, 1.0,
+                                                 draw(S, key, dim, 6, sidx, pseed))
                     if not alive:
                         break
                 dim += DIMS_PER_BOUNCE
@@ -396,7 +424,7 @@ def trace_path(S, o, d, key, stack, max_depth):
             continue
         skip_emission = False
 
-        if mk == SINGLE_SCATTER and (cos_o < 0.0 or uniform(key, dim + 3) >= mp[7]):
+        if mk == SINGLE_SCATTER and (cos_o < 0.0 or draw(S, key, dim, 3, sidx, pseed) >= mp[7]):
             # The seed paper's model: 1 − surface_fraction of the hits go in, straight on (the
             # paper does not refract), to scatter at most once inside; leaving is straight too.
             # Shadow rays see the same surface (transmittance()), so MIS stays consistent.
@@ -419,7 +447,7 @@ def trace_path(S, o, d, key, stack, max_depth):
             # Fresnel the boundary's bsdf_sample below uses) the generic code takes the mirror
             # direction; the rest (1 − F, cancelled by its probability) goes under the surface.
             f_o, _ = fresnel_dielectric(cos_o, mp[0])
-            if uniform(key, dim + 3) >= f_o:
+            if draw(S, key, dim, 3, sidx, pseed) >= f_o:
                 if mp[10] > 0.0:
                     # Effectively opaque (auto, renderer/materials/opaque.py): the profile is
                     # narrower than a pixel, so the light leaves where it entered, with
@@ -448,7 +476,8 @@ def trace_path(S, o, d, key, stack, max_depth):
         if n_lights > 0 and not delta:
             wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
                 S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf, S.prim_kind,
-                S.prim_geo, p, uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+                S.prim_geo, p, draw(S, key, dim, 0, sidx, pseed), draw(S, key, dim, 1, sidx, pseed),
+                draw(S, key, dim, 2, sidx, pseed))
             if pdf_l > 0.0:
                 f = bsdf_eval(mk, mp, wo, wi, n)
                 if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
@@ -473,7 +502,8 @@ def trace_path(S, o, d, key, stack, max_depth):
             # below would carry straight out to a light is not counted again (skip_emission)
             wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
                 S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf, S.prim_kind,
-                S.prim_geo, p, uniform(key, dim), uniform(key, dim + 1), uniform(key, dim + 2))
+                S.prim_geo, p, draw(S, key, dim, 0, sidx, pseed), draw(S, key, dim, 1, sidx, pseed),
+                draw(S, key, dim, 2, sidx, pseed))
             cos_l = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
             if pdf_l > 0.0 and cos_l > 0.0:
                 tr = surface_shadow(S, p, n, wi, t_max, scale, -1, null_media, stack)
@@ -485,8 +515,9 @@ def trace_path(S, o, d, key, stack, max_depth):
                     lb += bb * mp[3] * li_rgb[2] * w
 
         # Sample the BSDF for the next direction
-        wi, weight, pdf, ok = bsdf_sample(mk, mp, wo, n, uniform(key, dim + 3),
-                                          uniform(key, dim + 4), uniform(key, dim + 5))
+        wi, weight, pdf, ok = bsdf_sample(mk, mp, wo, n, draw(S, key, dim, 3, sidx, pseed),
+                                          draw(S, key, dim, 4, sidx, pseed),
+                                          draw(S, key, dim, 5, sidx, pseed))
         if not ok:
             break
         if mk == DIFFUSE_ENTRY:
@@ -494,7 +525,8 @@ def trace_path(S, o, d, key, stack, max_depth):
             if cos_o > 0.0 and into:
                 # The student project's rule: a ray that enters scatters at once, just inside,
                 # about its refracted direction (g is the bias), multiplied by the colour
-                ws, _ = hg_sample(wi, mp[5], uniform(key, dim + 4), uniform(key, dim + 5))
+                ws, _ = hg_sample(wi, mp[5], draw(S, key, dim, 4, sidx, pseed),
+                                  draw(S, key, dim, 5, sidx, pseed))
                 c = ws[0] * n[0] + ws[1] * n[1] + ws[2] * n[2]
                 if c > 0.0:  # keep it inside: mirror it about the surface
                     ws = (ws[0] - 2.0 * c * n[0], ws[1] - 2.0 * c * n[1], ws[2] - 2.0 * c * n[2])
@@ -503,7 +535,8 @@ def trace_path(S, o, d, key, stack, max_depth):
             elif cos_o > 0.0 and mp[8] > 0.0:
                 # Glossy coat: a normalized Phong lobe about the mirror direction, f·cos/pdf =
                 # (n + 2)/(n + 1)·cos θi
-                wg = to_world(phong_lobe(uniform(key, dim + 4), uniform(key, dim + 5), mp[8]), wi)
+                wg = to_world(phong_lobe(draw(S, key, dim, 4, sidx, pseed),
+                                         draw(S, key, dim, 5, sidx, pseed), mp[8]), wi)
                 c = wg[0] * n[0] + wg[1] * n[1] + wg[2] * n[2]
                 if c <= 0.0:
                     break
@@ -534,7 +567,8 @@ def trace_path(S, o, d, key, stack, max_depth):
 
         # Russian roulette
         if depth >= RR_DEPTH:
-            alive, br, bg, bb = roulette(br, bg, bb, eta_scale, RR_MAX, uniform(key, dim + 6))
+            alive, br, bg, bb = roulette(br, bg, bb, eta_scale, RR_MAX,
+                                         draw(S, key, dim, 6, sidx, pseed))
             if not alive:
                 break
         dim += DIMS_PER_BOUNCE
@@ -562,14 +596,23 @@ def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_sta
             continue
         x = x0 + col
         pixel = y * width + x
+        # The sobol sampler's scrambles of this pixel (a hash apart from every sample's key)
+        pixel_seed = mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT)
         sr = sg = sb = 0.0
         qr = qg = qb = 0.0
         good = 0
         bad = 0
         for s in range(sample_start, sample_start + sample_count):
             key = sample_key(seed, pixel, s)
-            o, d = camera_ray(S.camera, width, height, x, y, uniform(key, 0), uniform(key, 1))
-            r, g, b = trace_path(S, o, d, key, stack, max_depth)
+            if S.sampler[0] == 1:
+                camera_seed = block_seed(pixel_seed, 0)
+                jx = sobol_sample(s, camera_seed, 0)
+                jy = sobol_sample(s, camera_seed, 1)
+            else:
+                jx = uniform(key, 0)
+                jy = uniform(key, 1)
+            o, d = camera_ray(S.camera, width, height, x, y, jx, jy)
+            r, g, b = trace_path(S, o, d, key, stack, max_depth, s, pixel_seed)
             # Dropped also when the square overflows, so the variance sums stay finite
             if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
                 sr += r

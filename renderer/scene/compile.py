@@ -49,6 +49,8 @@ SceneArrays = namedtuple(
         "camera", "background",
         # [1] when shadow rays may cross a surface: index-matched media, single-scatter objects
         "null_media",
+        # [0] independent samples, [1] the sobol sampler (renderer.rng, render.sampler)
+        "sampler",
     ],
 )
 
@@ -334,6 +336,7 @@ def compile_scene(scene) -> CompiledScene:
         null_media=np.array([bool(np.any(
             ((mat_kind == TRANSLUCENT) & (mat_param[:, 0] == 1.0)) | (mat_kind == SINGLE_SCATTER)
         ))]),
+        sampler=np.array([1 if scene.render.sampler == "sobol" else 0], np.int64),
     )
     return CompiledScene(
         arrays=arrays,

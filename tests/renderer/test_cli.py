@@ -51,6 +51,19 @@ def test_seed_option_changes_the_image(tmp_path):
     assert not np.array_equal(outs[0], outs[1])
 
 
+def test_sampler_option(tmp_path):
+    """--sampler sobol renders other samples of the same image (unbiased: close means)."""
+    scene = small_scene(tmp_path)
+    outs = {}
+    for sampler in ("independent", "sobol"):
+        out = tmp_path / f"{sampler}.npy"
+        assert main(["render", str(scene), "-o", str(out), "--sampler", sampler, "--spp", "64",
+                     "-q"]) == 0
+        outs[sampler] = np.load(out)
+    assert not np.array_equal(outs["independent"], outs["sobol"])
+    np.testing.assert_allclose(outs["sobol"].mean(), outs["independent"].mean(), rtol=0.05)
+
+
 def test_validate_reports_fields_and_fails(tmp_path, capsys):
     data = json.loads(small_scene(tmp_path).read_text())
     data["objects"][0]["material"] = "nope"

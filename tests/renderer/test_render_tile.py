@@ -25,9 +25,9 @@ def small(name: str, width=42, height=30, **render_settings) -> dict:
     return data
 
 
-@pytest.fixture(scope="module")
-def glass():
-    return compile_scene(load_scene(small("glass_sphere.json", spp=12)))
+@pytest.fixture(scope="module", params=["independent", "sobol"])
+def glass(request):
+    return compile_scene(load_scene(small("glass_sphere.json", spp=12, sampler=request.param)))
 
 
 def test_tiles_and_passes_add_up_to_the_whole(glass):

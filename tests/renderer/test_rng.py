@@ -129,3 +129,43 @@ def test_mix64_reference_values():
     expected = [0xE220A8397B1DCDAF, 0x6E789E6AA1B965F4, 0x06C45D188009454F]
     for k, e in enumerate(expected, start=1):
         assert int(mix64(np.uint64((k * golden) % 2**64))) == e
+
+
+# --- the sobol sampler's sequences ----------------------------------------------------------------
+
+
+def test_sobol_prefixes_are_02_nets():
+    """Every power-of-two prefix of a pixel's shuffled, scrambled sequence is a (0,m,2)-net: one
+    point in each of the 2^m elementary intervals of every shape 2^a × 2^(m−a) (the property the
+    scrambles and the shuffle must keep)."""
+    from renderer.rng import block_seed, sobol_sample
+
+    for pixel in range(40):
+        seed = block_seed(np.uint64(pixel * 7919 + 1), pixel % 6)
+        for m in range(1, 9):
+            n = 1 << m
+            pts = np.array([(sobol_sample(i, seed, 0), sobol_sample(i, seed, 1))
+                            for i in range(n)])
+            for a in range(m + 1):
+                cells = {(int(x * (1 << a)), int(y * (1 << (m - a)))) for x, y in pts}
+                assert len(cells) == n, (pixel, m, a)
+
+
+def test_sobol_values_are_uniform_and_blocks_independent(chi2_counts):
+    """Across pixels, a sample's values are uniform in each block, and two blocks of the same
+    sample (the light's point and the BSDF direction) are independent: chi² on a 16×16 grid of
+    (block 2, x; block 4, x) over sample 3 of 40,000 pixels, and on each marginal."""
+    from renderer.rng import block_seed, sample_key, sobol_sample
+
+    n = 40_000
+    a = np.empty(n)
+    b = np.empty(n)
+    for pixel in range(n):
+        ps = np.uint64(sample_key(1, pixel, 0))
+        a[pixel] = sobol_sample(3, block_seed(ps, 2), 0)
+        b[pixel] = sobol_sample(3, block_seed(ps, 4), 0)
+    joint = np.histogram2d(a, b, bins=16, range=[[0, 1], [0, 1]])[0].ravel()
+    chi2_counts(joint, np.full(joint.size, n / joint.size), "joint of two blocks")
+    for v, what in ((a, "block 2"), (b, "block 4")):
+        counts = np.histogram(v, bins=64, range=(0, 1))[0]
+        chi2_counts(counts, np.full(64, n / 64), what)

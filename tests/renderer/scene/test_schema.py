@@ -208,6 +208,8 @@ STRUCTURAL_CASES = [
     (_set(("render", "spp"), "64"), "render.spp", "must be an integer"),
     (_set(("render", "max_depth"), -2), "render.max_depth", "must be >= -1"),
     (_set(("render", "seed"), -1), "render.seed", "must be >= 0"),
+    (_set(("render", "sampler"), "halton"), "render.sampler",
+     "unknown value 'halton' (expected one of: independent, sobol)"),
     (_set(("render", "seed"), 2**63), "render.seed", "must be <= 9223372036854775807"),
     (_set(("camera", "fov"), 0), "camera.fov", "must be > 0"),
     (_set(("camera", "fov"), 180), "camera.fov", "must be < 180"),
