@@ -288,7 +288,7 @@ def failure_markdown(fails: list[dict]) -> str:
 
 # Object relMSE targets: loose ones where auto takes an approximation, tight ones where it falls
 # back to volumetric (at or above BIAS_FLOOR's largest value every approximation qualifies).
-AUTO_TARGETS = (1.0, 0.6, 0.5, 0.45, 0.3, 0.1, 0.03)
+AUTO_TARGETS = (1.0, 0.6, 0.5, 0.45, 0.35, 0.3, 0.25, 0.1, 0.03)
 
 
 def time_to_target(ts: np.ndarray, es: np.ndarray, target: float,

@@ -3,9 +3,11 @@
 The expected errors come from the speed/accuracy suite (``python -m bench.accuracy``;
 docs/speed-accuracy.md): each approximation has a bias floor, the relative MSE over the object's
 pixels that it keeps however many samples it takes. The largest floor measured over the suite
-(wax sphere, backlit slab, concave torus, thin shell, spheres at albedo 0.5, 0.9, 0.99;
-docs/images/accuracy/failures.md) is
-the method's expected error. A method is chosen only if that is at or below the scene's
+scenes of the regimes the scene is in (``REGIME_FLOOR``, ``scene_regimes``: solid, backlit, mesh;
+the suite is the wax sphere, backlit slab, concave torus, thin shell and spheres at albedo 0.5,
+0.9, 0.99; docs/images/accuracy/failures.md) is the method's expected error (the worst over the
+whole suite, ``BIAS_FLOOR``, when the regimes are unknown). A method is chosen only if that is at
+or below the scene's
 ``render.target_error`` (default ``DEFAULT_TARGET``), cheapest first; otherwise ``volumetric``,
 the unbiased reference, which reaches any target given time.
 
@@ -42,6 +44,21 @@ DEFAULT_TARGET = 0.01
 # (2.2), by the backlit slab for diffusion (0.41). tests/renderer/materials/test_auto_evidence.py
 # ties these numbers to the committed CSV.
 BIAS_FLOOR = {"backlight": 0.474, "diffusion": 0.41, "single_scatter": 2.21}
+# The same floors by regime: the largest over the suite scenes of each class (SUITE_CLASSES), so
+# a scene pays only for the regimes it is in. "solid": convex spheres and boxes lit from the
+# camera's side (the wax sphere, spheres of albedo 0.5, 0.9, 0.99); "backlit": the main light on
+# the far side of the object (the jade slab); "mesh": meshes, which may be concave or thin (the
+# torus, the shell). A scene's expected error is the largest floor of "solid" and of each other
+# regime it is in. test_auto_evidence.py ties every number to results.csv.
+REGIME_FLOOR = {
+    "backlight": {"solid": 0.314, "backlit": 0.146, "mesh": 0.474},
+    "diffusion": {"solid": 0.344, "backlit": 0.41, "mesh": 0.316},
+    "single_scatter": {"solid": 0.236, "backlit": 0.377, "mesh": 2.21},
+}
+SUITE_CLASSES = {"translucent_sphere": "solid", "sphere_albedo_0.5": "solid",
+                 "sphere_albedo_0.9": "solid", "sphere_albedo_0.99": "solid",
+                 "backlit_slab": "backlit", "translucent_torus": "mesh",
+                 "translucent_shell": "mesh"}
 # Largest object relMSE of the opaque surface against volumetric over the dense spheres of
 # docs/images/accuracy/opaque.csv (tests/renderer/materials/test_opaque.py ties it to the CSV).
 OPAQUE_ERROR = 0.00847
@@ -68,11 +85,20 @@ def opaque_limit(footprint: float, size: float) -> float:
     return min(footprint, 0.1 * size)
 
 
+def expected_floor(method: str, regimes: frozenset[str] | None) -> float:
+    """A method's expected bias floor in a scene of these regimes (None: unknown, the worst)."""
+    if regimes is None:
+        return BIAS_FLOOR[method]
+    return max(REGIME_FLOOR[method][r] for r in {"solid", *regimes})
+
+
 def choose_method(albedo, density: float, size: float, target: float | None, *, g: float = 0.0,
-                  ior: float = 1.0, footprint: float = 0.0) -> AutoChoice:
+                  ior: float = 1.0, footprint: float = 0.0,
+                  regimes: frozenset[str] | None = None) -> AutoChoice:
     """The method ``auto`` renders a material with; ``size`` is the smallest half-extent of the
     objects that use it (the radius of a sphere), ``footprint`` the width of a pixel at the
-    nearest of them (0: unknown, never opaque)."""
+    nearest of them (0: unknown, never opaque), ``regimes`` the scene's (``scene_regimes``;
+    None: unknown, every method's worst floor)."""
     target = DEFAULT_TARGET if target is None else target
     tau = density * size
     a = max(albedo)
@@ -90,12 +116,14 @@ def choose_method(albedo, density: float, size: float, target: float | None, *, 
                               f"the light leaves within {reach:.3g} of where it entered, under a "
                               f"pixel ({footprint:.3g}); measured error {OPAQUE_ERROR:g} <= target "
                               f"{target:g}", OPAQUE_ERROR)
-    for method, floor in BIAS_FLOOR.items():
+    floors = {method: expected_floor(method, regimes) for method in BIAS_FLOOR}
+    kind = "" if regimes is None else f" ({', '.join(sorted({'solid', *regimes}))})"
+    for method, floor in floors.items():
         if floor <= target:
-            return AutoChoice(method, f"{where}: measured bias floor {floor:g} <= target "
+            return AutoChoice(method, f"{where}: measured bias floor{kind} {floor:g} <= target "
                               f"{target:g}", floor)
-    return AutoChoice("volumetric", f"{where}: no approximation's measured bias floor (lowest "
-                      f"{min(BIAS_FLOOR.values()):g}) meets target {target:g}", 0.0)
+    return AutoChoice("volumetric", f"{where}: no approximation's measured bias floor{kind} "
+                      f"(lowest {min(floors.values()):g}) meets target {target:g}", 0.0)
 
 
 def _object_half_extent(obj) -> float:
@@ -139,6 +167,34 @@ def pixel_footprint(scene, objects) -> float:
     return max(dist, 0.0) * 2 * math.tan(math.radians(cam.fov) / 2) / scene.film.height
 
 
+def _light_centres(scene) -> list[np.ndarray]:
+    """Where the scene's lights are: emitting objects' centres, point lights, and directional
+    lights far along their reverse direction; the background lights from everywhere (none)."""
+    out = [_bounding_sphere(o)[0] for o in scene.objects if getattr(o, "emission", None)
+           and max(o.emission) > 0]
+    for light in scene.lights or []:
+        if light.type == "point":
+            out.append(np.asarray(light.position, np.float64))
+        elif light.type == "directional":
+            out.append(-1e6 * np.asarray(light.direction, np.float64))
+    return out
+
+
+def scene_regimes(scene, objects) -> frozenset[str]:
+    """The regimes of ``REGIME_FLOOR`` the material's ``objects`` are in: "mesh" if one is a
+    mesh; "backlit" if a light is on the far side of one of them from the camera (the light's and
+    the camera's directions from its centre more than 90° apart)."""
+    regimes = set()
+    if any(o.type == "mesh" for o in objects):
+        regimes.add("mesh")
+    cam = np.asarray(scene.camera.position, np.float64)
+    for o in objects:
+        c, _ = _bounding_sphere(o)
+        if any(float(np.dot(light - c, cam - c)) < 0.0 for light in _light_centres(scene)):
+            regimes.add("backlit")
+    return frozenset(regimes)
+
+
 def auto_choice(scene, name: str):
     """What ``method: "auto"`` picks for material ``name`` of a validated scene (cheap: no BVH),
     the same choice ``compile_scene`` renders: the farm's API reports it at submission."""
@@ -147,7 +203,8 @@ def auto_choice(scene, name: str):
     sizes = [_object_half_extent(o) for o in objects]
     return choose_method(m.albedo, m.density, min(sizes) if sizes else 0.0,
                          scene.render.target_error, g=m.g, ior=m.ior,
-                         footprint=pixel_footprint(scene, objects))
+                         footprint=pixel_footprint(scene, objects),
+                         regimes=scene_regimes(scene, objects))
 
 
 def auto_choices(scene) -> dict:

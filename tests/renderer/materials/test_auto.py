@@ -8,7 +8,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from renderer.materials.auto import BIAS_FLOOR, DEFAULT_TARGET, choose_method
+from renderer.materials.auto import (
+    BIAS_FLOOR,
+    DEFAULT_TARGET,
+    auto_choice,
+    choose_method,
+    scene_regimes,
+)
 from renderer.render import render
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
@@ -37,6 +43,37 @@ def test_a_loose_target_takes_the_cheapest_method_that_meets_it():
     assert choose_method((0.9,) * 3, 8.0, 0.5, 0.5).method == "backlight"
     assert choose_method((0.9,) * 3, 8.0, 0.5, 0.45).method == "diffusion"
     assert choose_method((0.9,) * 3, 8.0, 0.5, 0.35).method == "volumetric"
+
+
+def test_the_regime_picks_the_floors():
+    """A solid sphere lit from the camera's side pays only the solid scenes' floors: at target 0.35
+    backlight (solid floor 0.314) instead of volumetric; lit from behind it pays the backlit
+    slab's too (diffusion 0.41, backlight still 0.314), as a mesh the torus's (backlight 0.474)."""
+    solid = frozenset()
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.35, regimes=solid).method == "backlight"
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.3, regimes=solid).method == "single_scatter"
+    backlit = frozenset({"backlit"})
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.35, regimes=backlit).method == "backlight"
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.3, regimes=backlit).method == "volumetric"
+    mesh = frozenset({"mesh"})
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.35, regimes=mesh).method == "diffusion"
+    assert "(mesh, solid)" in choose_method((0.9,) * 3, 8.0, 0.5, 0.35, regimes=mesh).reason
+
+
+@pytest.mark.parametrize(("lights", "backlit"), [
+    ([{"type": "point", "position": [0, 0.5, 3], "intensity": [5, 5, 5]}], False),
+    ([{"type": "point", "position": [0, 0.2, -3], "intensity": [5, 5, 5]}], True),
+    ([{"type": "directional", "direction": [0, 0, 1], "irradiance": [2, 2, 2]}], True),
+    ([{"type": "directional", "direction": [0, -1, -1], "irradiance": [2, 2, 2]}], False),
+])
+def test_light_placement_is_read_from_the_scene(lights, backlit):
+    data = wax_scene("auto", target=0.3)
+    data["lights"] = lights
+    scene = load_scene(data)
+    objects = [o for o in scene.objects if o.material == "wax"]
+    assert ("backlit" in scene_regimes(scene, objects)) == backlit
+    expected = "volumetric" if backlit else "single_scatter"
+    assert auto_choice(scene, "wax").method == expected
 
 
 @pytest.mark.parametrize(("albedo", "density", "expected"), [

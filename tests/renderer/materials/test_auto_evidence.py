@@ -13,7 +13,13 @@ from pathlib import Path
 import pytest
 
 from bench.accuracy import suite, with_method
-from renderer.materials.auto import BIAS_FLOOR, auto_choice
+from renderer.materials.auto import (
+    BIAS_FLOOR,
+    REGIME_FLOOR,
+    SUITE_CLASSES,
+    auto_choice,
+    scene_regimes,
+)
 from renderer.scene import load_scene
 
 DATA = Path(__file__).resolve().parents[3] / "docs" / "images" / "accuracy"
@@ -48,6 +54,32 @@ def test_every_floor_is_the_largest_measured_error_of_its_method(method):
     above it (rounding up; a floor far above the data would be a made-up number)."""
     measured = _largest_floor(_rows("results.csv"), method)
     assert measured <= BIAS_FLOOR[method] <= 1.02 * measured
+
+
+@pytest.mark.parametrize("method", sorted(BIAS_FLOOR))
+def test_every_regime_floor_is_the_largest_error_of_its_scenes(method):
+    """REGIME_FLOOR[method][regime] is the largest object relMSE at the highest spp over the suite
+    scenes of that regime (rounded up by at most 2 %), and the worst regime is BIAS_FLOOR."""
+    rows = [r for r in _rows("results.csv") if r["method"] == method]
+    top = {r["scene"]: max(int(x["spp"]) for x in rows if x["scene"] == r["scene"]) for r in rows}
+    for regime in ("solid", "backlit", "mesh"):
+        measured = max(float(r["object_rel_mse"]) for r in rows
+                       if SUITE_CLASSES[r["scene"]] == regime and int(r["spp"]) == top[r["scene"]])
+        assert measured <= REGIME_FLOOR[method][regime] <= 1.02 * measured, regime
+    assert max(REGIME_FLOOR[method].values()) == BIAS_FLOOR[method]
+
+
+def test_the_suite_scenes_are_classified_as_their_regimes():
+    """scene_regimes puts each suite scene in its class: the spheres lit from above in front of
+    the camera are solid, the slab with its lamp behind is backlit, the torus and the shell are
+    meshes (both lit from the camera's side)."""
+    assert set(SUITE_CLASSES) == SUITE
+    expected = {"solid": frozenset(), "backlit": frozenset({"backlit"}),
+                "mesh": frozenset({"mesh"})}
+    for name, (scene, material) in suite().items():
+        loaded = load_scene(with_method(scene, material, "auto", 1))
+        objects = [o for o in loaded.objects if o.material == material]
+        assert scene_regimes(loaded, objects) == expected[SUITE_CLASSES[name]], name
 
 
 def test_auto_table_is_the_current_rule_and_auto_is_never_slower():
