@@ -16,7 +16,7 @@ from __future__ import annotations
 import numpy as np
 
 from renderer.geometry.shapes import INF, intersect_prim
-from renderer.jit import alloc_kernel, kernel
+from renderer.jit import alloc_kernel, inline_kernel, kernel
 
 N_BUCKETS = 16
 MAX_LEAF = 8
@@ -250,7 +250,7 @@ def _slab(node_lo, node_hi, node, o, inv_d, t_max):
     return t0
 
 
-@kernel
+@inline_kernel
 def intersect_closest(bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis, prim_kind, prim_geo,
                       o, d, t_max, stack):
     """Closest hit along the ray within (0, t_max): (t, prim, u, v), prim = -1 on a miss."""
@@ -299,7 +299,7 @@ def intersect_closest(bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis, prim_kind
     return best_t, best_prim, best_u, best_v
 
 
-@kernel
+@inline_kernel
 def occluded(bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis, prim_kind, prim_geo,
              o, d, t_max, stack):
     """True when anything lies on the ray within (0, t_max): the any-hit query of shadow rays."""

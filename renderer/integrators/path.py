@@ -34,7 +34,7 @@ from numba import prange
 
 from renderer.geometry.bvh import intersect_closest, occluded
 from renderer.geometry.shapes import SPAWN_EPSILON, spawn_offset, surface_point
-from renderer.jit import kernel, parallel_kernel
+from renderer.jit import inline_kernel, kernel, parallel_kernel
 from renderer.lights import area_light_pdf, sample_light
 from renderer.materials.bsdf import (
     BACKLIGHT,
@@ -86,7 +86,7 @@ def roulette(br, bg, bb, eta_scale, cap, u):
     return True, br / q, bg / q, bb / q
 
 
-@kernel
+@inline_kernel
 def transmittance(S, o, d, t_max, medium, stack):
     """Fraction of light that travels from o to o + t_max·d: 0 when a surface blocks it, else
     exp(−σt·length) over the stretches inside index-matched translucent media (their boundaries
@@ -117,7 +117,7 @@ def transmittance(S, o, d, t_max, medium, stack):
     return 0.0
 
 
-@kernel
+@inline_kernel
 def surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack):
     """Transmittance of the shadow ray from surface point p towards a light t_max away along wi.
 
@@ -288,11 +288,11 @@ def draw(S, key, dim, k, sidx, pseed):
     return uniform(key, dim + k)
 
 
-@kernel
+@inline_kernel
 def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
     """Radiance arriving at o from direction −d along one sampled path. S is ``SceneArrays``;
     ``sidx`` (the sample's index) and ``pseed`` (its pixel's seed) feed the sobol sampler's
-    first vertex (``draw``)."""
+    first ``SOBOL_VERTICES`` vertices (``draw``)."""
     lr = lg = lb = 0.0  # radiance gathered so far
     br = bg = bb = 1.0  # throughput β
     depth = 0  # scattering events so far
