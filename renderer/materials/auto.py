@@ -67,7 +67,7 @@ OPAQUE_QUANTILE = 0.99  # of the profile's energy that must leave within a pixel
 
 @dataclass
 class AutoChoice:
-    method: str  # a translucent method, or "dielectric"
+    method: str  # a translucent method, "dielectric" or "opaque"
     reason: str
     expected_error: float
 
