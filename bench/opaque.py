@@ -76,6 +76,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--out", type=Path, default=ROOT / "docs" / "images" / "accuracy")
     args = parser.parse_args(argv)
     from renderer.materials import auto
+    from renderer.materials.auto import DEFAULT_TARGET, opaque_reach
 
     # Measure the regime whatever error auto currently assumes for it: with OPAQUE_ERROR above
     # the default target, auto would not pick the opaque surface at all.
@@ -101,8 +102,6 @@ def main(argv: list[str] | None = None) -> int:
                         if method == "auto":
                             chosen = chosen_now
                     curves[method] = (np.array(ts), np.array(es))
-                from renderer.materials.auto import DEFAULT_TARGET, opaque_reach
-
                 (ta, ea), (tv, ev) = curves["auto"], curves["volumetric"]
                 ta_hit, ta_how = time_to_target(ta, ea, DEFAULT_TARGET, False)
                 tv_hit, tv_how = time_to_target(tv, ev, DEFAULT_TARGET, True)

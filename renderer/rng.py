@@ -141,10 +141,12 @@ def block_seed(pixel_seed, block):
 def sobol_sample(sample, seed, component):
     """Component 0 or 1 of point ``sample`` of the shuffled, scrambled (0,2)-sequence ``seed``."""
     seed = np.uint64(seed)
-    index = nested_uniform_scramble(np.uint64(sample) & _U32, seed)
+    # The shuffled index is reverse(LK(reverse(sample))), and van der Corput is its reversal: LK
+    # of the reversed sample, with the two reversals between them cancelled
+    shuffled = _laine_karras(reverse_bits32(np.uint64(sample) & _U32), seed)
     if component == 0:
-        v = reverse_bits32(index)
+        v = shuffled
     else:
-        v = _sobol_pascal(index)
+        v = _sobol_pascal(reverse_bits32(shuffled))
     v = nested_uniform_scramble(v, mix64(seed + np.uint64(component) + _ONE) & _U32)
     return float(v) * _TWO_POW_M32

@@ -273,9 +273,8 @@ def draw(S, key, dim, k, sidx, pseed):
     sample (k 0: the light, k 1-2: the point on it), the BSDF sample (k 3: the lobe, k 4-5: the
     direction) and the free flight (k 7) of each vertex come from their own shuffled, scrambled
     (0,2)-sequences (roulette, k 6, stays independent)."""
-    vertex = (dim - 2) // DIMS_PER_BOUNCE
-    if S.sampler[0] == 1 and vertex < SOBOL_VERTICES and k != 6:
-        base = 1 + 5 * vertex  # block 0 is the camera's
+    if S.sampler[0] == 1 and dim < 2 + SOBOL_VERTICES * DIMS_PER_BOUNCE and k != 6:
+        base = 1 + 5 * ((dim - 2) // DIMS_PER_BOUNCE)  # block 0 is the camera's
         if k == 0:
             return sobol_sample(sidx, block_seed(pseed, base), 0)
         if k <= 2:

@@ -118,14 +118,12 @@ def _resolve_auto(scene, name: str, m):
     return m.model_copy(update={"method": choice.method}), choice
 
 
-def _opaque_row(m) -> np.ndarray:
-    """The ``diffusion`` row of an effectively opaque material, switched to its zero-radius limit
-    (renderer/materials/opaque.py): A is the semi-infinite medium's albedo from a walk, not the
-    dipole's."""
-    _, p = _material_row("", m)
+def _make_opaque(p: np.ndarray, m) -> None:
+    """Switch the ``diffusion`` row ``p`` of an effectively opaque material to its zero-radius
+    limit (renderer/materials/opaque.py): A is the semi-infinite medium's albedo from a walk, not
+    the dipole's."""
     p[10] = 1.0
     p[12:15] = [opaque_albedo(a, m.g, m.ior) for a in m.albedo]
-    return p
 
 
 def _material_row(name: str, m) -> tuple[int, np.ndarray]:
@@ -209,7 +207,7 @@ def compile_scene(scene) -> CompiledScene:
             m, auto[name] = _resolve_auto(scene, name, m)
         mat_kind[i], mat_param[i] = _material_row(name, m)
         if name in auto and auto[name].method == "opaque":
-            mat_param[i] = _opaque_row(m)
+            _make_opaque(mat_param[i], m)
 
     # Objects → primitives
     kinds, geos, mats, emissions = [], [], [], []
