@@ -61,7 +61,14 @@ def intersect_sphere(o, d, geo):
 
 @kernel
 def intersect_parallelogram(o, d, geo, is_triangle):
-    """Möller–Trumbore for a triangle (u, v ≥ 0, u + v ≤ 1) or a parallelogram (u, v ∈ [0, 1])."""
+    """Möller–Trumbore for a triangle (u, v ≥ 0, u + v ≤ 1) or a parallelogram (u, v ∈ [0, 1]).
+
+    Every quantity is computed and the hit decided by one test at the end (the ``|`` do not
+    short-circuit): a ray misses most primitives it is tested against, and in no predictable
+    order, so early exits cost more in mispredicted branches than the arithmetic they skip.
+    A zero determinant (a ray in the plane) gives inf or NaN in u, v and t, which the test rejects
+    through ``det == 0`` as the early exit did.
+    """
     e1x, e1y, e1z = geo[3], geo[4], geo[5]
     e2x, e2y, e2z = geo[6], geo[7], geo[8]
     # p = d × e2
@@ -69,24 +76,21 @@ def intersect_parallelogram(o, d, geo, is_triangle):
     py = d[2] * e2x - d[0] * e2z
     pz = d[0] * e2y - d[1] * e2x
     det = e1x * px + e1y * py + e1z * pz
-    if det == 0.0:
-        return INF, 0.0, 0.0
     inv_det = 1.0 / det
     tx, ty, tz = o[0] - geo[0], o[1] - geo[1], o[2] - geo[2]
     u = (tx * px + ty * py + tz * pz) * inv_det
-    if u < 0.0 or u > 1.0:
-        return INF, 0.0, 0.0
     # q = t × e1
     qx = ty * e1z - tz * e1y
     qy = tz * e1x - tx * e1z
     qz = tx * e1y - ty * e1x
     v = (d[0] * qx + d[1] * qy + d[2] * qz) * inv_det
-    if v < 0.0 or (u + v > 1.0 if is_triangle else v > 1.0):
-        return INF, 0.0, 0.0
     t = (e2x * qx + e2y * qy + e2z * qz) * inv_det
-    if t > 0.0:
-        return t, u, v
-    return INF, 0.0, 0.0
+    v_far = u + v if is_triangle else v
+    miss = ((det == 0.0) | (u < 0.0) | (u > 1.0) | (v < 0.0) | (v_far > 1.0)
+            | (not t > 0.0))
+    if miss:
+        return INF, 0.0, 0.0
+    return t, u, v
 
 
 @kernel
