@@ -269,6 +269,8 @@ def main() -> int:
     parser.add_argument("--seconds", type=float, default=10.0)
     parser.add_argument("--top", type=int, default=25)
     parser.add_argument("--frequency", type=int, default=999, help="samples a second a thread")
+    parser.add_argument("--keep", metavar="DIR", help="keep perf.data, the objects and their "
+                        "load addresses (objects.json) in DIR, for objdump or perf report")
     parser.add_argument("--child", nargs=3, metavar=("SCENE", "SECONDS", "OUT"),
                         help=argparse.SUPPRESS)
     args = parser.parse_args()
@@ -294,6 +296,8 @@ def main() -> int:
         info = json.loads((out / "objects.json").read_text())
         samples = [int(s, 16) for s in script.split()]
         result = attribute(samples, info["objects"])
+        if args.keep:
+            shutil.copytree(out, args.keep, dirs_exist_ok=True)
     chains = result["chains"]
     total = sum(chains.values())
     print(f"{args.scene}: {info['paths'] / info['seconds'] / 1e6:.2f} M paths/s with line "
