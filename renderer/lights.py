@@ -18,7 +18,7 @@ from __future__ import annotations
 import math
 
 from renderer.geometry.shapes import QUAD, SPHERE
-from renderer.jit import kernel
+from renderer.jit import inline_kernel, kernel
 from renderer.sampling import INV_4PI, uniform_cone, uniform_triangle
 from renderer.vecmath import to_world
 
@@ -46,7 +46,7 @@ def _sphere_cone(geo, p):
     return omc, (ax / dist, ay / dist, az / dist), dist
 
 
-@kernel
+@inline_kernel
 def sample_light(light_kind, light_prim, light_data, light_cdf, light_pmf, prim_kind, prim_geo,
                  p, u_sel, u1, u2):
     """Choose a light and a direction to it from p.
