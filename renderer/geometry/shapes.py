@@ -17,7 +17,7 @@ import math
 
 import numpy as np
 
-from renderer.jit import alloc_kernel, kernel
+from renderer.jit import alloc_kernel, inline_kernel, kernel
 
 SPHERE = 0
 QUAD = 1
@@ -93,7 +93,7 @@ def intersect_parallelogram(o, d, geo, is_triangle):
     return t, u, v
 
 
-@kernel
+@inline_kernel
 def intersect_prim(kind, o, d, geo):
     if kind == SPHERE:
         return intersect_sphere(o, d, geo)
