@@ -23,7 +23,8 @@
   ``sample_light`` (55 scalar arguments, 3 call sites) and ``intersect_prim`` (9 sites in the
   traversal) followed once the slab test had lost its branches: +14 % and +7 % on the Cornell box
   in alternating A/B runs (an earlier, single-run try had seen nothing through the noise); cold
-  compile 40 s -> 52 s on that machine. ``bench.profile_kernel`` shows what is left uninlined.
+  compile 40 s -> 52 s on that machine. The calls left: ``objdump -dr`` on the objects
+  ``python -m bench.profile_kernel --keep DIR`` writes.
 """
 
 from __future__ import annotations
