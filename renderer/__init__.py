@@ -14,6 +14,7 @@ from __future__ import annotations
 
 import hashlib
 import os
+import sys
 from pathlib import Path
 
 __version__ = "0.1.0"
@@ -37,6 +38,11 @@ def _cache_dir() -> str:
     return os.path.join(base, "numba", digest.hexdigest()[:16])
 
 
-# Must happen before numba is imported anywhere: numba reads its configuration once.
+# numba reads its configuration when it is imported. A program that imported numba before this
+# package (a benchmark with its own kernels, a test) would otherwise cache the renderer's kernels
+# in __pycache__ beside the sources, where only timestamps guard them: numba's setting is mended
+# too (it is read when a kernel with cache=True is defined, which is after this).
 if "NUMBA_CACHE_DIR" not in os.environ:
     os.environ["NUMBA_CACHE_DIR"] = _cache_dir()
+    if "numba.core.config" in sys.modules:
+        sys.modules["numba.core.config"].CACHE_DIR = os.environ["NUMBA_CACHE_DIR"]

@@ -84,3 +84,19 @@ def test_no_runtime_free_kernel_returns_an_array(tmp_path):
     report = json.loads(out.stdout.strip().splitlines()[-1])
     assert report["signatures"] > 50  # the device functions were compiled here, not loaded
     assert report["bad"] == []
+
+
+def test_kernels_cache_in_the_keyed_folder_when_numba_was_imported_first(tmp_path):
+    """A program that imports numba before the renderer (bench.where_time_goes did) must still
+    cache the renderer's kernels under LUCENT_CACHE_DIR, not in __pycache__ beside the sources."""
+    env = {k: v for k, v in os.environ.items() if k != "NUMBA_CACHE_DIR"}
+    env["LUCENT_CACHE_DIR"] = str(tmp_path)
+    code = ("import numba\n"
+            "import renderer, os\n"
+            "from renderer.rng import mix64\n"
+            "print(mix64._cache._cache_path)\n"
+            "print(os.environ['NUMBA_CACHE_DIR'])\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env,
+                         cwd=tmp_path, check=True).stdout.split()
+    assert out[1].startswith(str(tmp_path))
+    assert out[0].startswith(out[1]), out
