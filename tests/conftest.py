@@ -254,3 +254,15 @@ def rng(request) -> np.random.Generator:
     """A NumPy generator seeded by the test's name: reproducible, and different for every test
     (so two tests never share the same "random" failure)."""
     return np.random.default_rng(zlib.crc32(request.node.nodeid.encode()))
+
+
+def phong_param(kd, ks, exponent) -> np.ndarray:
+    """A ``phong`` material's parameter row as the scene compiler lays it out (through its own
+    ``_material_row``, without the schema's checks, so tests may use exponent 0 or kd + ks > 1)."""
+    from types import SimpleNamespace
+
+    from renderer.scene.compile import _material_row
+
+    _, row = _material_row("test", SimpleNamespace(type="phong", diffuse=kd, specular=ks,
+                                                   exponent=exponent))
+    return row

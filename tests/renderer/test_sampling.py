@@ -39,6 +39,7 @@ from renderer.sampling import (
     uniform_sphere,
     uniform_triangle,
 )
+from tests.conftest import phong_param
 
 N = 400_000  # samples per chi² test (see the module docstring for the power this gives)
 
@@ -207,13 +208,6 @@ def unit(a) -> np.ndarray:
     a = np.asarray(a, dtype=np.float64)
     return a / np.linalg.norm(a)
 
-
-def phong_param(kd, ks, exponent) -> np.ndarray:
-    param = np.zeros(12)
-    param[0:3] = kd
-    param[3:6] = ks
-    param[6] = exponent
-    return param
 
 
 def lobe_edges(exponent: float, n_cos: int = 20) -> np.ndarray:

@@ -23,6 +23,7 @@ import pytest
 from renderer.jit import alloc_kernel
 from renderer.materials.diffuse import diffuse_eval
 from renderer.materials.phong import phong_eval, phong_sample
+from tests.conftest import phong_param
 
 NORMAL = tuple(np.array([-0.4, 0.1, 0.9]) / np.linalg.norm([-0.4, 0.1, 0.9]))
 
@@ -79,13 +80,6 @@ def at_angle(theta, n=NORMAL):
     t, _ = basis(n)
     return tuple(math.sin(theta) * np.asarray(t) + math.cos(theta) * np.asarray(n))
 
-
-def phong_param(kd, ks, exponent) -> np.ndarray:
-    param = np.zeros(12)
-    param[0:3] = kd
-    param[3:6] = ks
-    param[6] = exponent
-    return param
 
 
 @pytest.mark.parametrize("exponent", [0.0, 1.0, 10.0, 100.0, 1000.0, 7.5])
