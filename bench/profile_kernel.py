@@ -14,7 +14,7 @@ VM lacks) and maps every sample that falls in JIT code to its source line itself
   code; its size is printed beside the release build's to show it;
 - numba's object-code hooks keep the ELF object of every library the JIT loads, and the address
   it loaded each at (from a symbol it defines), so a sample's address becomes an offset into an
-  object file, and ``addr2line -i`` on that file gives the chain of inlined source lines;
+  object file, and ``addr2line`` on that file gives its source line (the innermost inlined one);
 - numba inlines the ``inline_kernel`` functions (``renderer/jit.py``) in its own IR, and its
   debug info then files their lines under the caller's file (a line of ``bvh.py`` reads as the
   same line number of ``path.py``); the child process gives those lines their own file again.
@@ -44,7 +44,6 @@ import time
 from pathlib import Path
 
 ROOT = Path(__file__).resolve().parents[1]
-RENDERER = ROOT / "renderer"
 
 
 # --- the child: render under perf with line tables, and record where each object was loaded ------
@@ -174,18 +173,6 @@ def _short(location: str) -> str:
     return f"{path}:{line}"
 
 
-def _function(name: str) -> str:
-    """``renderer.geometry.bvh._slab`` from the mangled ``_ZN8renderer8geometry3bvh5_slabB…``."""
-    if not name.startswith("_ZN"):
-        return name
-    rest, parts = name[3:], []
-    while m := re.match(r"\d+", rest):
-        k = int(m.group())
-        parts.append(rest[m.end():m.end() + k])
-        rest = rest[m.end() + k:]
-    return ".".join(parts) or name
-
-
 @functools.cache
 def _functions_in(path: str) -> list[tuple[int, int, str]]:
     try:
@@ -211,7 +198,8 @@ def enclosing_function(location: str) -> str:
 
 
 def attribute(samples: list[int], objects: list[dict]) -> dict:
-    """Map sample addresses to inline chains of (function, file:line), innermost first."""
+    """Map sample addresses to source lines (file:line of the innermost inlined frame, which is
+    what the line table holds) and count them; samples outside every object are counted apart."""
     offsets: dict[str, collections.Counter] = collections.defaultdict(collections.Counter)
     outside = 0
     for ip in samples:
@@ -221,45 +209,37 @@ def attribute(samples: list[int], objects: list[dict]) -> dict:
                 break
         else:
             outside += 1
-    chains: collections.Counter = collections.Counter()
+    lines: collections.Counter = collections.Counter()
     for path, counts in offsets.items():
         keys = sorted(counts)
-        out = subprocess.run(["addr2line", "-a", "-i", "-f", "-e", path],
-                             input="\n".join(hex(k) for k in keys), capture_output=True,
-                             text=True, check=True).stdout.splitlines()
-        chain: list = []
-        current = None
-        i = 0
-        while i < len(out):
-            if out[i].startswith("0x"):
-                if current is not None:
-                    chains[tuple(chain)] += counts[current]
-                current, chain = int(out[i], 16), []
-                i += 1
-                continue
-            chain.append((_function(out[i]), _short(out[i + 1])))
-            i += 2
-        if current is not None:
-            chains[tuple(chain)] += counts[current]
-    return {"chains": chains, "outside": outside}
+        out = subprocess.run(["addr2line", "-e", path], input="\n".join(hex(k) for k in keys),
+                             capture_output=True, text=True, check=True).stdout.splitlines()
+        for key, location in zip(keys, out, strict=True):
+            lines[_short(location)] += counts[key]
+    return {"lines": lines, "outside": outside}
 
 
-def summarize(chains: collections.Counter) -> dict[str, collections.Counter]:
-    """Samples by innermost source line, and by the Python function that holds that line."""
-    by_line: collections.Counter = collections.Counter()
+def summarize(lines: collections.Counter) -> dict[str, collections.Counter]:
+    """Samples by source line, and by the Python function that holds that line."""
     by_function: collections.Counter = collections.Counter()
-    for chain, n in chains.items():
-        location = chain[0][1] if chain else "?"
-        by_line[location] += n
+    for location, n in lines.items():
         by_function[enclosing_function(location)] += n
-    return {"source line": by_line, "function (the line's own, inlined or not)": by_function}
+    return {"source line": lines, "function (the line's own, inlined or not)": by_function}
+
+
+@functools.cache
+def _file_lines(path: str) -> list[str]:
+    try:
+        return (ROOT / path).read_text().splitlines()
+    except OSError:
+        return []
 
 
 def _source(location: str) -> str:
     path, _, line = location.partition(":")
     try:
-        return (ROOT / path).read_text().splitlines()[int(line) - 1].strip()[:70]
-    except (OSError, ValueError, IndexError):
+        return _file_lines(path)[int(line) - 1].strip()[:70]
+    except (ValueError, IndexError):
         return ""
 
 
@@ -298,12 +278,12 @@ def main() -> int:
         result = attribute(samples, info["objects"])
         if args.keep:
             shutil.copytree(out, args.keep, dirs_exist_ok=True)
-    chains = result["chains"]
-    total = sum(chains.values())
+    lines = result["lines"]
+    total = sum(lines.values())
     print(f"{args.scene}: {info['paths'] / info['seconds'] / 1e6:.2f} M paths/s with line "
           f"tables; {len(samples)} samples, {total} in the renderer's JIT code "
           f"({100 * total / max(1, len(samples)):.0f} %: the rest is start-up and compile)")
-    for title, counter in summarize(chains).items():
+    for title, counter in summarize(lines).items():
         print(f"\nby {title}:")
         acc = 0
         for key, n in counter.most_common(args.top):
