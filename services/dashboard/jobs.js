@@ -26,20 +26,23 @@ export function renderJobs(view) {
       h("th", { class: "num" }, "Elapsed"), h("th", { class: "num" }, "ETA"),
       h("th", {}, "Submitted"))),
     tbody);
+  // Elements are held, not looked up by id: a poll that was in flight when the user left the page
+  // finishes after the page's elements have left the document.
+  const selCount = h("span", { class: "muted", id: "sel-count" }, "");
+  const empty = h("p", { class: "muted empty", hidden: true, id: "jobs-empty" },
+    "No jobs yet. ", h("a", { href: "#/submit" }, "Submit a scene"), ".");
   view.append(
     h("div", { class: "toolbar" },
       h("h1", {}, "Jobs"), count,
       h("span", { class: "spacer" }),
       h("label", {}, "Show ", filter),
-      h("span", { class: "group" }, h("span", { class: "muted", id: "sel-count" }, ""),
-        cancelBtn, retryBtn)),
+      h("span", { class: "group" }, selCount, cancelBtn, retryBtn)),
     table,
-    h("p", { class: "muted empty", hidden: true, id: "jobs-empty" },
-      "No jobs yet. ", h("a", { href: "#/submit" }, "Submit a scene"), "."));
+    empty);
 
   function updateButtons() {
     const n = selected.size;
-    document.getElementById("sel-count").textContent = n ? `${n} selected` : "";
+    selCount.textContent = n ? `${n} selected` : "";
     cancelBtn.disabled = retryBtn.disabled = n === 0;
     selectAll.checked = n > 0 && jobs.every((j) => selected.has(j.id));
   }
@@ -93,7 +96,7 @@ export function renderJobs(view) {
     // Re-insert only if the order changed (moving a row would interrupt a click on it).
     if (trs.some((tr, i) => tbody.children[i] !== tr)) tbody.replaceChildren(...trs);
     count.textContent = `${body.count} job${body.count === 1 ? "" : "s"}`;
-    document.getElementById("jobs-empty").hidden = jobs.length > 0;
+    empty.hidden = jobs.length > 0;
     table.hidden = jobs.length === 0;
     updateButtons();
   }
