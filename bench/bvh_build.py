@@ -51,6 +51,7 @@ def main() -> int:
     parser = argparse.ArgumentParser()
     parser.add_argument("--triangles", type=int, default=1_000_000)
     args = parser.parse_args()
+    from renderer.geometry.bvh import BVH_WIDTH
     from renderer.render import render_buffer
     from renderer.scene.compile import compile_scene
 
@@ -70,7 +71,8 @@ def main() -> int:
     rss = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024
     print(f"{len(t):,} triangles: write + read + validate PLY {load:.2f} s; "
           f"compile_scene (packing + SAH BVH) {build:.2f} s, "
-          f"{compiled.info['bvh_nodes']:,} nodes, traversal stack {compiled.stack_size}; "
+          f"{compiled.info['bvh_nodes']:,} {BVH_WIDTH}-wide nodes "
+          f"({compiled.info['bvh_binary_nodes']:,} binary), traversal stack {compiled.stack_size}; "
           f"64x48x4 spp render {render:.2f} s, mean {float(np.mean(buf.mean())):.4f}; "
           f"peak RSS {rss:,.0f} MiB")
     return 0

@@ -25,7 +25,7 @@ import numba
 import numpy as np
 from numba import prange
 
-from renderer.geometry.bvh import intersect_closest
+from renderer.geometry.bvh import intersect_closest, traversal_stack
 from renderer.integrators.path import camera_ray
 from renderer.jit import parallel_kernel
 from renderer.render import render_buffer, render_tile
@@ -40,15 +40,14 @@ ROOT = Path(__file__).resolve().parents[1]
 def primary_rays(S, width, height, seed, spp, stack_size, out):
     """Closest hits of every camera ray of ``spp`` samples per pixel; out[y] sums the t of hits."""
     for y in prange(height):
-        stack = np.empty(stack_size, np.int64)
+        stack = traversal_stack(stack_size)
         acc = 0.0
         for x in range(width):
             for s in range(spp):
                 key = sample_key(seed, y * width + x, s)
                 o, d = camera_ray(S.camera, width, height, x, y, uniform(key, 0), uniform(key, 1))
-                t, prim, _, _ = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_offset, S.bvh_count,
-                                                  S.bvh_axis, S.prim_kind, S.prim_geo, o, d,
-                                                  math.inf, stack)
+                t, prim, _, _ = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count,
+                                                  S.prim_kind, S.prim_geo, o, d, math.inf, stack)
                 acc += t if prim >= 0 else 0.0
         out[y] = acc
 

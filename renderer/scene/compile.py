@@ -14,7 +14,7 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from renderer.geometry.bvh import build_bvh, bvh_depth
+from renderer.geometry.bvh import MAX_LEAF, build_bvh, stack_size, widen_bvh
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
 from renderer.materials.auto import auto_choice
@@ -38,7 +38,7 @@ SceneArrays = namedtuple(
     "SceneArrays",
     [
         # BVH (renderer.geometry.bvh)
-        "bvh_lo", "bvh_hi", "bvh_offset", "bvh_count", "bvh_axis",
+        "bvh_lo", "bvh_hi", "bvh_child", "bvh_count",
         # primitives in BVH order (renderer.geometry.shapes)
         "prim_kind", "prim_geo", "prim_scale", "prim_material", "prim_light",
         # materials (renderer.materials.bsdf)
@@ -246,7 +246,13 @@ def compile_scene(scene) -> CompiledScene:
 
     # BVH, then primitives in BVH order
     lo, hi = prim_bounds(prim_kind, prim_geo)
-    bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis, order = build_bvh(lo, hi)
+    if len(prim_kind) >= 2**31 - MAX_LEAF:
+        raise CompileError(f"{len(prim_kind)} primitives: the BVH indexes fewer than 2^31")
+    node_lo, node_hi, node_offset, node_count, _, order = build_bvh(lo, hi)
+    n_binary = len(node_offset)
+    bvh_lo, bvh_hi, bvh_child, bvh_count, bvh_levels = widen_bvh(node_lo, node_hi, node_offset,
+                                                                 node_count)
+    node_lo = node_hi = node_offset = node_count = None
     prim_kind = prim_kind[order]
     prim_geo = np.ascontiguousarray(prim_geo[order])
     prim_material = prim_material[order]
@@ -322,8 +328,7 @@ def compile_scene(scene) -> CompiledScene:
     light_cdf = np.cumsum(light_pmf)
 
     arrays = SceneArrays(
-        bvh_lo=bvh_lo, bvh_hi=bvh_hi, bvh_offset=bvh_offset, bvh_count=bvh_count,
-        bvh_axis=bvh_axis,
+        bvh_lo=bvh_lo, bvh_hi=bvh_hi, bvh_child=bvh_child, bvh_count=bvh_count,
         prim_kind=prim_kind, prim_geo=prim_geo, prim_scale=prim_scale,
         prim_material=prim_material, prim_light=prim_light,
         mat_kind=mat_kind, mat_param=mat_param,
@@ -344,11 +349,12 @@ def compile_scene(scene) -> CompiledScene:
         max_depth=scene.render.max_depth,
         seed=scene.render.seed,
         target_error=scene.render.target_error,
-        stack_size=int(bvh_depth(bvh_offset, bvh_count)) + 2,
+        stack_size=stack_size(int(bvh_levels)),
         info={
             "primitives": int(len(prim_kind)),
             "triangles": int(n_triangles),
-            "bvh_nodes": int(len(bvh_offset)),
+            "bvh_nodes": int(len(bvh_child)),
+            "bvh_binary_nodes": int(n_binary),
             "lights": int(len(light_kind_a)),
             # per material with method auto: {"method", "reason", "expected_error"}
             "auto": {name: vars(choice) for name, choice in auto.items()},

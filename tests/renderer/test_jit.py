@@ -19,7 +19,8 @@ ROOT = Path(__file__).resolve().parents[2]
 # The kernels that allocate arrays, so need the runtime (alloc_kernel, parallel_kernel).
 WITH_RUNTIME = {
     "renderer.geometry.bvh.build_bvh",
-    "renderer.geometry.bvh.bvh_depth",
+    "renderer.geometry.bvh.widen_bvh",
+    "renderer.geometry.bvh.traversal_stack",
     "renderer.geometry.shapes.prim_bounds",
     "renderer.integrators.path.render_tile_kernel",
 }

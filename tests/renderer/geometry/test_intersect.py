@@ -18,12 +18,15 @@ import numpy as np
 import pytest
 
 from renderer.geometry.bvh import (
+    BVH_WIDTH,
     MAX_LEAF,
     STACK_SIZE,
     build_bvh,
-    bvh_depth,
     intersect_closest,
     occluded,
+    stack_size,
+    traversal_stack,
+    widen_bvh,
 )
 from renderer.geometry.shapes import (
     INF,
@@ -223,22 +226,22 @@ def _brute_closest(prim_kind, prim_geo, o, d, t_max):
 def _compare_many(bvh, prim_kind, prim_geo, origins, dirs, t_max_factor):
     """(t, prim, u, v) of the BVH and of brute force for every ray, and occluded() against a
     t_max of t_max_factor × the brute-force t (inf when the ray misses)."""
-    bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis = bvh
+    bvh_lo, bvh_hi, bvh_child, bvh_count = bvh
     m = origins.shape[0]
     res = np.empty((m, 2, 4))
     occ = np.empty((m, 2), np.bool_)
-    stack = np.empty(STACK_SIZE, np.int64)
+    stack = traversal_stack(STACK_SIZE)
     for i in range(m):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
-        t, p, u, v = intersect_closest(bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis,
-                                       prim_kind, prim_geo, o, d, np.inf, stack)
+        t, p, u, v = intersect_closest(bvh_lo, bvh_hi, bvh_child, bvh_count, prim_kind, prim_geo,
+                                       o, d, np.inf, stack)
         tb, pb, ub, vb = _brute_closest(prim_kind, prim_geo, o, d, np.inf)
         res[i, 0, 0], res[i, 0, 1], res[i, 0, 2], res[i, 0, 3] = t, p, u, v
         res[i, 1, 0], res[i, 1, 1], res[i, 1, 2], res[i, 1, 3] = tb, pb, ub, vb
         t_max = tb * t_max_factor[i] if pb >= 0 else np.inf
-        occ[i, 0] = occluded(bvh_lo, bvh_hi, bvh_offset, bvh_count, bvh_axis, prim_kind,
-                             prim_geo, o, d, t_max, stack)
+        occ[i, 0] = occluded(bvh_lo, bvh_hi, bvh_child, bvh_count, prim_kind, prim_geo, o, d,
+                             t_max, stack)
         occ[i, 1] = _brute_closest(prim_kind, prim_geo, o, d, t_max)[1] >= 0
     return res, occ
 
@@ -261,11 +264,19 @@ def random_scene(rng, n_tri=5000, n_sph=150, n_quad=150):
     return kind[perm], np.ascontiguousarray(geo[perm])
 
 
-def build(kind, geo):
-    """The BVH and the primitives in BVH order, as renderer/scene/compile.py packs them."""
+def build_binary(kind, geo):
+    """The binary BVH's node arrays and the primitives' order."""
     lo, hi = prim_bounds(kind, geo)
     *nodes, order = build_bvh(lo, hi)
-    return tuple(nodes), order, kind[order], np.ascontiguousarray(geo[order])
+    return tuple(nodes), order
+
+
+def build(kind, geo):
+    """The wide BVH the traversal walks and the primitives in BVH order, as
+    renderer/scene/compile.py packs them."""
+    nodes, order = build_binary(kind, geo)
+    wide = widen_bvh(*nodes[:4])[:4]
+    return wide, order, kind[order], np.ascontiguousarray(geo[order])
 
 
 def random_rays(rng, m):
@@ -308,7 +319,7 @@ def test_bvh_matches_brute_force(rng):
 def test_bvh_structure(rng):
     kind, geo = random_scene(rng)
     lo, hi = prim_bounds(kind, geo)
-    bvh, order, _, _ = build(kind, geo)
+    bvh, order = build_binary(kind, geo)
     node_lo, node_hi, node_offset, node_count, node_axis = bvh
     n = len(kind)
     np.testing.assert_array_equal(np.sort(order), np.arange(n))  # a permutation
@@ -335,7 +346,63 @@ def test_bvh_structure(rng):
                 stack.append(child)
     np.testing.assert_array_equal(covered, 1)
     np.testing.assert_array_equal(seen, 1)
-    assert bvh_depth(node_offset, node_count) < STACK_SIZE  # the traversal stack cannot overflow
+
+
+def wide_leaves(wide):
+    """Walk the wide tree from the root, checking its invariants; returns how many leaf slots hold
+    each primitive position, and the number of levels."""
+    w_lo, w_hi, w_child, w_count = wide
+    covered = np.zeros(int(w_child[w_count > 0].max() + MAX_LEAF + 1), np.int64)
+    seen = np.zeros(len(w_child), np.int64)
+    levels = 0
+    stack = [(0, 1)]
+    while stack:
+        i, level = stack.pop()
+        levels = max(levels, level)
+        seen[i] += 1
+        for c in range(BVH_WIDTH):
+            if w_count[i, c] < 0:  # an empty slot: a box no ray can enter
+                assert np.all(w_lo[i, :, c] == np.inf) and np.all(w_hi[i, :, c] == np.inf)
+                continue
+            assert np.all(w_lo[i, :, c] <= w_hi[i, :, c])
+            if w_count[i, c] > 0:
+                assert w_count[i, c] <= MAX_LEAF
+                covered[w_child[i, c]:w_child[i, c] + w_count[i, c]] += 1
+            else:
+                child = w_child[i, c]
+                assert i < child < len(w_child)
+                used = w_count[child] >= 0
+                assert np.all(w_lo[i, :, c, None] <= w_lo[child][:, used])
+                assert np.all(w_hi[child][:, used] <= w_hi[i, :, c, None])
+                stack.append((child, level + 1))
+    np.testing.assert_array_equal(seen, 1)  # every node reached once
+    return covered, levels
+
+
+def test_wide_bvh_structure(rng):
+    # The wide tree holds every primitive in exactly one leaf, every box contains what is below
+    # it, no node is left half empty while a child could still be opened, and the depth it
+    # reports (which sizes the traversal stack) is the depth of the tree.
+    kind, geo = random_scene(rng)
+    nodes, order = build_binary(kind, geo)
+    w_lo, w_hi, w_child, w_count, depth = widen_bvh(*nodes[:4])
+    covered, levels = wide_leaves((w_lo, w_hi, w_child, w_count))
+    np.testing.assert_array_equal(covered[:len(kind)], 1)
+    assert covered[len(kind):].sum() == 0
+    assert depth == levels
+    assert stack_size(depth) <= STACK_SIZE
+    # Leaf boxes are their primitives' bounds, exactly
+    lo, hi = prim_bounds(kind[order], geo[order])
+    for i, c in zip(*np.nonzero(w_count > 0), strict=True):
+        idx = slice(w_child[i, c], w_child[i, c] + w_count[i, c])
+        np.testing.assert_array_equal(w_lo[i, :, c], lo[idx].min(axis=0))
+        np.testing.assert_array_equal(w_hi[i, :, c], hi[idx].max(axis=0))
+    # A wide node is full unless all its children are leaves
+    for i in range(len(w_child)):
+        if np.any(w_count[i] < 0):
+            assert np.all(w_count[i] != 0)
+    # Fewer nodes than the binary tree's interior nodes
+    assert len(w_child) <= max(1, int(np.sum(nodes[3] == 0)))
 
 
 def test_bvh_with_coincident_primitives(rng):
@@ -346,13 +413,9 @@ def test_bvh_with_coincident_primitives(rng):
     kind = np.array([TRIANGLE] * 60 + [SPHERE] * 60, np.int8)
     geo = np.array([tri] * 60 + [sph] * 60)
     bvh, order, prim_kind, prim_geo = build(kind, geo)
-    node_offset, node_count = bvh[2], bvh[3]
-    covered = np.zeros(len(kind), np.int64)
-    for i in np.nonzero(node_count > 0)[0]:
-        assert node_count[i] <= MAX_LEAF
-        covered[node_offset[i]:node_offset[i] + node_count[i]] += 1
-    np.testing.assert_array_equal(covered, 1)
-    stack = np.empty(STACK_SIZE, np.int64)
+    covered, _ = wide_leaves(bvh)
+    np.testing.assert_array_equal(covered[:len(kind)], 1)
+    stack = traversal_stack(STACK_SIZE)
     t, prim, _, _ = intersect_closest(*bvh, prim_kind, prim_geo, (0.2, 0.2, 5.0), (0.0, 0.0, -1.0),
                                       np.inf, stack)
     assert t == 5.0 and prim_kind[prim] == TRIANGLE
@@ -368,8 +431,8 @@ def test_bvh_small(rng, n):
     # A single primitive is a single leaf; tiny scenes still agree with brute force.
     kind, geo = random_scene(rng, n_tri=n, n_sph=0, n_quad=0)
     bvh, order, prim_kind, prim_geo = build(kind, geo)
-    if n == 1:
-        assert len(bvh[3]) == 1 and bvh[3][0] == 1
+    if n == 1:  # one node whose one slot is a leaf
+        assert len(bvh[3]) == 1 and bvh[3][0, 0] == 1 and np.all(bvh[3][0, 1:] == -1)
     origins = np.repeat(geo[:, 0:3] + 5.0, 20, axis=0)
     targets = np.repeat(geo[:, 0:3] + 0.25 * geo[:, 3:6] + 0.25 * geo[:, 6:9], 20, axis=0)
     dirs = targets - origins + rng.normal(scale=0.05, size=origins.shape)
@@ -386,13 +449,17 @@ def test_bvh_of_no_primitives():
     code = (
         "import numpy as np\n"
         "from renderer.geometry.bvh import build_bvh, intersect_closest, occluded, STACK_SIZE\n"
+        "from renderer.geometry.bvh import traversal_stack, widen_bvh\n"
         "b = build_bvh(np.empty((0, 3)), np.empty((0, 3)))\n"
         "assert b[3].sum() == 0 and len(b[5]) == 0, b\n"
-        "s = np.empty(STACK_SIZE, np.int64)\n"
+        "w = widen_bvh(*b[:4])\n"
+        "assert len(w[2]) == 0 and w[4] == 0, w\n"
+        "b = w[:4]\n"
+        "s = traversal_stack(STACK_SIZE)\n"
         "k, g = np.empty(0, np.int8), np.empty((0, 9))\n"
         "o, d = (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)\n"
-        "assert intersect_closest(*b[:5], k, g, o, d, np.inf, s)[1] == -1\n"
-        "assert not occluded(*b[:5], k, g, o, d, np.inf, s)\n"
+        "assert intersect_closest(*b, k, g, o, d, np.inf, s)[1] == -1\n"
+        "assert not occluded(*b, k, g, o, d, np.inf, s)\n"
         "print('ok')\n"
     )
     try:
@@ -412,7 +479,7 @@ def test_ray_through_shared_edge_hits(rng):
     geo = np.array([[*v0, *(v1 - v0), *(v2 - v0)], [*v0, *(v2 - v0), *(v3 - v0)]])
     kind = np.array([TRIANGLE, TRIANGLE], np.int8)
     bvh, order, prim_kind, prim_geo = build(kind, geo)
-    stack = np.empty(STACK_SIZE, np.int64)
+    stack = traversal_stack(STACK_SIZE)
     for s in np.arange(1, 16) / 16.0:
         t, prim, _, _ = intersect_closest(*bvh, prim_kind, prim_geo, (s, s, 2.0),
                                           (0.0, 0.0, -1.0), np.inf, stack)
