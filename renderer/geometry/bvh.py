@@ -8,7 +8,7 @@ otherwise ``node_offset[i]`` is the second child and ``node_axis[i]`` the split 
 The traversal walks a wide tree collapsed from it (``widen_bvh``: ``BVH_WIDTH`` children a node,
 as Embree's BVH8): fewer, fatter nodes, their children visited nearest first by entry distance,
 cost fewer stack operations and mispredicted branches than the binary tree's one box at a time
-(6-31 % faster renders, docs/performance.md). The hits are the same, the closest one exactly that
+(5-25 % faster renders, docs/performance.md). The hits are the same, the closest one exactly that
 of a test of every primitive, except where two primitives are hit at exactly the same distance
 (coplanar faces): the one tested first wins, and the order differs from the binary tree's.
 
@@ -274,7 +274,7 @@ def widen_bvh(node_lo, node_hi, node_offset, node_count):
     opening its largest interior child until it has ``BVH_WIDTH`` of them.
 
     Returns (lo, hi, child, count, depth): ``lo``/``hi`` (n, 3, W) are the children's boxes, axis
-    by axis (float64: float32 boxes rounded outwards were 10-15 % slower, the conversions costing
+    by axis (float64: float32 boxes rounded outwards were 3-15 % slower, the conversions costing
     more than the cache lines saved); ``count[i, c] > 0`` marks a leaf child holding primitives
     ``child[i, c]`` … ``child[i, c] + count[i, c] − 1``, ``count[i, c] == 0`` an interior child
     (wide node ``child[i, c]``) and −1 an empty slot, whose box (+inf, +inf) no ray enters.
