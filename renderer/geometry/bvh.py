@@ -3,7 +3,7 @@
 The layout is pbrt's ``LinearBVHNode``: nodes in depth-first order, so an interior node's first
 child is the next node and only the second child's index is stored. ``node_count[i] > 0`` marks a
 leaf holding primitives ``node_offset[i] … node_offset[i] + node_count[i] − 1`` (in BVH order);
-otherwise ``node_offset[i]`` is the second child and ``node_axis[i]`` the split axis.
+otherwise ``node_offset[i]`` is the second child.
 
 The traversal walks a wide tree collapsed from it (``widen_bvh``: ``BVH_WIDTH`` children a node,
 as Embree's BVH8): fewer, fatter nodes, their children visited nearest first by entry distance,
@@ -47,7 +47,7 @@ def _centroid(lo, hi, i, axis):
 def build_bvh(lo, hi):
     """Build over primitive bounds ``lo``/``hi`` (n, 3). Returns the node arrays and the order.
 
-    Returns (node_lo, node_hi, node_offset, node_count, node_axis, order): ``order[k]`` is the
+    Returns (node_lo, node_hi, node_offset, node_count, order): ``order[k]`` is the
     original index of the primitive stored at BVH position k.
     """
     n = lo.shape[0]
@@ -57,7 +57,6 @@ def build_bvh(lo, hi):
     node_hi = np.empty((max_nodes, 3))
     node_offset = np.zeros(max_nodes, np.int64)
     node_count = np.zeros(max_nodes, np.int64)
-    node_axis = np.zeros(max_nodes, np.int8)
 
     # Work items: (start, end, parent); parent < 0 for the root, and a parent index is recorded
     # so the second child can write its own index into the parent once it is allocated.
@@ -179,7 +178,6 @@ def build_bvh(lo, hi):
             if best_axis < 0:
                 # All centroids coincide: split by count so leaves stay small.
                 mid = (start + end) // 2
-                best_axis = 0
             else:
                 c_lo = clo0 if best_axis == 0 else (clo1 if best_axis == 1 else clo2)
                 c_hi = chi0 if best_axis == 0 else (chi1 if best_axis == 1 else chi2)
@@ -206,7 +204,6 @@ def build_bvh(lo, hi):
             node_count[node] = count
         else:
             node_count[node] = 0
-            node_axis[node] = best_axis
             if sp + 2 > stack_start.shape[0]:
                 grow = stack_start.shape[0] * 2
                 s2 = np.empty(grow, np.int64)
@@ -231,7 +228,6 @@ def build_bvh(lo, hi):
         node_hi[:n_nodes].copy(),
         node_offset[:n_nodes].copy(),
         node_count[:n_nodes].copy(),
-        node_axis[:n_nodes].copy(),
         order,
     )
 

@@ -248,7 +248,7 @@ def compile_scene(scene) -> CompiledScene:
     lo, hi = prim_bounds(prim_kind, prim_geo)
     if len(prim_kind) >= 2**31 - MAX_LEAF:
         raise CompileError(f"{len(prim_kind)} primitives: the BVH indexes fewer than 2^31")
-    node_lo, node_hi, node_offset, node_count, _, order = build_bvh(lo, hi)
+    node_lo, node_hi, node_offset, node_count, order = build_bvh(lo, hi)
     n_binary = len(node_offset)
     bvh_lo, bvh_hi, bvh_child, bvh_count, bvh_levels = widen_bvh(node_lo, node_hi, node_offset,
                                                                  node_count)

@@ -275,7 +275,7 @@ def build(kind, geo):
     """The wide BVH the traversal walks and the primitives in BVH order, as
     renderer/scene/compile.py packs them."""
     nodes, order = build_binary(kind, geo)
-    wide = widen_bvh(*nodes[:4])[:4]
+    wide = widen_bvh(*nodes)[:4]
     return wide, order, kind[order], np.ascontiguousarray(geo[order])
 
 
@@ -320,7 +320,7 @@ def test_bvh_structure(rng):
     kind, geo = random_scene(rng)
     lo, hi = prim_bounds(kind, geo)
     bvh, order = build_binary(kind, geo)
-    node_lo, node_hi, node_offset, node_count, node_axis = bvh
+    node_lo, node_hi, node_offset, node_count = bvh
     n = len(kind)
     np.testing.assert_array_equal(np.sort(order), np.arange(n))  # a permutation
 
@@ -338,7 +338,6 @@ def test_bvh_structure(rng):
             covered[node_offset[i]:node_offset[i] + node_count[i]] += 1
             assert np.all(node_lo[i] <= lo[idx]) and np.all(hi[idx] <= node_hi[i])
         else:
-            assert node_axis[i] in (0, 1, 2)
             for child in (i + 1, node_offset[i]):
                 assert i < child < len(node_count)
                 assert np.all(node_lo[i] <= node_lo[child])
@@ -385,7 +384,7 @@ def test_wide_bvh_structure(rng):
     # reports (which sizes the traversal stack) is the depth of the tree.
     kind, geo = random_scene(rng)
     nodes, order = build_binary(kind, geo)
-    w_lo, w_hi, w_child, w_count, depth = widen_bvh(*nodes[:4])
+    w_lo, w_hi, w_child, w_count, depth = widen_bvh(*nodes)
     covered, levels = wide_leaves((w_lo, w_hi, w_child, w_count))
     np.testing.assert_array_equal(covered[:len(kind)], 1)
     assert covered[len(kind):].sum() == 0
@@ -451,7 +450,7 @@ def test_bvh_of_no_primitives():
         "from renderer.geometry.bvh import build_bvh, intersect_closest, occluded, STACK_SIZE\n"
         "from renderer.geometry.bvh import traversal_stack, widen_bvh\n"
         "b = build_bvh(np.empty((0, 3)), np.empty((0, 3)))\n"
-        "assert b[3].sum() == 0 and len(b[5]) == 0, b\n"
+        "assert b[3].sum() == 0 and len(b[4]) == 0, b\n"
         "w = widen_bvh(*b[:4])\n"
         "assert len(w[2]) == 0 and w[4] == 0, w\n"
         "b = w[:4]\n"
