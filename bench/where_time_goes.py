@@ -47,7 +47,8 @@ def primary_rays(S, width, height, seed, spp, stack_size, out):
                 key = sample_key(seed, y * width + x, s)
                 o, d = camera_ray(S.camera, width, height, x, y, uniform(key, 0), uniform(key, 1))
                 t, prim, _, _ = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count,
-                                                  S.prim_kind, S.prim_geo, o, d, math.inf, stack)
+                                                  S.flat, S.prim_kind, S.prim_geo, o, d, math.inf,
+                                                  stack)
                 acc += t if prim >= 0 else 0.0
         out[y] = acc
 

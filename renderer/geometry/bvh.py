@@ -21,6 +21,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from renderer.geometry.flat import FLAT_MAX, flat_closest, flat_occluded
 from renderer.geometry.shapes import INF, intersect_prim
 from renderer.jit import alloc_kernel, inline_kernel, kernel
 
@@ -343,9 +344,10 @@ def stack_size(depth):
 
 @alloc_kernel
 def traversal_stack(size):
-    """A traversal stack: (entries, entry distances). An entry is a slot ``node·W + c`` of the
-    wide tree's ``child``/``count`` arrays."""
-    return np.empty(size, np.int64), np.empty(size)
+    """A traversal stack: (entries, entry distances, scratch). An entry is a slot ``node·W + c``
+    of the wide tree's ``child``/``count`` arrays; the scratch holds a flat scene's distances
+    (renderer.geometry.flat)."""
+    return np.empty(size, np.int64), np.empty(size), np.empty((3, FLAT_MAX))
 
 
 @kernel
@@ -371,15 +373,18 @@ def _slab(node_lo, node_hi, node, c, o, inv_d, t_max):
 
 
 @inline_kernel
-def intersect_closest(bvh_lo, bvh_hi, bvh_child, bvh_count, prim_kind, prim_geo, o, d, t_max,
-                      stack):
+def intersect_closest(bvh_lo, bvh_hi, bvh_child, bvh_count, flat, prim_kind, prim_geo, o, d,
+                      t_max, stack):
     """Closest hit along the ray within (0, t_max): (t, prim, u, v), prim = -1 on a miss.
 
-    A node's children are tested one after the other and the ones the ray enters are pushed
-    sorted by entry distance, nearest on top; an entry popped after a hit nearer than its box is
-    dropped (Embree's ordered traversal).
+    A flat scene (``flat`` has a column a primitive) is searched without the tree. Otherwise a
+    node's children are tested one after the other and the ones the ray enters are pushed sorted
+    by entry distance, nearest on top; an entry popped after a hit nearer than its box is dropped
+    (Embree's ordered traversal).
     """
-    slots, dist = stack
+    slots, dist, scratch = stack
+    if flat.shape[1] > 0:
+        return flat_closest(flat, prim_kind, prim_geo, o, d, t_max, scratch)
     inv_d = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
     best_t = t_max
     best_prim = -1
@@ -428,12 +433,15 @@ def intersect_closest(bvh_lo, bvh_hi, bvh_child, bvh_count, prim_kind, prim_geo,
 
 
 @inline_kernel
-def occluded(bvh_lo, bvh_hi, bvh_child, bvh_count, prim_kind, prim_geo, o, d, t_max, stack):
+def occluded(bvh_lo, bvh_hi, bvh_child, bvh_count, flat, prim_kind, prim_geo, o, d, t_max,
+             stack):
     """True when anything lies on the ray within (0, t_max): the any-hit query of shadow rays.
     Leaves are tested as soon as their box is entered; interior children are pushed unsorted."""
+    slots, _, scratch = stack
+    if flat.shape[1] > 0:
+        return flat_occluded(flat, prim_kind, prim_geo, o, d, t_max, scratch)
     if bvh_child.shape[0] == 0:
         return False
-    slots, _ = stack
     inv_d = (1.0 / d[0], 1.0 / d[1], 1.0 / d[2])
     sp = 0
     node = 0

@@ -95,7 +95,7 @@ def transmittance(S, o, d, t_max, medium, stack):
     the medium at o (−1: vacuum)."""
     tr = 1.0
     for _ in range(64):
-        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count,
+        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
                                           S.prim_kind, S.prim_geo, o, d, t_max, stack)
         if medium >= 0:
             tr *= math.exp(-S.mat_param[medium, 4] * min(t, t_max))
@@ -136,8 +136,8 @@ def surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack):
                                                                   abs(q[2]))
     if null_media:
         return transmittance(S, origin, wi, t_max, medium, stack)
-    if occluded(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.prim_kind, S.prim_geo, origin,
-                wi, t_max, stack):
+    if occluded(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat, S.prim_kind, S.prim_geo,
+                origin, wi, t_max, stack):
         return 0.0
     return 1.0
 
@@ -172,8 +172,8 @@ def backlight_transmission(S, mp, p, n, wo, wi, t_max, stack):
     lobe = (mp[8] + 1.0) / (2.0 * math.pi) * c ** mp[8]
     # Thickness: from just inside p towards the light, to where the ray leaves the object
     inside = spawn_offset(p, ns, wi, max(abs(p[0]), abs(p[1]), abs(p[2])))
-    t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.prim_kind,
-                                      S.prim_geo, inside, wi, t_max, stack)
+    t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
+                                      S.prim_kind, S.prim_geo, inside, wi, t_max, stack)
     if prim < 0:
         return 0.0, 0.0, 0.0
     q, nq = surface_point(S.prim_kind[prim], S.prim_geo[prim], inside, wi, t, u, v)
@@ -229,7 +229,7 @@ def diffusion_probe(S, mat, p, n, mp, key, stack):
     o = start
     remaining = 2.0 * half
     for _ in range(32):
-        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count,
+        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
                                           S.prim_kind, S.prim_geo, o, dirn,
                                           remaining, stack)
         if prim < 0:
@@ -313,7 +313,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
     null_media = S.null_media[0]
     for _ in range(MAX_SEGMENTS):
         # Find the closest surface along the ray
-        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count,
+        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
                                           S.prim_kind, S.prim_geo, o, d, math.inf,
                                           stack)
 

@@ -14,7 +14,8 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
-from renderer.geometry.bvh import MAX_LEAF, build_bvh, stack_size, widen_bvh
+from renderer.geometry.bvh import BVH_WIDTH, MAX_LEAF, build_bvh, stack_size, widen_bvh
+from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_order
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
 from renderer.materials.auto import auto_choice
@@ -39,6 +40,8 @@ SceneArrays = namedtuple(
     [
         # BVH (renderer.geometry.bvh)
         "bvh_lo", "bvh_hi", "bvh_child", "bvh_count",
+        # a small scene's primitives by column, searched without the tree (renderer.geometry.flat)
+        "flat",
         # primitives in BVH order (renderer.geometry.shapes)
         "prim_kind", "prim_geo", "prim_scale", "prim_material", "prim_light",
         # materials (renderer.materials.bsdf)
@@ -248,16 +251,25 @@ def compile_scene(scene) -> CompiledScene:
     lo, hi = prim_bounds(prim_kind, prim_geo)
     if len(prim_kind) >= 2**31 - MAX_LEAF:
         raise CompileError(f"{len(prim_kind)} primitives: the BVH indexes fewer than 2^31")
-    node_lo, node_hi, node_offset, node_count, order = build_bvh(lo, hi)
-    n_binary = len(node_offset)
-    bvh_lo, bvh_hi, bvh_child, bvh_count, bvh_levels = widen_bvh(node_lo, node_hi, node_offset,
-                                                                 node_count)
-    node_lo = node_hi = node_offset = node_count = None
+    if len(prim_kind) <= FLAT_MAX:
+        # Few enough to test all at once: no tree (the empty one finds nothing)
+        order = flat_order(prim_kind)
+        n_binary = bvh_levels = 0
+        bvh_lo = bvh_hi = np.zeros((0, 3, BVH_WIDTH))
+        bvh_child = bvh_count = np.zeros((0, BVH_WIDTH), np.int32)
+    else:
+        node_lo, node_hi, node_offset, node_count, order = build_bvh(lo, hi)
+        n_binary = len(node_offset)
+        bvh_lo, bvh_hi, bvh_child, bvh_count, bvh_levels = widen_bvh(node_lo, node_hi,
+                                                                     node_offset, node_count)
+        node_lo = node_hi = node_offset = node_count = None
     prim_kind = prim_kind[order]
     prim_geo = np.ascontiguousarray(prim_geo[order])
     prim_material = prim_material[order]
     prim_emission = prim_emission[order]
     lo, hi = lo[order], hi[order]
+    flat = (flat_geometry(prim_kind, prim_geo) if len(prim_kind) <= FLAT_MAX
+            else np.zeros((FLAT_ROWS, 0)))
     prim_scale = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
 
     # Scene bounds: the radius that turns a directional light's or the background's radiance
@@ -328,7 +340,7 @@ def compile_scene(scene) -> CompiledScene:
     light_cdf = np.cumsum(light_pmf)
 
     arrays = SceneArrays(
-        bvh_lo=bvh_lo, bvh_hi=bvh_hi, bvh_child=bvh_child, bvh_count=bvh_count,
+        bvh_lo=bvh_lo, bvh_hi=bvh_hi, bvh_child=bvh_child, bvh_count=bvh_count, flat=flat,
         prim_kind=prim_kind, prim_geo=prim_geo, prim_scale=prim_scale,
         prim_material=prim_material, prim_light=prim_light,
         mat_kind=mat_kind, mat_param=mat_param,
@@ -355,6 +367,7 @@ def compile_scene(scene) -> CompiledScene:
             "triangles": int(n_triangles),
             "bvh_nodes": int(len(bvh_child)),
             "bvh_binary_nodes": int(n_binary),
+            "flat": bool(flat.shape[1] > 0),
             "lights": int(len(light_kind_a)),
             # per material with method auto: {"method", "reason", "expected_error"}
             "auto": {name: vars(choice) for name, choice in auto.items()},

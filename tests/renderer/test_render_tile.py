@@ -187,3 +187,24 @@ def test_images_do_not_depend_on_scene_scale_or_position(scale, shift):
     assert abs(img.mean() - ref.mean()) < 5e-3 * ref.mean()
     close = np.isclose(img, ref, rtol=1e-3, atol=1e-6).all(axis=-1)
     assert close.mean() > 0.95, close.mean()
+
+
+@pytest.mark.parametrize("name", ["cornell_box.json", "translucent_sphere.json",
+                                  "glass_sphere.json"])
+def test_a_small_scene_renders_the_same_flat_as_with_a_tree(name, monkeypatch):
+    """Scenes of at most FLAT_MAX primitives are searched flat (renderer/geometry/flat.py), not
+    with the BVH; both find the same hits, so the image is bit for bit the same (these scenes
+    have one light and no coplanar faces that tie)."""
+    import renderer.scene.compile as compile_module
+
+    scene = load_scene(small(name, width=24, height=18, spp=4))
+    flat = compile_scene(scene)
+    assert flat.info["flat"] and flat.info["bvh_nodes"] == 0
+    monkeypatch.setattr(compile_module, "FLAT_MAX", 0)
+    tree = compile_scene(scene)
+    assert not tree.info["flat"] and tree.info["bvh_nodes"] > 0
+    assert tree.arrays.flat.shape[1] == 0
+    a = render_tile(flat, 0, 0, flat.width, flat.height, 0, flat.spp)
+    b = render_tile(tree, 0, 0, tree.width, tree.height, 0, tree.spp)
+    np.testing.assert_array_equal(a.sum, b.sum)
+    np.testing.assert_array_equal(a.count, b.count)

@@ -1,10 +1,12 @@
-"""Ray–shape intersection (renderer/geometry/shapes.py) and the BVH (renderer/geometry/bvh.py).
+"""Ray–shape intersection (renderer/geometry/shapes.py), the BVH (renderer/geometry/bvh.py) and
+the flat search of small scenes (renderer/geometry/flat.py).
 
 Shapes are checked against hand-computed hits and, for spheres, against the roots of
 |o + t d − c|² = r² solved in 60-digit decimal arithmetic from the exact values of the float
 inputs. The BVH is checked against brute force: the same intersection routine run over every
 primitive must give exactly the same closest primitive and the same t (bit for bit: both call
-``intersect_prim`` on the same numbers), and ``occluded`` must agree with it for any t_max.
+``intersect_prim`` on the same numbers), and ``occluded`` must agree with it for any t_max. So is
+the flat search, whose vector loop repeats the planar test's arithmetic.
 """
 
 from __future__ import annotations
@@ -28,6 +30,7 @@ from renderer.geometry.bvh import (
     traversal_stack,
     widen_bvh,
 )
+from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_order
 from renderer.geometry.shapes import (
     INF,
     QUAD,
@@ -226,7 +229,7 @@ def _brute_closest(prim_kind, prim_geo, o, d, t_max):
 def _compare_many(bvh, prim_kind, prim_geo, origins, dirs, t_max_factor):
     """(t, prim, u, v) of the BVH and of brute force for every ray, and occluded() against a
     t_max of t_max_factor × the brute-force t (inf when the ray misses)."""
-    bvh_lo, bvh_hi, bvh_child, bvh_count = bvh
+    bvh_lo, bvh_hi, bvh_child, bvh_count, flat = bvh
     m = origins.shape[0]
     res = np.empty((m, 2, 4))
     occ = np.empty((m, 2), np.bool_)
@@ -234,14 +237,14 @@ def _compare_many(bvh, prim_kind, prim_geo, origins, dirs, t_max_factor):
     for i in range(m):
         o = (origins[i, 0], origins[i, 1], origins[i, 2])
         d = (dirs[i, 0], dirs[i, 1], dirs[i, 2])
-        t, p, u, v = intersect_closest(bvh_lo, bvh_hi, bvh_child, bvh_count, prim_kind, prim_geo,
-                                       o, d, np.inf, stack)
+        t, p, u, v = intersect_closest(bvh_lo, bvh_hi, bvh_child, bvh_count, flat, prim_kind,
+                                       prim_geo, o, d, np.inf, stack)
         tb, pb, ub, vb = _brute_closest(prim_kind, prim_geo, o, d, np.inf)
         res[i, 0, 0], res[i, 0, 1], res[i, 0, 2], res[i, 0, 3] = t, p, u, v
         res[i, 1, 0], res[i, 1, 1], res[i, 1, 2], res[i, 1, 3] = tb, pb, ub, vb
         t_max = tb * t_max_factor[i] if pb >= 0 else np.inf
-        occ[i, 0] = occluded(bvh_lo, bvh_hi, bvh_child, bvh_count, prim_kind, prim_geo, o, d,
-                             t_max, stack)
+        occ[i, 0] = occluded(bvh_lo, bvh_hi, bvh_child, bvh_count, flat, prim_kind, prim_geo, o,
+                             d, t_max, stack)
         occ[i, 1] = _brute_closest(prim_kind, prim_geo, o, d, t_max)[1] >= 0
     return res, occ
 
@@ -271,12 +274,25 @@ def build_binary(kind, geo):
     return tuple(nodes), order
 
 
+NO_FLAT = np.zeros((FLAT_ROWS, 0))
+
+
 def build(kind, geo):
-    """The wide BVH the traversal walks and the primitives in BVH order, as
-    renderer/scene/compile.py packs them."""
+    """The wide BVH the traversal walks (with no flat store, which would take precedence) and the
+    primitives in BVH order, as renderer/scene/compile.py packs a large scene."""
     nodes, order = build_binary(kind, geo)
     wide = widen_bvh(*nodes)[:4]
-    return wide, order, kind[order], np.ascontiguousarray(geo[order])
+    return (*wide, NO_FLAT), order, kind[order], np.ascontiguousarray(geo[order])
+
+
+def build_flat(kind, geo):
+    """A small scene as compile_scene packs it: no tree, the primitives by column, spheres
+    first."""
+    order = flat_order(kind)
+    kind, geo = kind[order], np.ascontiguousarray(geo[order])
+    empty_tree = (np.zeros((0, 3, BVH_WIDTH)), np.zeros((0, 3, BVH_WIDTH)),
+                  np.zeros((0, BVH_WIDTH), np.int32), np.zeros((0, BVH_WIDTH), np.int32))
+    return (*empty_tree, flat_geometry(kind, geo)), order, kind, geo
 
 
 def random_rays(rng, m):
@@ -412,7 +428,7 @@ def test_bvh_with_coincident_primitives(rng):
     kind = np.array([TRIANGLE] * 60 + [SPHERE] * 60, np.int8)
     geo = np.array([tri] * 60 + [sph] * 60)
     bvh, order, prim_kind, prim_geo = build(kind, geo)
-    covered, _ = wide_leaves(bvh)
+    covered, _ = wide_leaves(bvh[:4])
     np.testing.assert_array_equal(covered[:len(kind)], 1)
     stack = traversal_stack(STACK_SIZE)
     t, prim, _, _ = intersect_closest(*bvh, prim_kind, prim_geo, (0.2, 0.2, 5.0), (0.0, 0.0, -1.0),
@@ -453,7 +469,7 @@ def test_bvh_of_no_primitives():
         "assert b[3].sum() == 0 and len(b[4]) == 0, b\n"
         "w = widen_bvh(*b[:4])\n"
         "assert len(w[2]) == 0 and w[4] == 0, w\n"
-        "b = w[:4]\n"
+        "b = (*w[:4], np.zeros((10, 0)))\n"
         "s = traversal_stack(STACK_SIZE)\n"
         "k, g = np.empty(0, np.int8), np.empty((0, 9))\n"
         "o, d = (0.0, 0.0, 0.0), (0.0, 0.0, 1.0)\n"
@@ -485,3 +501,79 @@ def test_ray_through_shared_edge_hits(rng):
         assert prim >= 0 and t == 2.0, s
     assert math.isinf(intersect_closest(*bvh, prim_kind, prim_geo, (1.5, 0.5, 2.0),
                                         (0.0, 0.0, -1.0), np.inf, stack)[0])
+
+
+# --- flat scenes ----------------------------------------------------------------------------------
+
+
+def aimed_rays(rng, geo, kind, per_prim):
+    """Rays from 5 away aimed at points around each primitive (most hit, some miss), and some
+    axis-aligned ones."""
+    geo = np.repeat(geo, per_prim, axis=0)
+    sph = np.repeat(kind == SPHERE, per_prim)
+    a, b = rng.uniform(-0.1, 1.1, (2, len(geo), 1))
+    targets = np.where(sph[:, None],
+                       geo[:, 0:3] + 1.2 * geo[:, 3:4] * rng.uniform(-1, 1, (len(geo), 3)),
+                       geo[:, 0:3] + a * geo[:, 3:6] + b * geo[:, 6:9])
+    origins = targets + 5.0 * unit_rows(rng.normal(size=targets.shape))
+    dirs = targets - origins
+    k = len(dirs) // 10
+    dirs[:k] = np.eye(3)[rng.integers(0, 3, k)] * rng.choice([-1.0, 1.0], (k, 1))
+    return origins, dirs
+
+
+@pytest.mark.parametrize("n_tri,n_sph,n_quad", [(1, 0, 0), (0, 1, 0), (0, 0, 2), (5, 2, 2),
+                                                (8, 4, 12), (0, 0, FLAT_MAX)])
+def test_flat_matches_brute_force(rng, n_tri, n_sph, n_quad):
+    # The flat search gives the closest primitive, t and (u, v) of a test of every primitive in
+    # order, bit for bit, and occluded() agrees with it, for any mix of kinds up to FLAT_MAX
+    # (columns of padding included: 1, 2, 9, 24 primitives).
+    kind, geo = random_scene(rng, n_tri=n_tri, n_sph=n_sph, n_quad=n_quad)
+    geo[:, 0:3] *= 0.2  # closer together, so that primitives hide one another
+    flat, order, prim_kind, prim_geo = build_flat(kind, geo)
+    assert np.all(np.diff((prim_kind != SPHERE).astype(int)) >= 0)  # spheres first
+    origins, dirs = aimed_rays(rng, prim_geo, prim_kind, 200)
+    factors = rng.uniform(0.5, 1.5, len(origins))
+    res, occ = _compare_many(flat, prim_kind, prim_geo, origins, dirs, factors)
+    hit = res[:, 1, 1] >= 0
+    assert 0.2 < hit.mean() < 0.98
+    np.testing.assert_array_equal(res[:, 0], res[:, 1])  # primitive, t, (u, v), exactly
+    np.testing.assert_array_equal(occ[:, 0], occ[:, 1])
+    assert 0 < occ[:, 0].sum() < len(origins)
+    if n_tri + n_sph + n_quad >= 9:  # most primitives (some are hidden) are the closest of some
+        assert len(np.unique(res[hit, 1, 1])) >= 0.8 * len(kind)
+
+
+@pytest.mark.parametrize("n", [1, 15, 16, 17, FLAT_MAX - 1, FLAT_MAX])
+def test_flat_store_is_padded_with_empty_columns(rng, n):
+    # The vector loop runs 16 lanes, then 8, then one at a time; the store is padded to full
+    # vectors with all-zero columns, which no ray hits.
+    kind, geo = random_scene(rng, n_tri=n // 2, n_sph=1, n_quad=n - n // 2 - 1)
+    kind, geo = kind[flat_order(kind)], geo[flat_order(kind)]
+    flat = flat_geometry(kind, geo)
+    assert flat.shape[1] >= max(n, 16) and flat.shape[1] % 8 == 0 and flat.shape[1] - n < 16
+    assert flat.shape[1] <= FLAT_MAX
+    assert np.all(flat[:, n:] == 0.0) and np.all(flat[:, :n][:, kind == SPHERE] == 0.0)
+    np.testing.assert_array_equal(flat[:9, :n][:, kind != SPHERE], geo[kind != SPHERE].T)
+    np.testing.assert_array_equal(flat[9, :n], kind == TRIANGLE)
+    assert flat_geometry(kind[:0], geo[:0]).shape == (FLAT_ROWS, 0)
+
+
+def test_flat_coplanar_tie_goes_to_the_first():
+    # Two quads in one plane overlapping, and a sphere touching it: on an exact tie in t the
+    # first primitive in order wins, as in the brute-force loop (and a sphere before a quad).
+    quad = [-1.0, -1.0, 0.0, 2.0, 0.0, 0.0, 0.0, 2.0, 0.0]
+    kind = np.array([QUAD, QUAD, SPHERE], np.int8)
+    geo = np.array([quad, quad, [0.0, 0.0, -1.0, 1.0, 0, 0, 0, 0, 0]])
+    flat, order, prim_kind, prim_geo = build_flat(kind, geo)
+    assert list(order) == [2, 0, 1]
+    stack = traversal_stack(STACK_SIZE)
+    t, prim, _, _ = intersect_closest(*flat, prim_kind, prim_geo, (0.5, 0.5, 2.0),
+                                      (0.0, 0.0, -1.0), np.inf, stack)
+    assert t == 2.0 and prim == 1  # the first quad, not its copy
+    t, prim, u, v = intersect_closest(*flat, prim_kind, prim_geo, (0.0, 0.0, 2.0),
+                                      (0.0, 0.0, -1.0), np.inf, stack)
+    assert t == 2.0 and prim == 0 and (u, v) == (0.0, 0.0)  # the sphere's top ties the quads
+    assert occluded(*flat, prim_kind, prim_geo, (0.5, 0.5, 2.0), (0.0, 0.0, -1.0), 2.5, stack)
+    assert not occluded(*flat, prim_kind, prim_geo, (0.5, 0.5, 2.0), (0.0, 0.0, -1.0), 1.5,
+                        stack)
