@@ -33,7 +33,8 @@ import numpy as np
 from numba import prange
 
 from renderer.geometry.bvh import intersect_closest, occluded, traversal_stack
-from renderer.geometry.shapes import SPAWN_EPSILON, spawn_offset, surface_point
+from renderer.geometry.flat import flat_planar_t
+from renderer.geometry.shapes import SPAWN_EPSILON, SPHERE, spawn_offset, surface_point
 from renderer.jit import inline_kernel, kernel, parallel_kernel
 from renderer.lights import area_light_pdf, sample_light
 from renderer.materials.bsdf import (
@@ -92,7 +93,18 @@ def transmittance(S, o, d, t_max, medium, stack):
     exp(−σt·length) over the stretches inside index-matched translucent media (their boundaries
     neither reflect nor refract, so a shadow ray may cross them) and single-scatter objects (whose
     surface lets 1 − surface_fraction of the light in, straight on). ``medium`` is the material of
-    the medium at o (−1: vacuum)."""
+    the medium at o (−1: vacuum).
+
+    A flat scene without spheres takes every crossing from one pass (flat_transmittance); else
+    the ray is traced on from each surface it crosses (transmittance_by_crossing)."""
+    if S.flat.shape[1] > 0 and S.prim_kind[0] != SPHERE:
+        return flat_transmittance(S, o, d, t_max, medium, stack[2])
+    return transmittance_by_crossing(S, o, d, t_max, medium, stack)
+
+
+@inline_kernel
+def transmittance_by_crossing(S, o, d, t_max, medium, stack):
+    """``transmittance`` by a closest-hit query from each surface crossed to the next."""
     tr = 1.0
     for _ in range(64):
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
@@ -115,6 +127,41 @@ def transmittance(S, o, d, t_max, medium, stack):
         t_max -= (o2[0] - o[0]) * d[0] + (o2[1] - o[1]) * d[1] + (o2[2] - o[2]) * d[2]
         o = o2
     return 0.0
+
+
+@inline_kernel
+def flat_transmittance(S, o, d, t_max, medium, out):
+    """``transmittance`` in a flat scene of planar primitives, from one pass over all of them.
+
+    Every primitive the ray meets before t_max is a crossing (any other surface blocks: 0). The
+    optical depth is summed over the crossings in any order: entering a medium of σt at t adds
+    σt·(t_max − t), leaving one takes it off again, and the medium at o adds σt·t_max; what
+    remains is σt times the length inside each medium. That is the crossing-by-crossing loop's
+    answer for media that do not overlap (each closed object's boundary entered and left in
+    turn), up to rounding. ``out`` is (3, FLAT_MAX) scratch."""
+    flat_planar_t(S.flat, o, d, out)
+    tau = S.mat_param[medium, 4] * t_max if medium >= 0 else 0.0
+    tr = 1.0
+    for k in range(min(S.flat.shape[1], out.shape[1])):
+        t = out[0, k]
+        if t < t_max:
+            mat = S.prim_material[k]
+            kind = S.mat_kind[mat]
+            if kind != SINGLE_SCATTER and not (kind == TRANSLUCENT and S.mat_param[mat, 0] == 1.0):
+                return 0.0
+            g = S.prim_geo[k]
+            # d·(e1 × e2): the sign that tells entering (< 0) from leaving, as surface_point's
+            # outward normal does
+            dn = (d[0] * (g[4] * g[8] - g[5] * g[7]) + d[1] * (g[5] * g[6] - g[3] * g[8])
+                  + d[2] * (g[3] * g[7] - g[4] * g[6]))
+            rest = S.mat_param[mat, 4] * (t_max - t)
+            if dn < 0.0:
+                tau += rest
+                if kind == SINGLE_SCATTER:
+                    tr *= 1.0 - S.mat_param[mat, 7]
+            else:
+                tau -= rest
+    return tr * math.exp(-max(tau, 0.0))
 
 
 @inline_kernel
