@@ -134,13 +134,17 @@ def flat_transmittance(S, o, d, t_max, medium, out):
     """``transmittance`` in a flat scene of planar primitives, from one pass over all of them.
 
     Every primitive the ray meets before t_max is a crossing (any other surface blocks: 0). The
-    optical depth is summed over the crossings in any order: entering a medium of σt at t adds
-    σt·(t_max − t), leaving one takes it off again, and the medium at o adds σt·t_max; what
-    remains is σt times the length inside each medium. That is the crossing-by-crossing loop's
-    answer for media that do not overlap (each closed object's boundary entered and left in
-    turn), up to rounding. ``out`` is (3, FLAT_MAX) scratch."""
+    optical depth is summed over the crossings in any order: leaving a medium of σt at t adds
+    σt·t, entering one takes σt·t off, and the media still open at the end (entered, or the one
+    at o, and not left) add their σt·t_max; what remains is σt times the length inside each
+    medium. That is the crossing-by-crossing loop's answer for media that do not overlap (each
+    closed object's boundary entered and left in turn), up to rounding; a shadow ray to a light
+    at infinity (t_max = inf) that leaves every medium it entered has a finite depth. ``out`` is
+    (3, FLAT_MAX) scratch."""
     flat_planar_t(S.flat, o, d, out)
-    tau = S.mat_param[medium, 4] * t_max if medium >= 0 else 0.0
+    tau = 0.0
+    open_sigma = S.mat_param[medium, 4] if medium >= 0 else 0.0
+    n_open = 1 if medium >= 0 else 0
     tr = 1.0
     for k in range(min(S.flat.shape[1], out.shape[1])):
         t = out[0, k]
@@ -154,13 +158,19 @@ def flat_transmittance(S, o, d, t_max, medium, out):
             # outward normal does
             dn = (d[0] * (g[4] * g[8] - g[5] * g[7]) + d[1] * (g[5] * g[6] - g[3] * g[8])
                   + d[2] * (g[3] * g[7] - g[4] * g[6]))
-            rest = S.mat_param[mat, 4] * (t_max - t)
+            sigma = S.mat_param[mat, 4]
             if dn < 0.0:
-                tau += rest
+                tau -= sigma * t
+                open_sigma += sigma
+                n_open += 1
                 if kind == SINGLE_SCATTER:
                     tr *= 1.0 - S.mat_param[mat, 7]
             else:
-                tau -= rest
+                tau += sigma * t
+                open_sigma -= sigma
+                n_open -= 1
+    if n_open > 0:
+        tau += open_sigma * t_max
     return tr * math.exp(-max(tau, 0.0))
 
 

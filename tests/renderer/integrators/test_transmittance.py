@@ -75,6 +75,10 @@ def test_beer_lambert_through_two_boxes(flat, method, monkeypatch):
         ((-1.0, 0.5, 0.5), 1.5, -1, entry * math.exp(-sigma * 0.5)),  # ends in box 1
         ((0.25, 0.5, 0.5), 5.0, 0, entry * math.exp(-sigma * (0.75 + 1.5))),  # from inside
         ((0.25, 0.5, 0.5), 0.5, 0, math.exp(-sigma * 0.5)),  # all inside
+        # to a light at infinity (a directional light, the background)
+        ((-1.0, 0.5, 0.5), math.inf, -1, entry**2 * math.exp(-sigma * 2.5)),
+        ((0.25, 0.5, 0.5), math.inf, 0, entry * math.exp(-sigma * 2.25)),
+        ((2.5, 0.5, 0.5), math.inf, 0, math.exp(-sigma * 1.0)),
     ]
     for o, t_max, medium, expected in cases:
         # 1e-8: the crossing loop goes on 1e-9 (SPAWN_EPSILON) past each surface
