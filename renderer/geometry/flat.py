@@ -1,12 +1,12 @@
 """Small scenes without a tree: every primitive tested at once, in the CPU's vector lanes.
 
-A scene of a few dozen primitives (a Cornell box is 18 quads) is searched faster by testing all of
-them than by walking a BVH: the tree's box tests, stack and branches cost more than the handful
-of primitives they rule out. Tested one by one that would not hold, but the planar test
+A scene of two dozen primitives or fewer (a Cornell box is 18 quads) is searched faster by testing
+all of them than by walking a BVH: the tree's box tests, stack and branches cost more than the
+handful of primitives they rule out. Tested one by one that would not hold, but the planar test
 (Möller–Trumbore, ``shapes.intersect_parallelogram``) has no branch, so one loop over the
 primitives, their coordinates stored by column (``flat_geometry``), is vectorized by LLVM: 8
 primitives per AVX-512 instruction, 4 per AVX2 one. On the seed paper's boxes that finds the
-closest of 18 quads 1.75x as fast as the 8-wide BVH does (docs/performance.md, "flat scenes").
+closest of 18 quads 1.8x as fast as the 8-wide BVH does (docs/performance.md, "Flat scenes").
 
 Spheres have no such test (a square root and two roots); they come first in a flat scene's
 primitive order and are tested one by one before the loop, which sees them as degenerate quads
