@@ -88,6 +88,14 @@ def roulette(br, bg, bb, eta_scale, cap, u):
 
 
 @inline_kernel
+def shadow_passable(S, mat):
+    """A shadow ray may cross a surface of material ``mat``: an index-matched translucent medium's
+    boundary or a single-scatter object's (see transmittance)."""
+    kind = S.mat_kind[mat]
+    return (kind == TRANSLUCENT and S.mat_param[mat, 0] == 1.0) or kind == SINGLE_SCATTER
+
+
+@inline_kernel
 def transmittance(S, o, d, t_max, medium, stack):
     """Fraction of light that travels from o to o + t_max·d: 0 when a surface blocks it, else
     exp(−σt·length) over the stretches inside index-matched translucent media (their boundaries
@@ -115,8 +123,7 @@ def transmittance_by_crossing(S, o, d, t_max, medium, stack):
             return tr
         mat = S.prim_material[prim]
         kind = S.mat_kind[mat]
-        passable = (kind == TRANSLUCENT and S.mat_param[mat, 0] == 1.0) or kind == SINGLE_SCATTER
-        if not passable or tr == 0.0:
+        if not shadow_passable(S, mat) or tr == 0.0:
             return 0.0
         p, n = surface_point(S.prim_kind[prim], S.prim_geo[prim], o, d, t, u, v)
         entering = d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0
@@ -150,9 +157,9 @@ def flat_transmittance(S, o, d, t_max, medium, out):
         t = out[0, k]
         if t < t_max:
             mat = S.prim_material[k]
-            kind = S.mat_kind[mat]
-            if kind != SINGLE_SCATTER and not (kind == TRANSLUCENT and S.mat_param[mat, 0] == 1.0):
+            if not shadow_passable(S, mat):
                 return 0.0
+            kind = S.mat_kind[mat]
             g = S.prim_geo[k]
             # d·(e1 × e2): the sign that tells entering (< 0) from leaving, as surface_point's
             # outward normal does

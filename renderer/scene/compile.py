@@ -251,7 +251,8 @@ def compile_scene(scene) -> CompiledScene:
     lo, hi = prim_bounds(prim_kind, prim_geo)
     if len(prim_kind) >= 2**31 - MAX_LEAF:
         raise CompileError(f"{len(prim_kind)} primitives: the BVH indexes fewer than 2^31")
-    if len(prim_kind) <= FLAT_MAX:
+    is_flat = 0 < len(prim_kind) <= FLAT_MAX
+    if is_flat:
         # Few enough to test all at once: no tree (the empty one finds nothing)
         order = flat_order(prim_kind)
         n_binary = bvh_levels = 0
@@ -268,8 +269,7 @@ def compile_scene(scene) -> CompiledScene:
     prim_material = prim_material[order]
     prim_emission = prim_emission[order]
     lo, hi = lo[order], hi[order]
-    flat = (flat_geometry(prim_kind, prim_geo) if len(prim_kind) <= FLAT_MAX
-            else np.zeros((FLAT_ROWS, 0)))
+    flat = flat_geometry(prim_kind, prim_geo) if is_flat else np.zeros((FLAT_ROWS, 0))
     prim_scale = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
 
     # Scene bounds: the radius that turns a directional light's or the background's radiance
