@@ -24,7 +24,10 @@
   traversal) followed once the slab test had lost its branches: +14 % and +7 % on the Cornell box
   in alternating A/B runs (an earlier, single-run try had seen nothing through the noise); cold
   compile 40 s -> 52 s on that machine. The calls left: ``objdump -dr`` on the objects
-  ``python -m bench.profile_kernel --keep DIR`` writes.
+  ``python -m bench.profile_kernel --keep DIR`` writes. Sites off the hot path call instead of
+  inlining (``transmittance_by_crossing``, which only tree scenes use, and diffuse_entry's
+  separate shadow ray, ``surface_shadow_call``): each inlined copy of a ray query adds compile
+  time, and these two took the cold compile from 113 s to 67 s (docs/performance.md, "Start-up").
 """
 
 from __future__ import annotations

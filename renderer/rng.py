@@ -98,36 +98,50 @@ def nested_uniform_scramble(x, seed):
     return reverse_bits32(_laine_karras(reverse_bits32(x), seed))
 
 
-def _pascal_tables() -> np.ndarray:
-    """Sobol' dimension 2 as four byte tables: the generator (the Pascal matrix mod 2) is linear
-    over GF(2), so the point of an index is the XOR of the points of its four bytes."""
-    directions = []
-    v = 1 << 31
-    for _ in range(32):
-        directions.append(v)
-        v ^= v >> 1
+def _byte_tables(images: list[int]) -> np.ndarray:
+    """A linear map over GF(2) of 32-bit values, given the image of each bit, as four byte tables:
+    the image of x is the XOR of its four bytes' entries."""
     tables = np.zeros((4, 256), np.uint64)
     for byte in range(4):
         for value in range(256):
             r = 0
             for bit in range(8):
                 if value >> bit & 1:
-                    r ^= directions[8 * byte + bit]
+                    r ^= images[8 * byte + bit]
             tables[byte, value] = r
     return tables
 
 
-_PASCAL = _pascal_tables()
+def _pascal_directions() -> list[int]:
+    """Sobol' dimension 2's direction numbers: the generator matrix (the Pascal matrix mod 2),
+    column i the image of bit i of the index."""
+    directions = []
+    v = 1 << 31
+    for _ in range(32):
+        directions.append(v)
+        v ^= v >> 1
+    return directions
+
+
+def _reverse32(x: int) -> int:
+    return int(f"{x:032b}"[::-1], 2)
+
+
+# x ↦ reverse(pascal(reverse(x))), Sobol' dimension 2 between two bit reversals: the scrambled
+# value of the second component is reverse(LK(reverse(pascal(reverse(shuffled))))), and this map
+# takes the shuffled index straight to the scramble's input (two of the four bit reversals gone,
+# the values the same bit for bit). Bit i of x is bit 31 − i of reverse(x).
+_PASCAL_REVERSED = _byte_tables([_reverse32(v) for v in reversed(_pascal_directions())])
 _BYTE = np.uint64(0xFF)
 
 
 @kernel
-def _sobol_pascal(index):
-    """Sobol' dimension 2, 32 bits."""
-    r = _PASCAL[0, index & _BYTE]
-    r ^= _PASCAL[1, (index >> np.uint64(8)) & _BYTE]
-    r ^= _PASCAL[2, (index >> np.uint64(16)) & _BYTE]
-    r ^= _PASCAL[3, (index >> np.uint64(24)) & _BYTE]
+def _linear_map(tables, x):
+    """The linear map ``tables`` (``_byte_tables``) of the 32-bit value x."""
+    r = tables[0, x & _BYTE]
+    r ^= tables[1, (x >> np.uint64(8)) & _BYTE]
+    r ^= tables[2, (x >> np.uint64(16)) & _BYTE]
+    r ^= tables[3, (x >> np.uint64(24)) & _BYTE]
     return r
 
 
@@ -138,15 +152,39 @@ def block_seed(pixel_seed, block):
 
 
 @kernel
+def scramble_seed(seed, component):
+    """The 32-bit seed of the point scramble of one component of the block with this seed."""
+    return mix64(np.uint64(seed) + np.uint64(component) + _ONE) & _U32
+
+
+@kernel
+def sobol_block_seeds(pixel_seed, out):
+    """Fill out (blocks, 3) with each block's seeds for one pixel: the index shuffle's
+    (``block_seed``) and the point scrambles' of components 0 and 1 (``scramble_seed``), so a
+    sample's values cost no hashing of seeds (``sobol_value``)."""
+    for b in range(out.shape[0]):
+        s = block_seed(pixel_seed, b)
+        out[b, 0] = s
+        out[b, 1] = scramble_seed(s, 0)
+        out[b, 2] = scramble_seed(s, 1)
+
+
+@kernel
+def sobol_value(sample, seed, scramble, component):
+    """``sobol_sample`` with the block's scramble seed of this component given."""
+    # The shuffled index is reverse(LK(reverse(sample))), and van der Corput is its reversal: LK
+    # of the reversed sample, with the two reversals between them cancelled. The nested uniform
+    # scramble then takes the reversed value
+    shuffled = _laine_karras(reverse_bits32(np.uint64(sample) & _U32), np.uint64(seed))
+    if component == 0:
+        y = reverse_bits32(shuffled)
+    else:
+        y = _linear_map(_PASCAL_REVERSED, shuffled)
+    return float(reverse_bits32(_laine_karras(y, np.uint64(scramble)))) * _TWO_POW_M32
+
+
+@kernel
 def sobol_sample(sample, seed, component):
     """Component 0 or 1 of point ``sample`` of the shuffled, scrambled (0,2)-sequence ``seed``."""
-    seed = np.uint64(seed)
-    # The shuffled index is reverse(LK(reverse(sample))), and van der Corput is its reversal: LK
-    # of the reversed sample, with the two reversals between them cancelled
-    shuffled = _laine_karras(reverse_bits32(np.uint64(sample) & _U32), seed)
-    if component == 0:
-        v = shuffled
-    else:
-        v = _sobol_pascal(reverse_bits32(shuffled))
-    v = nested_uniform_scramble(v, mix64(seed + np.uint64(component) + _ONE) & _U32)
-    return float(v) * _TWO_POW_M32
+    return sobol_value(sample, seed, scramble_seed(seed, component), component)
+

@@ -27,8 +27,9 @@ INF = np.inf
 
 
 @kernel
-def intersect_sphere(o, d, geo):
-    """Nearest t > 0 on a sphere; d need not be normalized.
+def sphere_roots(o, d, geo):
+    """Both distances (t0 ≤ t1) at which the line o + t·d meets a sphere, of any sign; (inf, inf)
+    when it does not. d need not be normalized.
 
     The discriminant is computed as r² − |f − (f·d̂)d̂|² rather than b² − c, which keeps precision
     for rays that start far from a small sphere (Haines et al., "Precision Improvements for
@@ -43,15 +44,22 @@ def intersect_sphere(o, d, geo):
     lx, ly, lz = fx + s * d[0], fy + s * d[1], fz + s * d[2]
     disc = dd * (r * r - (lx * lx + ly * ly + lz * lz))
     if disc < 0.0:
-        return INF, 0.0, 0.0
+        return INF, INF
     c = fx * fx + fy * fy + fz * fz - r * r
     q = b + math.copysign(math.sqrt(disc), b)
     if q == 0.0:
-        return INF, 0.0, 0.0
+        return INF, INF
     t0 = c / q
     t1 = q / dd
     if t0 > t1:
         t0, t1 = t1, t0
+    return t0, t1
+
+
+@kernel
+def intersect_sphere(o, d, geo):
+    """Nearest t > 0 on a sphere (``sphere_roots``); d need not be normalized."""
+    t0, t1 = sphere_roots(o, d, geo)
     if t0 > 0.0:
         return t0, 0.0, 0.0
     if t1 > 0.0:

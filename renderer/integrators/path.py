@@ -34,7 +34,13 @@ from numba import prange
 
 from renderer.geometry.bvh import intersect_closest, occluded, traversal_stack
 from renderer.geometry.flat import flat_planar_t
-from renderer.geometry.shapes import SPAWN_EPSILON, SPHERE, spawn_offset, surface_point
+from renderer.geometry.shapes import (
+    SPAWN_EPSILON,
+    SPHERE,
+    spawn_offset,
+    sphere_roots,
+    surface_point,
+)
 from renderer.jit import inline_kernel, kernel, parallel_kernel
 from renderer.lights import area_light_pdf, sample_light
 from renderer.materials.bsdf import (
@@ -58,7 +64,7 @@ from renderer.materials.burley import (
 )
 from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.phase import hg_pdf, hg_sample
-from renderer.rng import block_seed, mix64, sample_key, sobol_sample, uniform
+from renderer.rng import mix64, sample_key, sobol_block_seeds, sobol_value, uniform
 from renderer.sampling import INV_4PI, phong_lobe, power_heuristic
 from renderer.vecmath import onb, to_world
 
@@ -67,6 +73,7 @@ RR_MAX = 0.95  # at surfaces; inside media the survival probability is not cappe
 DIMS_PER_BOUNCE = 8
 PIXEL_SEED_SALT = np.uint64(0x5D1E5EEDC0FFEE11)
 SOBOL_VERTICES = 2  # vertices whose samples the sobol sampler stratifies
+SOBOL_BLOCKS = 1 + 5 * SOBOL_VERTICES  # its sequences: the camera's, then five a vertex (draw)
 # A guard against a path that never ends (a ray trapped between two perfect mirrors with
 # roulette surviving at 0.95 still ends, but only with probability one). Every scattering event
 # past RR_DEPTH survives with probability ≤ 0.95, so a path of 2¹⁸ segments (scattering events
@@ -103,16 +110,20 @@ def transmittance(S, o, d, t_max, medium, stack):
     surface lets 1 − surface_fraction of the light in, straight on). ``medium`` is the material of
     the medium at o (−1: vacuum).
 
-    A flat scene without spheres takes every crossing from one pass (flat_transmittance); else
-    the ray is traced on from each surface it crosses (transmittance_by_crossing)."""
-    if S.flat.shape[1] > 0 and S.prim_kind[0] != SPHERE:
+    A flat scene takes every crossing from one pass (flat_transmittance); in a tree the ray is
+    traced on from each surface it crosses (transmittance_by_crossing)."""
+    if S.flat.shape[1] > 0:
         return flat_transmittance(S, o, d, t_max, medium, stack[2])
     return transmittance_by_crossing(S, o, d, t_max, medium, stack)
 
 
-@inline_kernel
+@kernel
 def transmittance_by_crossing(S, o, d, t_max, medium, stack):
-    """``transmittance`` by a closest-hit query from each surface crossed to the next."""
+    """``transmittance`` by a closest-hit query from each surface crossed to the next.
+
+    A call, not inlined: it serves the scenes searched with a tree, where the tree walk for each
+    crossing outweighs the call, and an inlined copy of the closest-hit search at each of its
+    three sites in ``trace_path`` cost compile time (docs/performance.md, "Start-up")."""
     tr = 1.0
     for _ in range(64):
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
@@ -137,45 +148,63 @@ def transmittance_by_crossing(S, o, d, t_max, medium, stack):
 
 
 @inline_kernel
-def flat_transmittance(S, o, d, t_max, medium, out):
-    """``transmittance`` in a flat scene of planar primitives, from one pass over all of them.
+def crossing(S, mat, t, entering, tau, open_sigma, n_open, tr):
+    """One crossing of ``flat_transmittance``'s sum: (tau, open_sigma, n_open, tr) after it."""
+    sigma = S.mat_param[mat, 4]
+    if entering:
+        if S.mat_kind[mat] == SINGLE_SCATTER:
+            tr *= 1.0 - S.mat_param[mat, 7]
+        return tau - sigma * t, open_sigma + sigma, n_open + 1, tr
+    return tau + sigma * t, open_sigma - sigma, n_open - 1, tr
 
-    Every primitive the ray meets before t_max is a crossing (any other surface blocks: 0). The
-    optical depth is summed over the crossings in any order: leaving a medium of σt at t adds
+
+@inline_kernel
+def flat_transmittance(S, o, d, t_max, medium, out):
+    """``transmittance`` in a flat scene, from one pass over all its primitives.
+
+    Every primitive the ray meets before t_max is a crossing (any other surface blocks: 0); a
+    sphere (they come first in a flat scene) is met at both its roots, entering at the nearer.
+    The optical depth is summed over the crossings in any order: leaving a medium of σt at t adds
     σt·t, entering one takes σt·t off, and the media still open at the end (entered, or the one
     at o, and not left) add their σt·t_max; what remains is σt times the length inside each
     medium. That is the crossing-by-crossing loop's answer for media that do not overlap (each
     closed object's boundary entered and left in turn), up to rounding; a shadow ray to a light
     at infinity (t_max = inf) that leaves every medium it entered has a finite depth. ``out`` is
     (3, FLAT_MAX) scratch."""
-    flat_planar_t(S.flat, o, d, out)
     tau = 0.0
     open_sigma = S.mat_param[medium, 4] if medium >= 0 else 0.0
     n_open = 1 if medium >= 0 else 0
     tr = 1.0
+    k = 0
+    while k < S.prim_kind.shape[0] and S.prim_kind[k] == SPHERE:
+        t0, t1 = sphere_roots(o, d, S.prim_geo[k])
+        enters = 0.0 < t0 < t_max
+        leaves = 0.0 < t1 < t_max
+        if enters or leaves:
+            mat = S.prim_material[k]
+            if not shadow_passable(S, mat):
+                return 0.0
+            if enters:
+                tau, open_sigma, n_open, tr = crossing(S, mat, t0, True, tau, open_sigma,
+                                                       n_open, tr)
+            if leaves:
+                tau, open_sigma, n_open, tr = crossing(S, mat, t1, False, tau, open_sigma,
+                                                       n_open, tr)
+        k += 1
+    flat_planar_t(S.flat, o, d, out)
     for k in range(min(S.flat.shape[1], out.shape[1])):
         t = out[0, k]
         if t < t_max:
             mat = S.prim_material[k]
             if not shadow_passable(S, mat):
                 return 0.0
-            kind = S.mat_kind[mat]
             g = S.prim_geo[k]
             # d·(e1 × e2): the sign that tells entering (< 0) from leaving, as surface_point's
             # outward normal does
             dn = (d[0] * (g[4] * g[8] - g[5] * g[7]) + d[1] * (g[5] * g[6] - g[3] * g[8])
                   + d[2] * (g[3] * g[7] - g[4] * g[6]))
-            sigma = S.mat_param[mat, 4]
-            if dn < 0.0:
-                tau -= sigma * t
-                open_sigma += sigma
-                n_open += 1
-                if kind == SINGLE_SCATTER:
-                    tr *= 1.0 - S.mat_param[mat, 7]
-            else:
-                tau += sigma * t
-                open_sigma -= sigma
-                n_open -= 1
+            tau, open_sigma, n_open, tr = crossing(S, mat, t, dn < 0.0, tau, open_sigma,
+                                                   n_open, tr)
     if n_open > 0:
         tau += open_sigma * t_max
     return tr * math.exp(-max(tau, 0.0))
@@ -204,6 +233,13 @@ def surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack):
                 origin, wi, t_max, stack):
         return 0.0
     return 1.0
+
+
+@kernel
+def surface_shadow_call(S, p, n, wi, t_max, scale, medium, null_media, stack):
+    """``surface_shadow`` as a call, for a site off the hot path (diffuse_entry's separate direct
+    light): each inlined copy of the shadow-ray search adds to the cold compile time."""
+    return surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack)
 
 
 @kernel
@@ -331,31 +367,34 @@ def diffusion_probe(S, mat, p, n, mp, key, stack):
 
 
 @kernel
-def draw(S, key, dim, k, sidx, pseed):
+def draw(S, key, dim, k, sidx, sob):
     """Value ``k`` of the block of dimensions that starts at ``dim``: independent (``uniform``),
     except at the first ``SOBOL_VERTICES`` vertices under the sobol sampler, where the light
     sample (k 0: the light, k 1-2: the point on it), the BSDF sample (k 3: the lobe, k 4-5: the
     direction) and the free flight (k 7) of each vertex come from their own shuffled, scrambled
-    (0,2)-sequences (roulette, k 6, stays independent)."""
+    (0,2)-sequences (roulette, k 6, stays independent). ``sob`` holds the pixel's seeds of those
+    sequences (``sobol_block_seeds``: row 0 the camera's, then five a vertex)."""
     if S.sampler[0] == 1 and dim < 2 + SOBOL_VERTICES * DIMS_PER_BOUNCE and k != 6:
         base = 1 + 5 * ((dim - 2) // DIMS_PER_BOUNCE)  # block 0 is the camera's
         if k == 0:
-            return sobol_sample(sidx, block_seed(pseed, base), 0)
-        if k <= 2:
-            return sobol_sample(sidx, block_seed(pseed, base + 1), k - 1)
-        if k == 3:
-            return sobol_sample(sidx, block_seed(pseed, base + 2), 0)
-        if k <= 5:
-            return sobol_sample(sidx, block_seed(pseed, base + 3), k - 4)
-        return sobol_sample(sidx, block_seed(pseed, base + 4), 0)
+            b, c = base, 0
+        elif k <= 2:
+            b, c = base + 1, k - 1
+        elif k == 3:
+            b, c = base + 2, 0
+        elif k <= 5:
+            b, c = base + 3, k - 4
+        else:
+            b, c = base + 4, 0
+        return sobol_value(sidx, sob[b, 0], sob[b, 1 + c], c)
     return uniform(key, dim + k)
 
 
 @inline_kernel
-def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
+def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
     """Radiance arriving at o from direction −d along one sampled path. S is ``SceneArrays``;
-    ``sidx`` (the sample's index) and ``pseed`` (its pixel's seed) feed the sobol sampler's
-    first ``SOBOL_VERTICES`` vertices (``draw``)."""
+    ``sidx`` (the sample's index) and ``sob`` (its pixel's sequence seeds) feed the sobol
+    sampler's first ``SOBOL_VERTICES`` vertices (``draw``)."""
     lr = lg = lb = 0.0  # radiance gathered so far
     br = bg = bb = 1.0  # throughput β
     depth = 0  # scattering events so far
@@ -390,7 +429,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
         elif medium >= 0:
             mm = S.mat_param[medium]
             single = S.mat_kind[medium] == SINGLE_SCATTER
-            s_flight = -math.log(1.0 - draw(S, key, dim, 7, sidx, pseed)) / mm[4]
+            s_flight = -math.log(1.0 - draw(S, key, dim, 7, sidx, sob)) / mm[4]
             if s_flight < t:
                 if max_depth >= 0 and depth >= max_depth:
                     break
@@ -405,8 +444,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
                     # Index-matched boundary: light sampling from inside the medium
                     wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
                         S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf,
-                        S.prim_kind, S.prim_geo, p, draw(S, key, dim, 0, sidx, pseed),
-                        draw(S, key, dim, 1, sidx, pseed), draw(S, key, dim, 2, sidx, pseed))
+                        S.prim_kind, S.prim_geo, p, draw(S, key, dim, 0, sidx, sob),
+                        draw(S, key, dim, 1, sidx, sob), draw(S, key, dim, 2, sidx, sob))
                     if pdf_l > 0.0:
                         if t_max < math.inf:
                             t_max *= 1.0 - SHADOW_SLACK
@@ -422,8 +461,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
                     unweighted = False
                 else:
                     unweighted = True
-                wi, prev_pdf = hg_sample(d, g, draw(S, key, dim, 3, sidx, pseed),
-                                         draw(S, key, dim, 4, sidx, pseed))
+                wi, prev_pdf = hg_sample(d, g, draw(S, key, dim, 3, sidx, sob),
+                                         draw(S, key, dim, 4, sidx, sob))
                 prev_p = p
                 o = p
                 d = wi
@@ -433,7 +472,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
                     # and a 0.95 cap would make their weight heavy-tailed (1/0.95^k) for nothing;
                     # the albedo itself brings β and so the survival probability down.
                     alive, br, bg, bb = roulette(br, bg, bb, eta_scale, 1.0,
-                                                 draw(S, key, dim, 6, sidx, pseed))
+                                                 draw(S, key, dim, 6, sidx, sob))
                     if not alive:
                         break
                 dim += DIMS_PER_BOUNCE
@@ -487,7 +526,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
             continue
         skip_emission = False
 
-        if mk == SINGLE_SCATTER and (cos_o < 0.0 or draw(S, key, dim, 3, sidx, pseed) >= mp[7]):
+        if mk == SINGLE_SCATTER and (cos_o < 0.0 or draw(S, key, dim, 3, sidx, sob) >= mp[7]):
             # The seed paper's model: 1 − surface_fraction of the hits go in, straight on (the
             # paper does not refract), to scatter at most once inside; leaving is straight too.
             # Shadow rays see the same surface (transmittance()), so MIS stays consistent.
@@ -510,7 +549,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
             # Fresnel the boundary's bsdf_sample below uses) the generic code takes the mirror
             # direction; the rest (1 − F, cancelled by its probability) goes under the surface.
             f_o, _ = fresnel_dielectric(cos_o, mp[0])
-            if draw(S, key, dim, 3, sidx, pseed) >= f_o:
+            if draw(S, key, dim, 3, sidx, sob) >= f_o:
                 if mp[10] > 0.0:
                     # Effectively opaque (auto, renderer/materials/opaque.py): the profile is
                     # narrower than a pixel, so the light leaves where it entered, with
@@ -539,8 +578,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
         if n_lights > 0 and not delta:
             wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
                 S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf, S.prim_kind,
-                S.prim_geo, p, draw(S, key, dim, 0, sidx, pseed), draw(S, key, dim, 1, sidx, pseed),
-                draw(S, key, dim, 2, sidx, pseed))
+                S.prim_geo, p, draw(S, key, dim, 0, sidx, sob), draw(S, key, dim, 1, sidx, sob),
+                draw(S, key, dim, 2, sidx, sob))
             if pdf_l > 0.0:
                 f = bsdf_eval(mk, mp, wo, wi, n)
                 if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
@@ -565,11 +604,11 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
             # below would carry straight out to a light is not counted again (skip_emission)
             wi, li_rgb, pdf_l, t_max, delta_l = sample_light(
                 S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf, S.prim_kind,
-                S.prim_geo, p, draw(S, key, dim, 0, sidx, pseed), draw(S, key, dim, 1, sidx, pseed),
-                draw(S, key, dim, 2, sidx, pseed))
+                S.prim_geo, p, draw(S, key, dim, 0, sidx, sob), draw(S, key, dim, 1, sidx, sob),
+                draw(S, key, dim, 2, sidx, sob))
             cos_l = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
             if pdf_l > 0.0 and cos_l > 0.0:
-                tr = surface_shadow(S, p, n, wi, t_max, scale, -1, null_media, stack)
+                tr = surface_shadow_call(S, p, n, wi, t_max, scale, -1, null_media, stack)
                 if tr > 0.0:
                     f_in, _ = fresnel_dielectric(cos_o, mp[0])
                     w = tr * (1.0 - f_in) * cos_l / (math.pi * pdf_l)
@@ -578,9 +617,9 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
                     lb += bb * mp[3] * li_rgb[2] * w
 
         # Sample the BSDF for the next direction
-        wi, weight, pdf, ok = bsdf_sample(mk, mp, wo, n, draw(S, key, dim, 3, sidx, pseed),
-                                          draw(S, key, dim, 4, sidx, pseed),
-                                          draw(S, key, dim, 5, sidx, pseed))
+        wi, weight, pdf, ok = bsdf_sample(mk, mp, wo, n, draw(S, key, dim, 3, sidx, sob),
+                                          draw(S, key, dim, 4, sidx, sob),
+                                          draw(S, key, dim, 5, sidx, sob))
         if not ok:
             break
         if mk == DIFFUSE_ENTRY:
@@ -588,8 +627,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
             if cos_o > 0.0 and into:
                 # The student project's rule: a ray that enters scatters at once, just inside,
                 # about its refracted direction (g is the bias), multiplied by the colour
-                ws, _ = hg_sample(wi, mp[5], draw(S, key, dim, 4, sidx, pseed),
-                                  draw(S, key, dim, 5, sidx, pseed))
+                ws, _ = hg_sample(wi, mp[5], draw(S, key, dim, 4, sidx, sob),
+                                  draw(S, key, dim, 5, sidx, sob))
                 c = ws[0] * n[0] + ws[1] * n[1] + ws[2] * n[2]
                 if c > 0.0:  # keep it inside: mirror it about the surface
                     ws = (ws[0] - 2.0 * c * n[0], ws[1] - 2.0 * c * n[1], ws[2] - 2.0 * c * n[2])
@@ -598,8 +637,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
             elif cos_o > 0.0 and mp[8] > 0.0:
                 # Glossy coat: a normalized Phong lobe about the mirror direction, f·cos/pdf =
                 # (n + 2)/(n + 1)·cos θi
-                wg = to_world(phong_lobe(draw(S, key, dim, 4, sidx, pseed),
-                                         draw(S, key, dim, 5, sidx, pseed), mp[8]), wi)
+                wg = to_world(phong_lobe(draw(S, key, dim, 4, sidx, sob),
+                                         draw(S, key, dim, 5, sidx, sob), mp[8]), wi)
                 c = wg[0] * n[0] + wg[1] * n[1] + wg[2] * n[2]
                 if c <= 0.0:
                     break
@@ -631,7 +670,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, pseed):
         # Russian roulette
         if depth >= RR_DEPTH:
             alive, br, bg, bb = roulette(br, bg, bb, eta_scale, RR_MAX,
-                                         draw(S, key, dim, 6, sidx, pseed))
+                                         draw(S, key, dim, 6, sidx, sob))
             if not alive:
                 break
         dim += DIMS_PER_BOUNCE
@@ -652,15 +691,17 @@ def camera_ray(cam, width, height, x, y, jx, jy):
 
 @kernel
 def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_start,
-               sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, stack):
-    """Add the samples of one row of a tile (``render_tile_kernel``'s unit of work)."""
+               sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, stack, sob):
+    """Add the samples of one row of a tile (``render_tile_kernel``'s unit of work). ``sob`` is
+    (SOBOL_BLOCKS, 3) scratch for the sobol sampler's seeds of a pixel."""
     for col in range(tile_w):
         if active[row, col] == 0:
             continue
         x = x0 + col
         pixel = y * width + x
-        # The sobol sampler's scrambles of this pixel (a hash apart from every sample's key)
-        pixel_seed = mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT)
+        if S.sampler[0] == 1:
+            # The sobol sampler's scrambles of this pixel (a hash apart from every sample's key)
+            sobol_block_seeds(mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT), sob)
         sr = sg = sb = 0.0
         qr = qg = qb = 0.0
         good = 0
@@ -668,14 +709,13 @@ def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_sta
         for s in range(sample_start, sample_start + sample_count):
             key = sample_key(seed, pixel, s)
             if S.sampler[0] == 1:
-                camera_seed = block_seed(pixel_seed, 0)
-                jx = sobol_sample(s, camera_seed, 0)
-                jy = sobol_sample(s, camera_seed, 1)
+                jx = sobol_value(s, sob[0, 0], sob[0, 1], 0)
+                jy = sobol_value(s, sob[0, 0], sob[0, 2], 1)
             else:
                 jx = uniform(key, 0)
                 jy = uniform(key, 1)
             o, d = camera_ray(S.camera, width, height, x, y, jx, jy)
-            r, g, b = trace_path(S, o, d, key, stack, max_depth, s, pixel_seed)
+            r, g, b = trace_path(S, o, d, key, stack, max_depth, s, sob)
             # Dropped also when the square overflows, so the variance sums stay finite
             if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
                 sr += r
@@ -715,7 +755,8 @@ def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, ti
     n_chunks = max(1, min(tile_h, n_threads))
     for chunk in prange(n_chunks):
         stack = traversal_stack(stack_size)
+        sob = np.zeros((SOBOL_BLOCKS, 3), np.uint64)
         for row in range(chunk, tile_h, n_chunks):
             render_row(S, width, height, seed, max_depth, x0, y0 + row, row, tile_w,
                        sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
-                       out_dropped, stack)
+                       out_dropped, stack, sob)
