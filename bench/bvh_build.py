@@ -20,10 +20,7 @@ import numpy as np
 
 
 def torus(n_triangles: int):
-    import sys
-
-    sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "examples" / "meshes"))
-    from make_torus import torus as make
+    from renderer.geometry.meshgen import torus as make
 
     n_minor = max(3, int(math.sqrt(n_triangles / 4)))
     n_major = max(3, n_triangles // (2 * n_minor))

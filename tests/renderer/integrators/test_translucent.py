@@ -18,6 +18,7 @@ import math
 import numpy as np
 import pytest
 
+from renderer.geometry.meshgen import torus
 from renderer.render import render_buffer
 from renderer.scene import load_scene
 
@@ -72,18 +73,8 @@ def test_giovanelli_semi_infinite_mismatched_boundary():
 
 def torus_mesh(major=0.7, minor=0.3, n_major=24, n_minor=12):
     """A closed torus facing the camera: a concave mesh (it sees itself through its hole)."""
-    u = np.linspace(0, 2 * np.pi, n_major, endpoint=False)
-    v = np.linspace(0, 2 * np.pi, n_minor, endpoint=False)
-    uu, vv = np.meshgrid(u, v, indexing="ij")
-    r = major + minor * np.cos(vv)
-    verts = np.stack([r * np.cos(uu), r * np.sin(uu), minor * np.sin(vv)], -1).reshape(-1, 3)
-    i, j = np.meshgrid(np.arange(n_major), np.arange(n_minor), indexing="ij")
-    a = i * n_minor + j
-    b = ((i + 1) % n_major) * n_minor + j
-    c = ((i + 1) % n_major) * n_minor + (j + 1) % n_minor
-    d = i * n_minor + (j + 1) % n_minor
-    tris = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)]).reshape(-1, 3)
-    return verts.tolist(), tris.tolist()
+    vertices, triangles = torus(major, minor, n_major, n_minor, axis="z")
+    return vertices.tolist(), triangles.tolist()
 
 
 def furnace(*, ior, g, albedo=1.0, density=5.0, spp=64, shape="sphere", seed=2,

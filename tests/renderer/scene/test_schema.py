@@ -12,6 +12,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from renderer.geometry import meshgen
 from renderer.scene import Limits, Scene, SceneError, load_scene, load_scene_file
 from renderer.scene.load import degenerate_triangles, find_open_edge
 from renderer.scene.schema import (
@@ -82,16 +83,7 @@ def errors_of(data, **kwargs) -> list[tuple[str, str]]:
 
 def torus(nu: int, nv: int, big_r: float = 1.0, small_r: float = 0.3):
     """A closed, consistently oriented torus grid: 2 * nu * nv triangles."""
-    u = np.arange(nu) * (2 * np.pi / nu)
-    v = np.arange(nv) * (2 * np.pi / nv)
-    uu, vv = np.meshgrid(u, v, indexing="ij")
-    ring = big_r + small_r * np.cos(vv)
-    vertices = np.stack([ring * np.cos(uu), ring * np.sin(uu), small_r * np.sin(vv)], axis=-1)
-    i, j = np.meshgrid(np.arange(nu), np.arange(nv), indexing="ij")
-    a, b = i * nv + j, (i + 1) % nu * nv + j
-    c, d = (i + 1) % nu * nv + (j + 1) % nv, i * nv + (j + 1) % nv
-    triangles = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)])
-    return vertices.reshape(-1, 3), triangles.reshape(-1, 3)
+    return meshgen.torus(big_r, small_r, nu, nv, axis="z")
 
 
 # --- Valid scenes ---------------------------------------------------------------------------------
