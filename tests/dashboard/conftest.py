@@ -1,7 +1,8 @@
 """Dashboard fixtures: a real farm (Redis, Celery worker processes, the API under uvicorn in its own
 process on a free port) and headless Chromium driven by Playwright.
 
-- ``redis_base_url``: ``REDIS_URL`` when set, else an embedded redis-server (as in tests/farm/).
+- ``redis_base_url``: ``REDIS_URL`` when set, else an embedded redis-server of its own
+  (tests/conftest.py, ``embedded_or_given_redis``).
 - ``dashboard``: for one test module, a worker node (``--concurrency 2``) and ``uvicorn
   services.main:app`` on a fresh key prefix, heartbeats every 0.5 s.
 - ``browser``: Debian's ``/usr/bin/chromium`` (``make setup`` installs it where it can); tests skip
@@ -15,9 +16,8 @@ from __future__ import annotations
 import os
 import subprocess
 import sys
-import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,8 +25,9 @@ import httpx
 import pytest
 import redis
 
-from services.launcher import EmbeddedRedis, free_port, start_worker, terminate
+from services.launcher import free_port, start_worker, terminate
 from services.store import JobStore
+from tests.conftest import embedded_or_given_redis, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 CHROMIUM = "/usr/bin/chromium"
@@ -36,29 +37,9 @@ WORKER_START_TIMEOUT = 240.0
 HEARTBEAT = 0.5
 
 
-def wait_until(predicate: Callable[[], object], timeout: float, what: str,
-               interval: float = 0.05) -> object:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(interval)
-
-
 @pytest.fixture(scope="session")
 def redis_base_url() -> Iterator[str]:
-    url = os.environ.get("REDIS_URL")
-    if url:
-        yield url
-        return
-    server = EmbeddedRedis().start()
-    try:
-        yield server.url
-    finally:
-        server.stop()
+    yield from embedded_or_given_redis()
 
 
 @dataclass

