@@ -1,13 +1,16 @@
 """Start-up: a render process and a farm worker, with a warm and with a cold JIT cache.
 
-    .venv/bin/python -m bench.startup [--repeats 3] [--no-cold]
+    .venv/bin/python -m bench.startup [--repeats 3] [--no-cold] [--pool N]
 
 - ``lucent render examples/cornell_box.json --spp 1``: the whole process (interpreter, imports,
   scene compile, kernel load or compile, one sample per pixel, the .npy written);
 - ``lucent worker`` (Celery, one prefork process, one numba thread) on an embedded Redis: from the
   launch to the pool process's "warm in" log line, i.e. Celery is connected and the render kernel
   is loaded (``worker_process_init`` renders the warm-up scene) — the moment it can take a tile
-  at full speed.
+  at full speed;
+- with ``--pool N``, a cold node of N pool processes to the last one's "warm in", as it starts
+  (the node compiles a cold cache once before its pool forks, ``worker.runtime.prewarm_cache``)
+  and with ``LUCENT_PREWARM=0`` (each pool process compiles).
 
 Warm: the shared numba cache (``LUCENT_CACHE_DIR`` or ~/.cache/lucent) already holds the kernels
 (a first, untimed run fills it). Cold: a fresh empty ``LUCENT_CACHE_DIR``, so every kernel is
@@ -39,11 +42,13 @@ def time_render(env: dict[str, str]) -> float:
         return time.perf_counter() - start
 
 
-def time_worker(env: dict[str, str], redis_url: str, timeout: float = 300.0) -> float:
-    """Seconds from launching a one-process worker to its pool process's "warm in" log line."""
+def time_worker(env: dict[str, str], redis_url: str, timeout: float = 300.0,
+                processes: int = 1) -> float:
+    """Seconds from launching a worker node of ``processes`` pool processes to the last one's
+    "warm in" log line."""
     from services.launcher import terminate, worker_command, worker_env
 
-    cmd = worker_command(1, name=f"startup-bench-{os.getpid()}@%h", loglevel="INFO")
+    cmd = worker_command(processes, name=f"startup-bench-{os.getpid()}@%h", loglevel="INFO")
     start = time.perf_counter()
     full_env = worker_env(redis_url, 1, env)
     if "LUCENT_CACHE_DIR" in env:
@@ -51,8 +56,10 @@ def time_worker(env: dict[str, str], redis_url: str, timeout: float = 300.0) -> 
     proc = subprocess.Popen(cmd, cwd=ROOT, env=full_env,
                             stdout=subprocess.PIPE, stderr=subprocess.STDOUT, text=True)
     try:
+        warm = 0
         for line in proc.stdout:
-            if "warm in" in line:
+            warm += "warm in" in line
+            if warm == processes:
                 return time.perf_counter() - start
             if time.perf_counter() - start > timeout:
                 break
@@ -66,6 +73,9 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--repeats", type=int, default=3)
     parser.add_argument("--no-cold", action="store_true", help="skip the cold-cache runs")
+    parser.add_argument("--pool", type=int, default=0, metavar="N",
+                        help="also: a cold node of N pool processes, with the node's one compile "
+                             "before the pool starts and without it (LUCENT_PREWARM=0)")
     args = parser.parse_args()
     from services.launcher import EmbeddedRedis
 
@@ -89,6 +99,12 @@ def main() -> int:
             with tempfile.TemporaryDirectory() as cold:
                 rows.append(("lucent worker to warm, cold cache",
                              time_worker({"LUCENT_CACHE_DIR": cold}, redis_url)))
+        for prewarm in ("1", "0") if args.pool else ():
+            with tempfile.TemporaryDirectory() as cold:
+                label = "one compile first" if prewarm == "1" else "each process compiles"
+                rows.append((f"{args.pool} processes to warm, cold, {label}",
+                             time_worker({"LUCENT_CACHE_DIR": cold, "LUCENT_PREWARM": prewarm},
+                                         redis_url, timeout=900.0, processes=args.pool)))
     finally:
         if server is not None:
             server.stop()

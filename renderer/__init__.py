@@ -20,6 +20,16 @@ from pathlib import Path
 __version__ = "0.1.0"
 
 
+def source_digest() -> str:
+    """A hash of every renderer source file (16 hex digits): one per renderer version."""
+    root = Path(__file__).parent
+    digest = hashlib.sha1()
+    for path in sorted(root.rglob("*.py")):
+        digest.update(str(path.relative_to(root)).encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()[:16]
+
+
 def _cache_dir() -> str:
     """A numba cache folder keyed by the renderer's source.
 
@@ -27,15 +37,10 @@ def _cache_dir() -> str:
     files whose functions it inlines, so a changed ``sampling.py`` could leave a stale kernel in the
     cache. Keying the folder by a hash of every renderer source file makes that impossible.
     """
-    root = Path(__file__).parent
-    digest = hashlib.sha1()
-    for path in sorted(root.rglob("*.py")):
-        digest.update(str(path.relative_to(root)).encode())
-        digest.update(path.read_bytes())
     base = os.environ.get("LUCENT_CACHE_DIR") or os.path.join(
         os.environ.get("XDG_CACHE_HOME") or os.path.expanduser("~/.cache"), "lucent"
     )
-    return os.path.join(base, "numba", digest.hexdigest()[:16])
+    return os.path.join(base, "numba", source_digest())
 
 
 # numba reads its configuration when it is imported. A program that imported numba before this

@@ -107,6 +107,16 @@ class Settings(BaseSettings):
     heartbeat_interval: float = 2.0
     """Seconds between worker heartbeats; a worker silent for 3 intervals is shown as lost."""
 
+    proc_alive_timeout: float = Field(default=120.0, gt=0)
+    """Seconds a pool process started in place of one that exited has to load the renderer's
+    kernels and report itself up (Celery's ``worker_proc_alive_timeout``: Celery kills one that
+    is later; the pool's first processes are not timed)."""
+
+    prewarm: bool = True
+    """Compile a cold kernel cache once per worker node, before its pool starts
+    (``worker.runtime.prewarm_cache``), so that the pool processes load the kernels instead of
+    each compiling them."""
+
     pass_ttl: float = 7 * 24 * 3600.0
     """Seconds a pass buffer that was never merged is kept (a job's other keys have no TTL)."""
 

@@ -73,8 +73,11 @@ task_reject_on_worker_lost = True
 task_default_priority = 9
 task_queue_max_priority = 10
 
-# Pool processes warm the JIT in worker_process_init (a cached kernel loads in ~1 s, compiling it
-# afresh takes ~15 s); Celery's default 4 s would kill them while they do.
-worker_proc_alive_timeout = 120.0
+# Pool processes warm the JIT in worker_process_init: a cached kernel loads in ~1.5 s. Celery's
+# default 4 s would kill a replacement pool process (one started after another exited) while it
+# does. Compiling afresh takes ~60 s on the 2-core development machine (docs/performance.md,
+# "Start-up"), so a cold cache is filled once before the pool starts (worker.tasks, worker_init)
+# rather than by each pool process, and a replacement never has to compile.
+worker_proc_alive_timeout = get_settings().proc_alive_timeout
 worker_hijack_root_logger = False
 worker_send_task_events = False

@@ -7,15 +7,21 @@ pool must not cross a fork.
 
 from __future__ import annotations
 
+import logging
 import os
 import socket
+import subprocess
+import sys
 import threading
 import time
 from collections import OrderedDict
+from pathlib import Path
 from typing import Any
 
 from services.settings import get_settings
 from services.store import JobStore
+
+log = logging.getLogger(__name__)
 
 # A scene small enough to render in milliseconds that still runs every kernel the tile renderer
 # calls (a quad light over a diffuse sphere), to load numba's cached machine code before the
@@ -31,6 +37,57 @@ WARM_UP_SCENE = {
          "material": "white", "emission": [4, 4, 4]},
     ],
 }
+
+
+def warm_marker() -> Path:
+    """The file a warm-up leaves in numba's cache folder once it has compiled (or loaded) every
+    kernel there, named by the renderer version (a folder set with ``NUMBA_CACHE_DIR`` is not
+    keyed by it, the default one is: ``renderer/__init__.py``)."""
+    import renderer
+
+    return Path(os.environ["NUMBA_CACHE_DIR"]) / f"lucent-warm-{renderer.source_digest()}"
+
+
+def warm_up_kernels() -> float:
+    """Render the warm-up scene once (loads or compiles the kernels) and mark the cache folder
+    warm; returns seconds."""
+    from renderer.render import render_tile
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    t0 = time.perf_counter()
+    render_tile(compile_scene(load_scene(WARM_UP_SCENE)), 0, 0, 4, 4, 0, 1)
+    seconds = time.perf_counter() - t0
+    try:
+        marker = warm_marker()
+        marker.parent.mkdir(parents=True, exist_ok=True)
+        marker.touch()
+    except OSError as err:  # a read-only cache folder: the kernels are loaded all the same
+        log.warning("could not mark the kernel cache warm: %s", err)
+    return seconds
+
+
+def prewarm_cache(timeout: float = 1800.0) -> float | None:
+    """Fill a cold kernel cache once per worker node, before the prefork pool forks.
+
+    In a child process (the parent's numba must not start threads that a fork would copy), and
+    only when there is no ``warm_marker()``: with a warm cache it costs nothing. The pool processes
+    then load the kernels (~1.5 s) instead of each compiling them (~60 s each: N times the CPU,
+    and with more pool processes than cores, longer than one compile); and a pool process started
+    in place of one that died while the others were still compiling does not have to compile
+    within Celery's ``worker_proc_alive_timeout``. Returns the seconds it took, or None when the
+    cache was warm or the child failed (the pool processes then compile as before)."""
+    if warm_marker().exists():
+        return None
+    t0 = time.perf_counter()
+    try:
+        subprocess.run([sys.executable, "-c",
+                        "from worker.runtime import warm_up_kernels; warm_up_kernels()"],
+                       check=True, timeout=timeout)
+    except (OSError, subprocess.SubprocessError) as err:
+        log.warning("could not fill the kernel cache before the pool started: %s", err)
+        return None
+    return time.perf_counter() - t0
 
 
 class WorkerState:
@@ -87,13 +144,7 @@ class WorkerState:
     # --- JIT warm-up ----------------------------------------------------------------------------
     def warm_up(self) -> float:
         """Render the warm-up scene once (loads or compiles the kernels); returns seconds."""
-        from renderer.render import render_tile
-        from renderer.scene import load_scene
-        from renderer.scene.compile import compile_scene
-
-        t0 = time.perf_counter()
-        render_tile(compile_scene(load_scene(WARM_UP_SCENE)), 0, 0, 4, 4, 0, 1)
-        return time.perf_counter() - t0
+        return warm_up_kernels()
 
     # --- heartbeat ------------------------------------------------------------------------------
     def start_heartbeat(self) -> None:

@@ -19,11 +19,22 @@ from celery.exceptions import Reject, SoftTimeLimitExceeded
 from renderer.film.buffer import SampleBuffer
 from services.merger import merge_pass
 from services.planner import celery_priority
+from services.settings import get_settings
 from services.store import FINAL
 from worker import runtime
 from worker.celery_app import app
 
 log = logging.getLogger(__name__)
+
+
+@signals.worker_init.connect
+def _init_worker(**_: object) -> None:
+    """In the worker node's main process, before the pool forks: fill a cold kernel cache once."""
+    if not get_settings().prewarm:
+        return
+    seconds = runtime.prewarm_cache()
+    if seconds is not None:
+        log.warning("kernel cache was cold: compiled in %.1f s before the pool started", seconds)
 
 
 @signals.worker_process_init.connect

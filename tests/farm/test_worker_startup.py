@@ -1,0 +1,66 @@
+"""A worker node's start-up with a cold kernel cache (worker.runtime.prewarm_cache).
+
+The node's main process fills a cold cache once, in a child, before the prefork pool forks, and
+the pool processes only load the kernels: one compile a node instead of one a pool process, and a
+pool process started in place of one that died never compiles under Celery's
+``worker_proc_alive_timeout``.
+"""
+
+from __future__ import annotations
+
+import os
+import re
+import subprocess
+import uuid
+from pathlib import Path
+
+import pytest
+import redis
+
+from services.launcher import terminate, worker_command, worker_env
+from services.store import JobStore
+from tests.conftest import wait_until
+from worker import runtime
+
+ROOT = Path(__file__).resolve().parents[2]
+
+
+def test_prewarm_fills_a_cold_cache_once_and_then_costs_nothing():
+    # The suite's cache holds the kernels, so the child only loads them and leaves the marker;
+    # with the marker there, nothing runs at all
+    marker = runtime.warm_marker()
+    marker.unlink(missing_ok=True)
+    seconds = runtime.prewarm_cache()
+    assert seconds is not None and seconds > 0.0
+    assert marker.exists()
+    assert runtime.prewarm_cache() is None
+
+
+@pytest.mark.slow
+def test_a_cold_node_compiles_once_and_its_pool_processes_only_load(redis_base_url, tmp_path):
+    # An empty kernel cache: the node's main process compiles (in a child) before the pool
+    # forks, and both pool processes then come up warm in the time a load takes, far less than
+    # the compile (without the prewarm, each would compile: "warm in" ~ the compile)
+    prefix = f"startup-{uuid.uuid4().hex[:8]}"
+    log_path = tmp_path / "worker.log"
+    store = JobStore(redis.Redis.from_url(redis_base_url), prefix)
+    env = worker_env(redis_base_url, 1, {
+        "LUCENT_KEY_PREFIX": prefix, "LUCENT_HEARTBEAT_INTERVAL": "0.5", "LUCENT_API_TOKEN": "",
+        "NUMBA_CACHE_DIR": str(tmp_path / "numba")})
+    with open(log_path, "w") as log:
+        proc = subprocess.Popen(worker_command(2, f"{prefix}@%h", loglevel="INFO"), cwd=ROOT,
+                                env=env, stdout=log, stderr=subprocess.STDOUT)
+        try:
+            wait_until(lambda: sum(w.get("state") == "idle" for w in store.workers()) >= 2
+                       or proc.poll() is not None, 600.0, "two warm pool processes",
+                       interval=0.5)
+            text = log_path.read_text()
+            assert proc.poll() is None, text[-3000:]
+            compiled = re.findall(r"kernel cache was cold: compiled in ([0-9.]+) s", text)
+            warm = [float(x) for x in re.findall(r"warm in ([0-9.]+) s", text)]
+            assert len(compiled) == 1 and len(warm) == 2, text[-3000:]
+            assert max(warm) < 0.25 * float(compiled[0]), (warm, compiled)
+            assert runtime.warm_marker().name in os.listdir(tmp_path / "numba")
+        finally:
+            terminate(proc, 30.0)
+            store.r.close()
