@@ -68,8 +68,11 @@ class Client:
         from tqdm import tqdm
 
         job = self.job(job_id)
+        # a terminal redraws the bar in place; a log file (CI, `make demo > log`) gets a line a
+        # refresh, so there it is refreshed every 10 s, not at every poll
         with tqdm(total=job["samples_planned"], unit="samples", unit_scale=True,
-                  disable=not progress, file=sys.stderr, smoothing=0.3) as bar:
+                  disable=not progress, file=sys.stderr, smoothing=0.3,
+                  mininterval=0.1 if sys.stderr.isatty() else 10.0) as bar:
             while True:
                 bar.update(job["samples_merged"] - bar.n)
                 if job["status"] in ("done", "failed", "cancelled"):
