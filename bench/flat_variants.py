@@ -6,19 +6,20 @@ The seed boxes spend over half their time in ``renderer.geometry.flat`` (docs/pe
 "Where the time goes"). This script times, per ray over 24 columns of 18 random quads (the Cornell
 box's count, padded as ``flat_geometry`` pads it), rays in random directions from random points:
 
-- ``moller-trumbore``: the renderer's ``flat_planar_t`` (Möller–Trumbore, ~36 flops a column) and
-  the closest-hit reduction of ``flat_closest``; ``the same, inlined``: that loop inlined into
-  its caller instead of called;
+- ``moller-trumbore``: the renderer's ``flat_planar_t`` (Möller–Trumbore, ~36 flops a column,
+  inlined into its caller) and the closest-hit reduction of ``flat_closest``; ``the same,
+  called``: that loop as a function call, as the renderer had it until the call was found to
+  cost ~10 ns of a ~50 ns query;
 - ``dual basis``: the plane's normal and offset and the edges' dual vectors stored (13 rows), t
   from the plane, u and v as dot products of the hit point (~20 flops a column), same reduction;
 - ``loads + reduction``: the loop that only reads every column, and the reduction: the floor;
 - ``two passes`` / ``one pass, two rays``: a closest-hit ray and a second ray from the same point
   (a shadow ray's any-hit test), as two loops or as one loop computing both rays' hits.
 
-Each variant's column loop is a call, as ``flat_planar_t`` is in the renderer (``flat_closest``
-calls it), except ``the same, inlined``. Rounds alternate the variants; each prints its best and
-worst ns. Every variant must find the renderer's closest quad for every ray (checked). Record
-results in docs/performance.md ("Tried and not landed").
+Every variant's column loop is inlined into the ray loop, as ``flat_planar_t`` is in the
+renderer's queries, except ``the same, called``. Rounds alternate the variants; each prints its
+best and worst ns. Every variant must find the renderer's closest quad for every ray (checked).
+Record results in docs/performance.md ("Tried and not landed", "The flat loop inlined").
 """
 
 from __future__ import annotations
@@ -51,7 +52,7 @@ def dual_geometry(flat: np.ndarray, n: int) -> np.ndarray:
     return out
 
 
-@njit(**JIT)
+@njit(inline="always", **JIT)
 def dual_t(flat, o, d, out):
     ox, oy, oz = o[0], o[1], o[2]
     dx, dy, dz = d[0], d[1], d[2]
@@ -70,7 +71,7 @@ def dual_t(flat, o, d, out):
         out[2, k] = v
 
 
-@njit(**JIT)
+@njit(inline="always", **JIT)
 def loads_only(flat, o, d, out):
     for k in range(min(flat.shape[1], out.shape[1])):
         out[0, k] = (flat[0, k] + flat[1, k] + flat[2, k] + flat[3, k] + flat[4, k]
@@ -88,7 +89,7 @@ def closest(out):
     return b
 
 
-@njit(**JIT)
+@njit(inline="always", **JIT)
 def pair_t(flat, o, d, d2, out):
     """flat_planar_t's arithmetic for two rays from o at once: row 0 the first's t, row 3 the
     second's."""
@@ -117,15 +118,15 @@ def pair_t(flat, o, d, d2, out):
             out[3 * r, k] = INF if miss else t
 
 
-# the same loop, inlined into its caller instead of called
-planar_t_inlined = njit(inline="always", **JIT)(flat_planar_t.py_func)
+# the same loop as a call (as the renderer had it before 2026-12-01's inliner session)
+planar_t_called = njit(**JIT)(flat_planar_t.py_func)
 
 
 @njit(**JIT)
-def run_mt_inlined(flat, origins, dirs, out, hits):
+def run_mt_called(flat, origins, dirs, out, hits):
     for i in range(origins.shape[0]):
-        planar_t_inlined(flat, (origins[i, 0], origins[i, 1], origins[i, 2]),
-                         (dirs[i, 0], dirs[i, 1], dirs[i, 2]), out)
+        planar_t_called(flat, (origins[i, 0], origins[i, 1], origins[i, 2]),
+                        (dirs[i, 0], dirs[i, 1], dirs[i, 2]), out)
         hits[i] = closest(out)
 
 
@@ -194,7 +195,7 @@ def main() -> int:
     dirs = rng.normal(size=(args.rays, 3))
     dirs /= np.linalg.norm(dirs, axis=1)[:, None]
     out = np.zeros((6, FLAT_MAX))
-    variants = {"moller-trumbore": (run_mt, flat), "the same, inlined": (run_mt_inlined, flat),
+    variants = {"moller-trumbore": (run_mt, flat), "the same, called": (run_mt_called, flat),
                 "dual basis": (run_dual, dual),
                 "loads + reduction": (run_loads, flat), "two passes": (run_two_passes, flat),
                 "one pass, two rays": (run_one_pass, flat)}
@@ -208,7 +209,7 @@ def main() -> int:
             fn(store, origins, dirs, out, hits[name])
             times[name].append((time.perf_counter() - t0) / args.rays * 1e9)
     same = (np.array_equal(hits["moller-trumbore"], hits["dual basis"])
-            and np.array_equal(hits["moller-trumbore"], hits["the same, inlined"]))
+            and np.array_equal(hits["moller-trumbore"], hits["the same, called"]))
     print(f"{args.rays:,} rays, 18 quads in {flat.shape[1]} columns, one thread, "
           f"{args.rounds} alternating rounds (ns a ray; the last two: a pair)")
     for name, ts in times.items():

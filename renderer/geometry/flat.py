@@ -20,7 +20,7 @@ from __future__ import annotations
 import numpy as np
 
 from renderer.geometry.shapes import INF, SPHERE, TRIANGLE, intersect_sphere
-from renderer.jit import inline_kernel, kernel
+from renderer.jit import inline_kernel
 
 # Scenes with at most this many primitives are flat (compile_scene). Past it the tree wins where
 # it culls well: a room around a low-poly torus is found 1.1x as fast flat at 30 primitives but
@@ -55,11 +55,13 @@ def flat_geometry(prim_kind: np.ndarray, prim_geo: np.ndarray) -> np.ndarray:
     return flat
 
 
-@kernel
+@inline_kernel
 def flat_planar_t(flat, o, d, out):
     """(t, u, v) of every planar primitive k along the ray into out[:, k] (t = inf on a miss):
     intersect_parallelogram's arithmetic, one primitive per vector lane. Columns past the
-    scratch's (FLAT_MAX, compile_scene never makes more) are not searched."""
+    scratch's (FLAT_MAX, compile_scene never makes more) are not searched. Inlined: as a call it
+    cost ~10 ns of a ~50 ns query, and flat scenes rendered ~20 % slower (``bench.flat_variants``,
+    ``bench.ab_speed``; docs/performance.md, "The flat loop inlined")."""
     ox, oy, oz = o[0], o[1], o[2]
     dx, dy, dz = d[0], d[1], d[2]
     for k in range(min(flat.shape[1], out.shape[1])):

@@ -54,7 +54,7 @@ PROBE = textwrap.dedent('''
     def top(x):
         return mid(x, 2.0) + mid(2.0, x) + leaf((x, x, x), (1.0, 2.0, 3.0))[0]
 
-    @njit
+    @njit(error_model="numpy")  # as the renderer's kernels: the inlined loop divides by 0
     def query(lo, hi, child, count, flat, kind, geo, o, d, stack):
         t, prim, u, v = intersect_closest(lo, hi, child, count, flat, kind, geo, o, d, np.inf,
                                           stack)
