@@ -77,7 +77,7 @@ task_queue_max_priority = 10
 # default 4 s would kill a replacement pool process (one started after another exited) while it
 # does. Compiling afresh takes ~60 s on the 2-core development machine (docs/performance.md,
 # "Start-up"), so a cold cache is filled once before the pool starts (worker.tasks, worker_init)
-# rather than by each pool process, and a replacement never has to compile.
+# rather than by each pool process, and a replacement loads the kernels instead of compiling.
 worker_proc_alive_timeout = get_settings().proc_alive_timeout
 worker_hijack_root_logger = False
 worker_send_task_events = False
