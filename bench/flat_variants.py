@@ -122,36 +122,22 @@ def pair_t(flat, o, d, d2, out):
 planar_t_called = njit(**JIT)(flat_planar_t.py_func)
 
 
-@njit(**JIT)
-def run_mt_called(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        planar_t_called(flat, (origins[i, 0], origins[i, 1], origins[i, 2]),
-                        (dirs[i, 0], dirs[i, 1], dirs[i, 2]), out)
-        hits[i] = closest(out)
+def ray_loop(planar_t):
+    """A kernel that runs ``planar_t`` for every ray, then the closest-hit reduction (not cached:
+    it closes over ``planar_t``)."""
+    @njit(**{**JIT, "cache": False})
+    def run(flat, origins, dirs, out, hits):
+        for i in range(origins.shape[0]):
+            planar_t(flat, (origins[i, 0], origins[i, 1], origins[i, 2]),
+                     (dirs[i, 0], dirs[i, 1], dirs[i, 2]), out)
+            hits[i] = closest(out)
+    return run
 
 
-@njit(**JIT)
-def run_mt(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        flat_planar_t(flat, (origins[i, 0], origins[i, 1], origins[i, 2]),
-                      (dirs[i, 0], dirs[i, 1], dirs[i, 2]), out)
-        hits[i] = closest(out)
-
-
-@njit(**JIT)
-def run_dual(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        dual_t(flat, (origins[i, 0], origins[i, 1], origins[i, 2]),
-               (dirs[i, 0], dirs[i, 1], dirs[i, 2]), out)
-        hits[i] = closest(out)
-
-
-@njit(**JIT)
-def run_loads(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        loads_only(flat, (origins[i, 0], origins[i, 1], origins[i, 2]),
-                   (dirs[i, 0], dirs[i, 1], dirs[i, 2]), out)
-        hits[i] = closest(out)
+run_mt_called = ray_loop(planar_t_called)
+run_mt = ray_loop(flat_planar_t)
+run_dual = ray_loop(dual_t)
+run_loads = ray_loop(loads_only)
 
 
 @njit(**JIT)
