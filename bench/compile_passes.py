@@ -5,9 +5,9 @@
 Renders ``examples/cornell_box.json`` at 1 spp with ``lucent render`` in this process, with an empty
 cache (give it a fresh ``LUCENT_CACHE_DIR``, or it only loads the kernels), under numba's
 ``numba:run_pass`` event recorder, and prints the longest passes (pass, function): a pass's time
-includes the compiles it starts (typing ``render_row`` compiles the kernels it calls). Set
-``LUCENT_NUMBA_FAST_INLINE=0`` to see numba's own inliner (renderer/numba_inline.py). Record
-results in docs/performance.md ("Start-up").
+includes the compiles it starts (typing ``render_row`` compiles the kernels it calls). Then the
+same by self time (a pass's own, the passes it started taken off), per function and summed per
+pass. Record results in docs/performance.md ("Start-up").
 """
 
 from __future__ import annotations
@@ -30,18 +30,42 @@ def main() -> int:
         t0 = time.perf_counter()
         lucent(["render", "examples/cornell_box.json", "--spp", "1", "-o", f"{tmp}/x.npy", "-q"])
         total = time.perf_counter() - t0
-    starts: dict[tuple, list[float]] = {}
-    passes = []
+    # numba's passes nest (a compile started while typing a caller runs inside its pass), in
+    # this one thread: a stack of the open ones gives each its self time
+    passes, own, open_ = [], [], []
     for ts, ev in rec.buffer:
         key = (ev.data["name"], ev.data.get("qualname"))
         if ev.is_start:
-            starts.setdefault(key, []).append(ts)
+            open_.append([key, ts, 0.0])
         else:
-            passes.append((ts - starts[key].pop(), key))
-    passes.sort(reverse=True)
+            k, start, nested = open_.pop()
+            assert k == key, (k, key)
+            passes.append((ts - start, key))
+            own.append((ts - start - nested, key))
+            if open_:
+                open_[-1][2] += ts - start
     print(f"lucent render --spp 1: {total:.1f} s in all")
-    for seconds, (name, qualname) in passes[:args.top]:
+    print("longest passes (a pass's time includes the compiles it started):")
+    for seconds, (name, qualname) in sorted(passes, reverse=True)[:args.top]:
         print(f"{seconds:7.2f} s  {name:<32} {qualname}")
+    print("by self time:")
+    for seconds, (name, qualname) in sorted(own, reverse=True)[:args.top]:
+        print(f"{seconds:7.2f} s  {name:<32} {qualname}")
+    by_pass: dict[str, float] = {}
+    for seconds, (name, _) in own:
+        name = name.split(" [")[0]  # numba names a pass "pass [function]"
+        by_pass[name] = by_pass.get(name, 0.0) + seconds
+    print(f"self time summed by pass ({sum(by_pass.values()):.1f} s in passes):")
+    for name, seconds in sorted(by_pass.items(), key=lambda kv: -kv[1])[:12]:
+        print(f"{seconds:7.2f} s  {name}")
+    counts = {}
+    for _, ev in rec.buffer:
+        if ev.is_start and ev.data["name"].startswith("nopython_type_inference"):
+            q = ev.data.get("qualname")
+            counts[q] = counts.get(q, 0) + 1
+    print("functions typed more than once (one compile a signature):",
+          ", ".join(f"{q} {n}" for q, n in sorted(counts.items(), key=lambda kv: -kv[1])
+                    if n > 1))
     return 0
 
 

@@ -15,13 +15,15 @@ VM lacks) and maps every sample that falls in JIT code to its source line itself
 - numba's object-code hooks keep the ELF object of every library the JIT loads, and the address
   it loaded each at (from a symbol it defines), so a sample's address becomes an offset into an
   object file, and ``addr2line`` on that file gives its source line (the innermost inlined one);
-- numba inlines the ``inline_kernel`` functions (``renderer/jit.py``) in its own IR, and its
-  debug info then files their lines under the caller's file (a line of ``bvh.py`` reads as the
-  same line number of ``path.py``); the child process gives those lines their own file again.
+- LLVM inlines the ``inline_kernel`` functions (``renderer/jit.py``), and their lines keep their
+  own file (DWARF's inlined frames). Code that numba inlines in its own IR (``inline="always"``,
+  which the renderer no longer uses) has its lines filed under the caller's file (a line of
+  ``bvh.py`` reads as the same line number of ``path.py``); the child process gives those lines
+  their own file again.
 
 Prints the share of samples by source line (the innermost inlined frame) and by the Python
-function that holds the line (numba's own inlining leaves no frame of the function it inlined,
-so there is no inclusive "time under trace_path's shadow ray" figure). Needs Linux
+function that holds the line (the innermost frame's: there is no inclusive "time under
+trace_path's shadow ray" figure). Needs Linux
 ``perf`` (Debian: ``apt-get install linux-perf``) and binutils' ``addr2line``, and
 ``/proc/sys/kernel/perf_event_paranoid`` ≤ 2 or root. docs/performance.md ("Where the time
 goes") records what it found.

@@ -14,7 +14,7 @@
   refuses to compile it) and must not return one (its caller would release a reference it never
   took: tests/renderer/test_jit.py checks every compiled signature). A serial kernel that
   allocates is an ``alloc_kernel``; the parallel kernel keeps the runtime for its per-thread stacks.
-- ``inline="always"`` (``inline_kernel``) for the device functions a call would pass the whole
+- inlining (``inline_kernel``) for the device functions a call would pass the whole
   ``SceneArrays`` tuple or seven of its arrays to: numba passes an array as ~7 scalars, so a call
   to ``surface_shadow`` took 186 arguments, one to ``intersect_closest`` 71. Inlining
   ``trace_path`` into ``render_row``, ``transmittance`` and ``surface_shadow`` into it, and the
@@ -28,26 +28,47 @@
   inlining (``transmittance_by_crossing``, which only tree scenes use, and diffuse_entry's
   separate shadow ray, ``surface_shadow_call``): each inlined copy of a ray query adds compile
   time, and these two took the cold compile from 113 s to 67 s (docs/performance.md, "Start-up").
-- numba's inliner copies each inlined callee twice, block by block (quadratic in its size);
-  ``renderer/numba_inline.py``, installed on import here, inlines the fresh IR as it is: cold
-  compile 78 s -> 58 s, the same machine code.
+- ``inline_kernel`` inlines in LLVM, not in numba's IR: numba's ``forceinline`` marks the compiled
+  function ``alwaysinline``, so it is typed and compiled once, for the plain types of its
+  arguments (``_unliteral_calls``), and LLVM inlines its machine-level body at every call site,
+  where the constants a caller passes fold as before. numba's own ``inline="always"`` inlines the
+  callee's IR before typing, so every site typed and lowered its own copy (and numba's inliner
+  deep-copied each copy twice): a cold compile took 69 s that way and takes 35 s now
+  (``python -m bench.compile_passes``), and the renders are bit-identical at the same speed
+  (docs/performance.md, "Inlined by LLVM").
+- ``kernel`` and ``alloc_kernel`` say ``forceinline=False``: numba lets a function that is
+  compiled while an ``alwaysinline`` caller is typed inherit the flag, and a kernel meant to stay
+  a call (``transmittance_by_crossing``) would be inlined at every site.
+- ``draw`` stays a plain ``kernel``, compiled for each constant ``k`` it is called with (16
+  signatures, ~4 s of the compile): unliteralled and inlined, the renders were 6–14 % slower.
 """
 
 from __future__ import annotations
 
 from numba import njit
-
-# numba's inline="always" without its deep copies of a fresh callee (renderer/numba_inline.py);
-# installed before any kernel compiles (they compile at first call)
-from renderer import numba_inline  # noqa: F401
+from numba.core import types
 
 JIT_OPTIONS = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
+
+
+def _unliteral_calls(dispatcher):
+    """Make jitted callers compile ``dispatcher`` for the plain types of their arguments, not once
+    for each constant they pass (numba types a constant argument as a literal: ``Literal[int](3)``,
+    ``Literal[bool](False)``). Calls from Python are typed from values, never as literals."""
+    template = dispatcher.get_call_template
+
+    def get_call_template(args, kws):
+        return template(tuple(types.unliteral(a) for a in args),
+                        {k: types.unliteral(v) for k, v in kws.items()})
+
+    dispatcher.get_call_template = get_call_template
+    return dispatcher
 
 
 def kernel(fn):
     """Compile ``fn`` as a serial numba kernel (or device function called from kernels) that runs
     without numba's runtime: it takes arrays, never allocates or returns one."""
-    return njit(_nrt=False, **JIT_OPTIONS)(fn)
+    return njit(_nrt=False, forceinline=False, **JIT_OPTIONS)(fn)
 
 
 def parallel_kernel(fn):
@@ -57,11 +78,11 @@ def parallel_kernel(fn):
 
 def alloc_kernel(fn):
     """Compile ``fn`` as a serial kernel that allocates arrays (needs numba's runtime)."""
-    return njit(**JIT_OPTIONS)(fn)
+    return njit(forceinline=False, **JIT_OPTIONS)(fn)
 
 
 def inline_kernel(fn):
-    """A ``kernel`` that numba inlines into its callers (``inline="always"``): for device
-    functions that take the whole ``SceneArrays`` tuple, which a call passes as ~180 scalar
-    arguments."""
-    return njit(inline="always", _nrt=False, **JIT_OPTIONS)(fn)
+    """A ``kernel`` that LLVM inlines into every caller (``alwaysinline``, numba's
+    ``forceinline``), compiled once for the plain types of its arguments: for device functions
+    that take the whole ``SceneArrays`` tuple, which a call passes as ~180 scalar arguments."""
+    return _unliteral_calls(njit(forceinline=True, _nrt=False, **JIT_OPTIONS)(fn))

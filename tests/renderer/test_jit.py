@@ -101,3 +101,66 @@ def test_kernels_cache_in_the_keyed_folder_when_numba_was_imported_first(tmp_pat
                          cwd=tmp_path, check=True).stdout.split()
     assert out[1].startswith(str(tmp_path))
     assert out[0].startswith(out[1]), out
+
+
+INLINING = r"""
+import json, math, re
+from renderer.jit import inline_kernel, kernel
+
+
+@kernel
+def stays_a_call(x, n):
+    s = 0.0
+    for i in range(n):
+        s += math.sin(x * i)
+    return s
+
+
+@inline_kernel
+def folded(x, k, flag):
+    if flag:
+        return x * k + stays_a_call(x, 3)
+    return x - k
+
+
+@kernel
+def caller(x):
+    return folded(x, 2, True) + folded(x, 3, False)
+
+
+def attributes(dispatcher, name):
+    (ir,) = dispatcher.inspect_llvm().values()
+    group = re.search(r"define [^\n]*" + name + r"[^\n]*\) (?:local_unnamed_addr )?#(\d+)", ir)
+    return re.search(r"attributes #" + group.group(1) + r" = \{([^}]*)\}", ir).group(1).split()
+
+
+value = caller(1.5)
+(caller_ir,) = caller.inspect_llvm().values()
+print(json.dumps({
+    "value": value, "expected": 1.5 * 2 + sum(math.sin(1.5 * i) for i in range(3)) + 1.5 - 3,
+    "folded_signatures": [str(s) for s in folded.signatures],
+    "folded": attributes(folded, "folded"),
+    "stays_a_call": attributes(stays_a_call, "stays_a_call"),
+    "calls_left": sorted(set(re.findall(r"call [^\n]*@(\S*(?:folded|stays_a_call)\S*)\(",
+                                        caller_ir))),
+}))
+"""
+
+
+def test_inline_kernels_are_typed_once_and_inlined_by_llvm(tmp_path):
+    """An inline_kernel is compiled once for the plain types of its arguments, whatever constants
+    its callers pass (numba would compile one per literal), and marked alwaysinline for LLVM; a
+    kernel first compiled while an inline_kernel is typed does not inherit the mark. Compiled in
+    a fresh process and cache, so the functions are compiled and their IR is there to read."""
+    (tmp_path / "inlining_probe.py").write_text(INLINING)
+    env = {**os.environ, "LUCENT_CACHE_DIR": str(tmp_path / "cache")}
+    env.pop("NUMBA_CACHE_DIR", None)
+    out = subprocess.run([sys.executable, str(tmp_path / "inlining_probe.py")], cwd=ROOT,
+                         env={**env, "PYTHONPATH": str(ROOT)}, capture_output=True, text=True,
+                         timeout=300, check=True)
+    report = json.loads(out.stdout.strip().splitlines()[-1])
+    assert report["value"] == pytest.approx(report["expected"], rel=1e-12)
+    assert report["folded_signatures"] == ["(float64, int64, bool)"]
+    assert "alwaysinline" in report["folded"]
+    assert "alwaysinline" not in report["stays_a_call"]
+    assert not any("folded" in name for name in report["calls_left"])
