@@ -9,7 +9,7 @@ from __future__ import annotations
 
 import math
 
-from renderer.jit import kernel
+from renderer.jit import inline_kernel, kernel
 from renderer.materials.dielectric import dielectric_sample
 from renderer.materials.diffuse import diffuse_eval, diffuse_pdf, diffuse_sample
 from renderer.materials.fresnel import fresnel_dielectric
@@ -46,7 +46,10 @@ def _facing(wo, n):
     return n
 
 
-@kernel
+# bsdf_eval, bsdf_pdf and bsdf_sample are inlined (LLVM, renderer/jit.py): as calls, ~20 scalar
+# arguments each and three a bounce, the renders were 0-14 % slower (two `bench.ab_speed` runs;
+# docs/performance.md, "Inlined by LLVM")
+@inline_kernel
 def bsdf_eval(kind, param, wo, wi, n):
     """f(wo, wi)·|cos θi| for the non-delta materials (zero for delta ones)."""
     ns = _facing(wo, n)
@@ -68,7 +71,7 @@ def bsdf_eval(kind, param, wo, wi, n):
     return (0.0, 0.0, 0.0)
 
 
-@kernel
+@inline_kernel
 def bsdf_pdf(kind, param, wo, wi, n):
     ns = _facing(wo, n)
     if kind == DIFFUSE or kind == SINGLE_SCATTER or kind == BACKLIGHT or kind == DIFFUSION_EXIT:
@@ -78,7 +81,7 @@ def bsdf_pdf(kind, param, wo, wi, n):
     return 0.0
 
 
-@kernel
+@inline_kernel
 def bsdf_sample(kind, param, wo, n, uc, u1, u2):
     """(wi, f·|cos|/pdf, pdf, ok); pdf is 0 for the delta materials."""
     if kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY or kind == DIFFUSION:

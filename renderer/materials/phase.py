@@ -14,7 +14,7 @@ from __future__ import annotations
 
 import math
 
-from renderer.jit import kernel
+from renderer.jit import inline_kernel, kernel
 from renderer.vecmath import to_world
 
 INV_4PI = 1.0 / (4.0 * math.pi)
@@ -38,7 +38,7 @@ def hg_sample_cos(g, u):
     return min(1.0, max(-1.0, cos_theta))
 
 
-@kernel
+@inline_kernel
 def hg_sample(d, g, u1, u2):
     """A new direction scattered from propagation direction ``d``; returns (wi, pdf)."""
     cos_theta = hg_sample_cos(g, u1)
