@@ -47,7 +47,7 @@ def _facing(wo, n):
 
 
 # bsdf_eval, bsdf_pdf and bsdf_sample are inlined (LLVM, renderer/jit.py): as calls, ~20 scalar
-# arguments each and three a bounce, the renders were 0-14 % slower (two `bench.ab_speed` runs;
+# arguments each and three a bounce, the renders were up to 14 % slower (two `bench.ab_speed` runs;
 # docs/performance.md, "Inlined by LLVM")
 @inline_kernel
 def bsdf_eval(kind, param, wo, wi, n):
