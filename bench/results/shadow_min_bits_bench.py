@@ -16,6 +16,7 @@ from llvmlite import ir
 from numba import njit, types
 from numba.extending import intrinsic
 
+from bench.flat_variants import closest
 from renderer.geometry.flat import FLAT_MAX, flat_geometry, flat_planar_t
 from renderer.geometry.shapes import INF, QUAD
 
@@ -34,26 +35,9 @@ def float_bits(typingctx, x):
 
 
 @njit(inline="always", **JIT)
-def closest(out):
-    best = INF
-    b = -1
-    for k in range(out.shape[1]):
-        if out[0, k] < best:
-            best = out[0, k]
-            b = k
-    return b
-
-
-@njit(inline="always", **JIT)
-def closest_bits(out):
-    n = out.shape[1]
-    m = float_bits(INF)
-    for k in range(n):
-        m = min(m, float_bits(out[0, k]))
-    b = n
-    for k in range(n):
-        b = min(b, k if float_bits(out[0, k]) == m else n)
-    return b if b < n and out[0, b] < INF else -1
+def renderer_search(flat, o, d, out):
+    flat_planar_t(flat, o, d, out)
+    return 0
 
 
 @njit(inline="always", **JIT)
@@ -86,130 +70,84 @@ def planar_min(flat, o, d, out):
     return m
 
 
-@njit(**JIT)
-def run_a(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        flat_planar_t(
-            flat,
-            (origins[i, 0], origins[i, 1], origins[i, 2]),
-            (dirs[i, 0], dirs[i, 1], dirs[i, 2]),
-            out,
-        )
-        hits[i] = closest(out)
+@njit(inline="always", **JIT)
+def argmin_scalar(out, m):  # a
+    return closest(out)
 
 
-@njit(**JIT)
-def run_b(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        flat_planar_t(
-            flat,
-            (origins[i, 0], origins[i, 1], origins[i, 2]),
-            (dirs[i, 0], dirs[i, 1], dirs[i, 2]),
-            out,
-        )
-        hits[i] = closest_bits(out)
+@njit(inline="always", **JIT)
+def argmin_index_pass(out, m):  # c: the fused minimum, then a vectorized pass for its index
+    n = out.shape[1]
+    b = n
+    for k in range(n):
+        b = min(b, k if float_bits(out[0, k]) == m else n)
+    return b if b < n and out[0, b] < INF else -1
 
 
-@njit(**JIT)
-def run_c(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        m = planar_min(
-            flat,
-            (origins[i, 0], origins[i, 1], origins[i, 2]),
-            (dirs[i, 0], dirs[i, 1], dirs[i, 2]),
-            out,
-        )
-        n = out.shape[1]
-        b = n
-        for k in range(n):
-            b = min(b, k if float_bits(out[0, k]) == m else n)
-        hits[i] = b if b < n and out[0, b] < INF else -1
+@njit(inline="always", **JIT)
+def argmin_two_vector_passes(out, m):  # b: the minimum, then its first index, both vectorized
+    m = float_bits(INF)
+    for k in range(out.shape[1]):
+        m = min(m, float_bits(out[0, k]))
+    return argmin_index_pass(out, m)
 
 
-@njit(**JIT)
-def run_d(flat, origins, dirs, out, hits):  # occluded-style: any hit below 1.0
-    for i in range(origins.shape[0]):
-        flat_planar_t(
-            flat,
-            (origins[i, 0], origins[i, 1], origins[i, 2]),
-            (dirs[i, 0], dirs[i, 1], dirs[i, 2]),
-            out,
-        )
-        h = 0
+@njit(inline="always", **JIT)
+def argmin_find_first(out, m):  # c2: the fused minimum, then the first column that holds it
+    if m < float_bits(INF):
         for k in range(out.shape[1]):
-            if out[0, k] < 1.0:
-                h = 1
-                break
-        hits[i] = h
+            if float_bits(out[0, k]) == m:
+                return k
+    return -1
 
 
-@njit(**JIT)
-def run_e(flat, origins, dirs, out, hits):
-    lim = float_bits(1.0)
-    for i in range(origins.shape[0]):
-        m = planar_min(
-            flat,
-            (origins[i, 0], origins[i, 1], origins[i, 2]),
-            (dirs[i, 0], dirs[i, 1], dirs[i, 2]),
-            out,
-        )
-        hits[i] = 1 if m < lim else 0
+@njit(inline="always", **JIT)
+def argmin_if_hit(out, m):  # c3: the scalar argmin, skipped when nothing was hit
+    return closest(out) if m < float_bits(INF) else -1
 
 
+@njit(inline="always", **JIT)
+def occluded_loop(out, m):  # d: any hit before 1.0, the scalar loop with its exit
+    for k in range(out.shape[1]):
+        if out[0, k] < 1.0:
+            return 1
+    return 0
+
+
+@njit(inline="always", **JIT)
+def occluded_min(out, m):  # e: one comparison of the fused minimum
+    return 1 if m < float_bits(1.0) else 0
+
+
+def ray_loop(search, reduce):
+    @njit(**JIT)
+    def run(flat, origins, dirs, out, hits):
+        for i in range(origins.shape[0]):
+            o = (origins[i, 0], origins[i, 1], origins[i, 2])
+            m = search(flat, o, (dirs[i, 0], dirs[i, 1], dirs[i, 2]), out)
+            hits[i] = reduce(out, m)
+
+    return run
+
+
+V = {
+    "a current": ray_loop(renderer_search, argmin_scalar),
+    "b bits 2 passes": ray_loop(renderer_search, argmin_two_vector_passes),
+    "c fused min": ray_loop(planar_min, argmin_index_pass),
+    "c2 min+findfirst": ray_loop(planar_min, argmin_find_first),
+    "c3 min+skip": ray_loop(planar_min, argmin_if_hit),
+    "d occl current": ray_loop(renderer_search, occluded_loop),
+    "e occl fused": ray_loop(planar_min, occluded_min),
+}
 rng = np.random.default_rng(1)
 n = 18
 kind = np.full(n, QUAD, np.int8)
-geo = rng.normal(size=(n, 9))
-flat = flat_geometry(kind, geo)
+flat = flat_geometry(kind, rng.normal(size=(n, 9)))
 R = 1_000_000
 origins = rng.normal(size=(R, 3))
 dirs = rng.normal(size=(R, 3))
 dirs /= np.linalg.norm(dirs, axis=1)[:, None]
 out = np.zeros((3, FLAT_MAX))
-
-
-@njit(**JIT)
-def run_c2(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        m = planar_min(
-            flat,
-            (origins[i, 0], origins[i, 1], origins[i, 2]),
-            (dirs[i, 0], dirs[i, 1], dirs[i, 2]),
-            out,
-        )
-        b = -1
-        if m < float_bits(INF):
-            for k in range(out.shape[1]):
-                if float_bits(out[0, k]) == m:
-                    b = k
-                    break
-        hits[i] = b
-
-
-@njit(**JIT)
-def run_c3(flat, origins, dirs, out, hits):
-    for i in range(origins.shape[0]):
-        m = planar_min(
-            flat,
-            (origins[i, 0], origins[i, 1], origins[i, 2]),
-            (dirs[i, 0], dirs[i, 1], dirs[i, 2]),
-            out,
-        )
-        b = -1
-        if m < float_bits(INF):
-            b = closest(out)
-        hits[i] = b
-
-
-V = {
-    "c2 min+findfirst": run_c2,
-    "c3 min+skip": run_c3,
-    "a current": run_a,
-    "b bits 2 passes": run_b,
-    "c fused min": run_c,
-    "d occl current": run_d,
-    "e occl fused": run_e,
-}
 H = {k: np.zeros(R, np.int64) for k in V}
 for k, f in V.items():
     f(flat, origins[:10], dirs[:10], out, H[k][:10])
@@ -221,13 +159,6 @@ for _ in range(5):
         T[k].append((time.perf_counter() - t0) / R * 1e9)
 for k in V:
     print(f"{k:20s} best {min(T[k]):6.1f} median {sorted(T[k])[2]:6.1f}")
-print(
-    "same closest",
-    np.array_equal(H["a current"], H["b bits 2 passes"]),
-    np.array_equal(H["a current"], H["c fused min"]),
-    np.array_equal(H["a current"], H["c2 min+findfirst"]),
-    np.array_equal(H["a current"], H["c3 min+skip"]),
-    "same occl",
-    np.array_equal(H["d occl current"], H["e occl fused"]),
-)
-print("hit frac", (H["a current"] >= 0).mean(), H["d occl current"].mean())
+closest_same = all(np.array_equal(H["a current"], H[k]) for k in list(V)[1:5])
+print("same closest", closest_same, "same occluded",
+      np.array_equal(H["d occl current"], H["e occl fused"]))
