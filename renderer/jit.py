@@ -33,9 +33,9 @@
   arguments (``_unliteral_calls``), and LLVM inlines its machine-level body at every call site,
   where the constants a caller passes fold as before. numba's own ``inline="always"`` inlines the
   callee's IR before typing, so every site typed and lowered its own copy (and numba's inliner
-  deep-copied each copy twice): a cold compile took 69 s that way and takes 35 s now
-  (``python -m bench.compile_passes``), and the renders are bit-identical at the same speed
-  (docs/performance.md, "Inlined by LLVM").
+  deep-copied each copy twice): a cold compile took 65.5 s that way and 43.3 s now, in the same
+  minutes, with the BSDFs inlined as well (``python -m bench.compile_passes``), and the renders
+  are bit-identical (docs/performance.md, "Inlined by LLVM").
 - ``kernel`` and ``alloc_kernel`` say ``forceinline=False``: numba lets a function that is
   compiled while an ``alwaysinline`` caller is typed inherit the flag, and a kernel meant to stay
   a call (``transmittance_by_crossing``) would be inlined at every site.
