@@ -39,8 +39,12 @@
 - ``kernel`` and ``alloc_kernel`` say ``forceinline=False``: numba lets a function that is
   compiled while an ``alwaysinline`` caller is typed inherit the flag, and a kernel meant to stay
   a call (``transmittance_by_crossing``) would be inlined at every site.
-- ``draw`` stays a plain ``kernel``, compiled for each constant ``k`` it is called with (16
-  signatures, ~4 s of the compile): unliteralled and inlined, the renders were 6–14 % slower.
+- ``draw`` stays a plain ``kernel``, compiled for each constant ``k`` it is called with (8
+  signatures): unliteralled and inlined, the renders were 6–14 % slower. A literal can also be
+  transient: ``trace_path``'s ``dim = 2`` was typed ``Literal[int](2)`` on type inference's first
+  pass and int64 once the loop's ``dim +=`` reached it, so every ``draw`` compiled twice, and its
+  literal copies were thrown away; ``dim = np.int64(2)`` took a cold compile from 46.9 s to
+  35–38 s.
 """
 
 from __future__ import annotations

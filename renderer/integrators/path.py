@@ -410,7 +410,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
     eta_scale = 1.0
     single_done = False  # the single-scatter medium the ray is in has had its one event
     skip_emission = False  # diffuse_entry with direct_light: this segment's light is counted apart
-    dim = 2
+    dim = np.int64(2)  # not a literal: typed so, every draw() would compile twice (2, then int64)
     n_lights = S.light_kind.shape[0]
     env = S.env_light[0]
     null_media = S.null_media[0]
