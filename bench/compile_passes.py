@@ -33,10 +33,13 @@ def main() -> int:
     # numba's passes nest (a compile started while typing a caller runs inside its pass), in
     # this one thread: a stack of the open ones gives each its self time
     passes, own, open_ = [], [], []
+    typed: dict[str, int] = {}  # type inferences per function: one per signature compiled
     for ts, ev in rec.buffer:
         key = (ev.data["name"], ev.data.get("qualname"))
         if ev.is_start:
             open_.append([key, ts, 0.0])
+            if key[0].startswith("nopython_type_inference"):
+                typed[key[1]] = typed.get(key[1], 0) + 1
         else:
             k, start, nested = open_.pop()
             assert k == key, (k, key)
@@ -58,13 +61,8 @@ def main() -> int:
     print(f"self time summed by pass ({sum(by_pass.values()):.1f} s in passes):")
     for name, seconds in sorted(by_pass.items(), key=lambda kv: -kv[1])[:12]:
         print(f"{seconds:7.2f} s  {name}")
-    counts = {}
-    for _, ev in rec.buffer:
-        if ev.is_start and ev.data["name"].startswith("nopython_type_inference"):
-            q = ev.data.get("qualname")
-            counts[q] = counts.get(q, 0) + 1
     print("functions typed more than once (one compile a signature):",
-          ", ".join(f"{q} {n}" for q, n in sorted(counts.items(), key=lambda kv: -kv[1])
+          ", ".join(f"{q} {n}" for q, n in sorted(typed.items(), key=lambda kv: -kv[1])
                     if n > 1))
     return 0
 

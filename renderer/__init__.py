@@ -12,6 +12,7 @@ kernel is compiled until it is first called.
 
 from __future__ import annotations
 
+import functools
 import hashlib
 import os
 import sys
@@ -20,8 +21,11 @@ from pathlib import Path
 __version__ = "0.1.0"
 
 
+@functools.cache
 def source_digest() -> str:
-    """A hash of every renderer source file (16 hex digits): one per renderer version."""
+    """A hash of every renderer source file (16 hex digits): one per renderer version. Computed
+    once a process, when the package is imported (``_cache_dir``), so the worker's warm marker
+    (``worker.runtime.warm_marker``) names the version whose folder numba uses."""
     root = Path(__file__).parent
     digest = hashlib.sha1()
     for path in sorted(root.rglob("*.py")):

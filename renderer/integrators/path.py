@@ -122,8 +122,9 @@ def transmittance_by_crossing(S, o, d, t_max, medium, stack):
     """``transmittance`` by a closest-hit query from each surface crossed to the next.
 
     A call, not inlined: it serves the scenes searched with a tree, where the tree walk for each
-    crossing outweighs the call, and an inlined copy of the closest-hit search at each of its
-    three sites in ``trace_path`` cost compile time (docs/performance.md, "Start-up")."""
+    crossing outweighs the call. Inlined in numba's IR, its copies at three sites in
+    ``trace_path`` cost compile time; inlined by LLVM, the renders were no faster
+    (docs/performance.md, "Start-up", "Inlined by LLVM")."""
     tr = 1.0
     for _ in range(64):
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
@@ -238,7 +239,8 @@ def surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack):
 @kernel
 def surface_shadow_call(S, p, n, wi, t_max, scale, medium, null_media, stack):
     """``surface_shadow`` as a call, for a site off the hot path (diffuse_entry's separate direct
-    light): each inlined copy of the shadow-ray search adds to the cold compile time."""
+    light): each inlined copy of the shadow-ray search adds to the cold compile time, and inlined
+    (by LLVM) it rendered no faster (docs/performance.md, "Inlined by LLVM")."""
     return surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack)
 
 
