@@ -11,7 +11,8 @@ bounds shrunk by 5 %, directions uniform on the sphere), in ns a ray:
 - a room (6 walls) around a low-poly torus of 12 to 224 triangles: a scene the tree culls well,
   which places the crossover;
 - with ``--columns``, the flat search over 1 to FLAT_MAX random quads, to show what the store's
-  padding to full vectors (flat.FLAT_PAD) buys.
+  padding to full vectors (flat.FLAT_PAD) buys; ``--pads 4 8`` times each count with each
+  padding in turn (n: columns and ns for each), this CPU's against the other's.
 
 Record results in docs/performance.md ("Flat scenes").
 """
@@ -34,7 +35,7 @@ from renderer.geometry.bvh import (
     traversal_stack,
     widen_bvh,
 )
-from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_order
+from renderer.geometry.flat import FLAT_MAX, FLAT_PAD, FLAT_ROWS, flat_geometry, flat_order
 from renderer.geometry.shapes import INF, QUAD, TRIANGLE, prim_bounds
 from renderer.scene.compile import compile_scene
 from renderer.scene.load import load_scene_file
@@ -59,14 +60,15 @@ def occluded_all(lo, hi, child, count, flat, kind, geo, origins, dirs, stack, ou
         out[i] = occluded(lo, hi, child, count, flat, kind, geo, o, d, 1.0, stack)
 
 
-def packed(kind: np.ndarray, geo: np.ndarray, flat: bool):
-    """The arrays compile_scene would make, flat or with the tree whatever the count."""
+def packed(kind: np.ndarray, geo: np.ndarray, flat: bool, pad: int = FLAT_PAD):
+    """The arrays compile_scene would make, flat (its store padded to ``pad``) or with the tree
+    whatever the count."""
     if flat:
         order = flat_order(kind)
         kind, geo = kind[order], np.ascontiguousarray(geo[order])
         empty = np.zeros((0, 3, BVH_WIDTH))
         none = np.zeros((0, BVH_WIDTH), np.int32)
-        return (empty, empty, none, none, flat_geometry(kind, geo), kind, geo), 2
+        return (empty, empty, none, none, flat_geometry(kind, geo, pad), kind, geo), 2
     lo, hi = prim_bounds(kind, geo)
     *nodes, order = build_bvh(lo, hi)
     w_lo, w_hi, w_child, w_count, depth = widen_bvh(*nodes)
@@ -131,6 +133,8 @@ def main() -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--rays", type=int, default=400_000)
     parser.add_argument("--columns", action="store_true", help="also scan 1..FLAT_MAX quads")
+    parser.add_argument("--pads", type=int, nargs="+", default=[FLAT_PAD], metavar="PAD",
+                        help=f"the store's paddings --columns times (this CPU's: {FLAT_PAD})")
     args = parser.parse_args()
     rng = np.random.default_rng(1)
     print(f"ns a ray, 1 thread, {args.rays:,} random rays; FLAT_MAX {FLAT_MAX}")
@@ -158,9 +162,15 @@ def main() -> int:
         cells = []
         for n in range(1, FLAT_MAX + 1):
             kind = np.full(n, QUAD, np.int8)
-            arrays, depth = packed(kind, np.ascontiguousarray(quads[:n]), True)
-            cells.append(f"{n}: {ns_per_ray(arrays, depth, origins, dirs, closest_all):.0f}")
-        print("flat closest hit over n random quads, ns a ray:", ", ".join(cells))
+            runs = []
+            for pad in args.pads:
+                arrays, depth = packed(kind, np.ascontiguousarray(quads[:n]), True, pad)
+                ns = ns_per_ray(arrays, depth, origins, dirs, closest_all)
+                runs.append(f"{arrays[4].shape[1]} col {ns:.0f}" if len(args.pads) > 1
+                            else f"{ns:.0f}")
+            cells.append(f"{n}: " + " / ".join(runs))
+        pads = " / ".join(f"pad {p}" for p in args.pads)
+        print(f"flat closest hit over n random quads, ns a ray ({pads}):", ", ".join(cells))
     return 0
 
 

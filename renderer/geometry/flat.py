@@ -29,12 +29,40 @@ from renderer.jit import inline_kernel
 FLAT_MAX = 24
 # Rows of the column store: origin/v0 (0:3), edge1 (3:6), edge2 (6:9), 1.0 for a triangle (9)
 FLAT_ROWS = 10
-# The store's columns are padded with empty ones (all zero: determinant 0, a miss) to a multiple
-# of FLAT_PAD and at least FLAT_MIN_COLUMNS. LLVM compiles the loop (on AVX-512) to 16 lanes an
-# iteration, then one vector of 8, then one primitive at a time, and a primitive left to the
-# scalar tail costs as much as 5 in a vector: 15 primitives took 109 ns a ray, 16 took 39 ns.
-FLAT_PAD = 8
+# The store's columns are padded with empty ones (all zero: determinant 0, a miss) to at least
+# FLAT_MIN_COLUMNS and a multiple of the loop's vector (vector_pad), so that LLVM's vector loop
+# takes every column and none is left to its scalar tail. How LLVM compiles the loop depends on
+# the CPU. With AVX-512 (Zen 4, the Xeons of 2026-12-01): 16 lanes an iteration, then one
+# vector of 8, then one primitive at a time, and a primitive left to the scalar tail costs as much
+# as 5 in a vector (15 primitives took 109 ns a ray, 16 took 39 ns). With AVX2 and no AVX-512
+# (Zen 3): one vector of 4 doubles an iteration, taken only from 16 columns on (fewer go
+# through the scalar loop whole: 8 columns 123 ns, 16 columns 51 ns), then the scalar tail; so
+# there the 18 quads of the Cornell box fill 20 columns, not 24 (docs/performance.md, "The flat
+# store padded to the CPU's vector").
 FLAT_MIN_COLUMNS = 16
+
+
+def vector_pad(features: str) -> int:
+    """The column multiple for a CPU with these LLVM features (``+avx2,-avx512f,…``): 4 with AVX2
+    and no AVX-512, where LLVM vectorizes the loop by 4 doubles; otherwise 8, a multiple of every
+    vector width (AVX-512's 8 doubles, measured; SSE's and NEON's 2, not measured here)."""
+    enabled = {f[1:] for f in features.split(",") if f.startswith("+")}
+    return 4 if "avx2" in enabled and "avx512f" not in enabled else 8
+
+
+def _target_features() -> str:
+    """The features numba compiles for: ``NUMBA_CPU_FEATURES`` when set, else the host's."""
+    from llvmlite import binding
+    from numba.core import config
+
+    if config.CPU_FEATURES is not None:
+        return config.CPU_FEATURES
+    return binding.get_host_cpu_features().flatten()
+
+
+# The padding only decides which empty columns the loop tests after the primitives: hits, and
+# so images, are the same for any of them (tests/renderer/geometry/test_intersect.py).
+FLAT_PAD = vector_pad(_target_features())
 
 
 def flat_order(prim_kind: np.ndarray) -> np.ndarray:
@@ -42,11 +70,12 @@ def flat_order(prim_kind: np.ndarray) -> np.ndarray:
     return np.argsort(prim_kind != SPHERE, kind="stable")
 
 
-def flat_geometry(prim_kind: np.ndarray, prim_geo: np.ndarray) -> np.ndarray:
-    """The column store the vector loop reads, (FLAT_ROWS, n padded): column k is primitive k,
-    spheres and the padding are left all zero. No primitives, no columns."""
+def flat_geometry(prim_kind: np.ndarray, prim_geo: np.ndarray, pad: int = FLAT_PAD) -> np.ndarray:
+    """The column store the vector loop reads, (FLAT_ROWS, n padded to a multiple of ``pad``, at
+    least FLAT_MIN_COLUMNS): column k is primitive k, spheres and the padding are left all zero.
+    No primitives, no columns."""
     n = len(prim_kind)
-    columns = max(FLAT_MIN_COLUMNS, -(-n // FLAT_PAD) * FLAT_PAD) if n else 0
+    columns = max(FLAT_MIN_COLUMNS, -(-n // pad) * pad) if n else 0
     flat = np.zeros((FLAT_ROWS, columns))
     planar = np.zeros(columns, bool)
     planar[:n] = prim_kind != SPHERE

@@ -12,6 +12,7 @@ the flat search, whose vector loop repeats the planar test's arithmetic.
 from __future__ import annotations
 
 import math
+import os
 import subprocess
 import sys
 from decimal import Decimal, getcontext
@@ -30,7 +31,15 @@ from renderer.geometry.bvh import (
     traversal_stack,
     widen_bvh,
 )
-from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_order
+from renderer.geometry.flat import (
+    FLAT_MAX,
+    FLAT_MIN_COLUMNS,
+    FLAT_PAD,
+    FLAT_ROWS,
+    flat_geometry,
+    flat_order,
+    vector_pad,
+)
 from renderer.geometry.shapes import (
     INF,
     QUAD,
@@ -544,19 +553,64 @@ def test_flat_matches_brute_force(rng, n_tri, n_sph, n_quad):
         assert len(np.unique(res[hit, 1, 1])) >= 0.8 * len(kind)
 
 
-@pytest.mark.parametrize("n", [1, 15, 16, 17, FLAT_MAX - 1, FLAT_MAX])
-def test_flat_store_is_padded_with_empty_columns(rng, n):
-    # The vector loop runs 16 lanes, then 8, then one at a time; the store is padded to full
-    # vectors with all-zero columns, which no ray hits.
+@pytest.mark.parametrize("pad", [4, 8])
+@pytest.mark.parametrize("n", [1, 15, 16, 17, 20, 21, FLAT_MAX - 1, FLAT_MAX])
+def test_flat_store_is_padded_with_empty_columns(rng, n, pad):
+    # The vector loop takes whole vectors of `pad` columns (AVX2: 4, from 16 columns on; AVX-512:
+    # 16, then 8); the store is padded to them with all-zero columns, which no ray hits, and
+    # with no more columns than that needs.
     kind, geo = random_scene(rng, n_tri=n // 2, n_sph=1, n_quad=n - n // 2 - 1)
     kind, geo = kind[flat_order(kind)], geo[flat_order(kind)]
-    flat = flat_geometry(kind, geo)
-    assert flat.shape[1] >= max(n, 16) and flat.shape[1] % 8 == 0 and flat.shape[1] - n < 16
+    flat = flat_geometry(kind, geo, pad)
+    assert flat.shape[1] == max(FLAT_MIN_COLUMNS, -(-n // pad) * pad)
+    assert flat.shape[1] % pad == 0 and flat.shape[1] - max(n, FLAT_MIN_COLUMNS) < pad
     assert flat.shape[1] <= FLAT_MAX
     assert np.all(flat[:, n:] == 0.0) and np.all(flat[:, :n][:, kind == SPHERE] == 0.0)
     np.testing.assert_array_equal(flat[:9, :n][:, kind != SPHERE], geo[kind != SPHERE].T)
     np.testing.assert_array_equal(flat[9, :n], kind == TRIANGLE)
     assert flat_geometry(kind[:0], geo[:0]).shape == (FLAT_ROWS, 0)
+
+
+def test_vector_pad_follows_the_cpu_that_numba_compiles_for():
+    zen3 = "+avx,+avx2,+fma,+sse4.2,-avx512f,-avx512vl"
+    assert vector_pad(zen3) == 4
+    assert vector_pad("+avx,+avx2,+avx512f,+avx512vl,+fma") == 8  # Zen 4, AVX-512 Xeons
+    assert vector_pad("+sse2,+sse4.2,-avx,-avx2") == 8  # SSE: 2 doubles, a multiple of 8
+    assert vector_pad("+neon,+fp-armv8") == 8
+    assert vector_pad("") == 8
+    # The store this process builds follows the CPU numba compiles for (NUMBA_CPU_FEATURES)
+    script = "from renderer.geometry.flat import FLAT_PAD; print(FLAT_PAD)"
+    for features, pad in ((zen3, 4), ("+avx2,+avx512f", 8)):
+        env = {**os.environ, "NUMBA_CPU_FEATURES": features}
+        out = subprocess.run([sys.executable, "-c", script], env=env, capture_output=True,
+                             text=True, check=True).stdout
+        assert int(out) == pad
+    assert FLAT_PAD in (4, 8)
+
+
+def test_the_padding_leaves_every_hit_the_same():
+    # The same Cornell box (18 quads) rendered from a store of 20 columns and one of 24 (the
+    # AVX2 and the AVX-512 padding): bit-identical sample buffers
+    import dataclasses
+    import json
+    from pathlib import Path
+
+    from renderer.render import render_tile
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    scene = json.loads((Path(__file__).parents[3] / "examples" / "cornell_box.json").read_text())
+    scene["film"] = {"width": 32, "height": 24}
+    cs = compile_scene(load_scene(scene))
+    buffers = []
+    for pad in (4, 8):
+        flat = flat_geometry(cs.arrays.prim_kind, cs.arrays.prim_geo, pad)
+        assert flat.shape[1] == {4: 20, 8: 24}[pad]
+        padded = dataclasses.replace(cs, arrays=cs.arrays._replace(flat=flat))
+        buffers.append(render_tile(padded, 0, 0, 32, 24, 0, 4))
+    for name in ("sum", "sum_sq", "count"):
+        np.testing.assert_array_equal(getattr(buffers[0], name), getattr(buffers[1], name))
+    assert buffers[0].sum.sum() > 0
 
 
 def test_flat_coplanar_tie_goes_to_the_first():
