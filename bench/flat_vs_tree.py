@@ -12,7 +12,8 @@ bounds shrunk by 5 %, directions uniform on the sphere), in ns a ray:
   which places the crossover;
 - with ``--columns``, the flat search over 1 to FLAT_MAX random quads, to show what the store's
   padding to full vectors (flat.FLAT_PAD) buys; ``--pads 4 8`` times each count with each
-  padding in turn (n: columns and ns for each), this CPU's against the other's.
+  padding in turn (n: columns and ns for each), this CPU's against the other's, and
+  ``--min-columns`` lowers the store's least width (flat.FLAT_MIN_COLUMNS) to show what it is for.
 
 Record results in docs/performance.md ("Flat scenes").
 """
@@ -35,7 +36,14 @@ from renderer.geometry.bvh import (
     traversal_stack,
     widen_bvh,
 )
-from renderer.geometry.flat import FLAT_MAX, FLAT_PAD, FLAT_ROWS, flat_geometry, flat_order
+from renderer.geometry.flat import (
+    FLAT_MAX,
+    FLAT_MIN_COLUMNS,
+    FLAT_PAD,
+    FLAT_ROWS,
+    flat_geometry,
+    flat_order,
+)
 from renderer.geometry.shapes import INF, QUAD, TRIANGLE, prim_bounds
 from renderer.scene.compile import compile_scene
 from renderer.scene.load import load_scene_file
@@ -60,15 +68,16 @@ def occluded_all(lo, hi, child, count, flat, kind, geo, origins, dirs, stack, ou
         out[i] = occluded(lo, hi, child, count, flat, kind, geo, o, d, 1.0, stack)
 
 
-def packed(kind: np.ndarray, geo: np.ndarray, flat: bool, pad: int = FLAT_PAD):
-    """The arrays compile_scene would make, flat (its store padded to ``pad``) or with the tree
-    whatever the count."""
+def packed(kind: np.ndarray, geo: np.ndarray, flat: bool, pad: int = FLAT_PAD,
+           min_columns: int = FLAT_MIN_COLUMNS):
+    """The arrays compile_scene would make, flat (its store padded to ``pad``, at least
+    ``min_columns``) or with the tree whatever the count."""
     if flat:
         order = flat_order(kind)
         kind, geo = kind[order], np.ascontiguousarray(geo[order])
         empty = np.zeros((0, 3, BVH_WIDTH))
         none = np.zeros((0, BVH_WIDTH), np.int32)
-        return (empty, empty, none, none, flat_geometry(kind, geo, pad), kind, geo), 2
+        return (empty, empty, none, none, flat_geometry(kind, geo, pad, min_columns), kind, geo), 2
     lo, hi = prim_bounds(kind, geo)
     *nodes, order = build_bvh(lo, hi)
     w_lo, w_hi, w_child, w_count, depth = widen_bvh(*nodes)
@@ -135,6 +144,8 @@ def main() -> int:
     parser.add_argument("--columns", action="store_true", help="also scan 1..FLAT_MAX quads")
     parser.add_argument("--pads", type=int, nargs="+", default=[FLAT_PAD], metavar="PAD",
                         help=f"the store's paddings --columns times (this CPU's: {FLAT_PAD})")
+    parser.add_argument("--min-columns", type=int, default=FLAT_MIN_COLUMNS,
+                        help=f"the store's least width for --columns ({FLAT_MIN_COLUMNS})")
     args = parser.parse_args()
     rng = np.random.default_rng(1)
     print(f"ns a ray, 1 thread, {args.rays:,} random rays; FLAT_MAX {FLAT_MAX}")
@@ -164,7 +175,8 @@ def main() -> int:
             kind = np.full(n, QUAD, np.int8)
             runs = []
             for pad in args.pads:
-                arrays, depth = packed(kind, np.ascontiguousarray(quads[:n]), True, pad)
+                arrays, depth = packed(kind, np.ascontiguousarray(quads[:n]), True, pad,
+                                       args.min_columns)
                 ns = ns_per_ray(arrays, depth, origins, dirs, closest_all)
                 runs.append(f"{arrays[4].shape[1]} col {ns:.0f}" if len(args.pads) > 1
                             else f"{ns:.0f}")

@@ -70,12 +70,13 @@ def flat_order(prim_kind: np.ndarray) -> np.ndarray:
     return np.argsort(prim_kind != SPHERE, kind="stable")
 
 
-def flat_geometry(prim_kind: np.ndarray, prim_geo: np.ndarray, pad: int = FLAT_PAD) -> np.ndarray:
+def flat_geometry(prim_kind: np.ndarray, prim_geo: np.ndarray, pad: int = FLAT_PAD,
+                  min_columns: int = FLAT_MIN_COLUMNS) -> np.ndarray:
     """The column store the vector loop reads, (FLAT_ROWS, n padded to a multiple of ``pad``, at
-    least FLAT_MIN_COLUMNS): column k is primitive k, spheres and the padding are left all zero.
+    least ``min_columns``): column k is primitive k, spheres and the padding are left all zero.
     No primitives, no columns."""
     n = len(prim_kind)
-    columns = max(FLAT_MIN_COLUMNS, -(-n // pad) * pad) if n else 0
+    columns = max(min_columns, -(-n // pad) * pad) if n else 0
     flat = np.zeros((FLAT_ROWS, columns))
     planar = np.zeros(columns, bool)
     planar[:n] = prim_kind != SPHERE
