@@ -36,9 +36,9 @@ FLAT_ROWS = 10
 # vector of 8, then one primitive at a time, and a primitive left to the scalar tail costs as much
 # as 5 in a vector (15 primitives took 109 ns a ray, 16 took 39 ns). With AVX2 and no AVX-512
 # (Zen 3): one vector of 4 doubles an iteration, taken only from 16 columns on (fewer go
-# through the scalar loop whole: 8 columns 123 ns, 16 columns 51 ns), then the scalar tail; so
-# there the 18 quads of the Cornell box fill 20 columns, not 24 (docs/performance.md, "The flat
-# store padded to the CPU's vector").
+# through the scalar loop whole: 8 columns 101-105 ns a ray, 16 columns 64-70), then the scalar
+# tail; so there the 18 quads of the Cornell box fill 20 columns, not 24 (docs/performance.md,
+# "The flat store padded to the CPU's vector"; ``python -m bench.flat_vs_tree --columns``).
 FLAT_MIN_COLUMNS = 16
 
 

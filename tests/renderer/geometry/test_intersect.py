@@ -11,11 +11,14 @@ the flat search, whose vector loop repeats the planar test's arithmetic.
 
 from __future__ import annotations
 
+import dataclasses
+import json
 import math
 import os
 import subprocess
 import sys
 from decimal import Decimal, getcontext
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -52,6 +55,9 @@ from renderer.geometry.shapes import (
     surface_point,
 )
 from renderer.jit import alloc_kernel
+from renderer.render import render_tile
+from renderer.scene import load_scene
+from renderer.scene.compile import compile_scene
 
 # --- reference: exact sphere roots ---------------------------------------------------------------
 
@@ -591,14 +597,6 @@ def test_vector_pad_follows_the_cpu_that_numba_compiles_for():
 def test_the_padding_leaves_every_hit_the_same():
     # The same Cornell box (18 quads) rendered from a store of 20 columns and one of 24 (the
     # AVX2 and the AVX-512 padding): bit-identical sample buffers
-    import dataclasses
-    import json
-    from pathlib import Path
-
-    from renderer.render import render_tile
-    from renderer.scene import load_scene
-    from renderer.scene.compile import compile_scene
-
     scene = json.loads((Path(__file__).parents[3] / "examples" / "cornell_box.json").read_text())
     scene["film"] = {"width": 32, "height": 24}
     cs = compile_scene(load_scene(scene))
