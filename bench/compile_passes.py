@@ -24,7 +24,7 @@ def main() -> int:
     args = parser.parse_args()
     from numba.core import event
 
-    from renderer.cli import main as lucent
+    from services.cli import main as lucent
 
     with tempfile.TemporaryDirectory() as tmp, event.install_recorder("numba:run_pass") as rec:
         t0 = time.perf_counter()

@@ -1,5 +1,5 @@
 """A farm for the dashboard's scripts (bench/dashboard_screenshots.py, bench/dashboard_load.py):
-an embedded Redis, one worker node and ``uvicorn services.main:app`` in its own process (so that
+an embedded Redis, one worker node and ``uvicorn services.api.main:app`` in its own process (so that
 its CPU time can be measured alone), on free localhost ports; everything stopped on exit."""
 
 from __future__ import annotations
@@ -14,8 +14,8 @@ from pathlib import Path
 import httpx
 import redis
 
+from services.farm.store import JobStore
 from services.launcher import EmbeddedRedis, free_port, start_worker, terminate
-from services.store import JobStore
 
 ROOT = Path(__file__).resolve().parents[1]
 CHROMIUM = "/usr/bin/chromium"
@@ -41,7 +41,7 @@ class DashboardFarm:
             self.worker = start_worker(self.redis.url, self.workers, 1, extra_env=env,
                                        log=subprocess.DEVNULL)
         self.server = subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "services.main:app", "--host", "127.0.0.1",
+            [sys.executable, "-m", "uvicorn", "services.api.main:app", "--host", "127.0.0.1",
              "--port", str(self.port), "--log-level", "warning", "--no-access-log"],
             cwd=ROOT, env={**os.environ, **env, "REDIS_URL": self.redis.url})
         store = self.store()

@@ -22,10 +22,10 @@ from pathlib import Path
 import redis
 from fastapi.testclient import TestClient
 
+from services.api.main import create_app
+from services.farm.settings import Settings
+from services.farm.store import JobStore
 from services.launcher import EmbeddedRedis, start_worker, terminate
-from services.main import create_app
-from services.settings import Settings
-from services.store import JobStore
 
 
 def _wait(pred, timeout=600.0, interval=0.01):

@@ -3,7 +3,7 @@
     flock /tmp/lucent-cpu.lock .venv/bin/python -m bench.load \
         [--submissions 100] [--pollers 200] [--seconds 60] [--interval 1.0] [--workers 2]
 
-An embedded Redis, ``--workers`` worker processes and ``uvicorn services.main:app`` in its own
+An embedded Redis, ``--workers`` worker processes and ``uvicorn services.api.main:app`` in its own
 process (``bench.dashboard_farm.DashboardFarm``), all on 127.0.0.1. Then, at once:
 
 - ``--submissions`` clients each submit one small job (the Cornell box at 32x24, 16 spp: one

@@ -44,10 +44,10 @@ import redis
 from fastapi.testclient import TestClient
 
 from bench.farm_speed import _wait, run_job, timed_runs
+from services.api.main import create_app
+from services.farm.settings import Settings
+from services.farm.store import JobStore
 from services.launcher import EmbeddedRedis, _die_with_parent, worker_command, worker_env
-from services.main import create_app
-from services.settings import Settings
-from services.store import JobStore
 
 ROOT = Path(__file__).resolve().parents[1]
 KEY_PREFIX = "bench"
@@ -329,7 +329,7 @@ def main(argv: list[str] | None = None) -> None:
     parser.add_argument("--tiles", type=_ints, default=[32, 64], help="tile sizes in pixels")
     parser.add_argument("--passes", type=_passes, default=[(8, 8), (16, 16), (8, 64)],
                         help="samples per pass: N (equal passes) or N-M (growing from N to at "
-                             "most M, services.planner), comma-separated (default 8,16,8-64)")
+                             "most M, services.farm.planner), comma-separated (default 8,16,8-64)")
     parser.add_argument("--repeats", type=int, default=3, help="timed runs per row (median)")
     parser.add_argument("--per-node", type=int, default=1,
                         help="pool processes per worker node (and per namespace with --netns)")

@@ -100,7 +100,7 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
         print(f"{server}: {err}", file=sys.stderr)
         return 1
     print(f"job {job['id']}: {job['tiles']} tiles x {job['tasks_total'] // job['tiles']} passes "
-          f"— {server.rstrip('/')}/api/jobs/{job['id']}", file=sys.stderr)
+          f"— {server.rstrip('/')}/#/job/{job['id']}", file=sys.stderr)
     if not (wait or outputs):
         print(job["id"])
         return 0

@@ -175,7 +175,7 @@ class LocalFarm:
             self.redis = EmbeddedRedis().start()
             self.redis_url = self.redis.url
         os.environ["REDIS_URL"] = self.redis_url
-        from services.settings import get_settings
+        from services.farm.settings import get_settings
 
         get_settings.cache_clear()
         if self.workers > 0:
@@ -183,7 +183,7 @@ class LocalFarm:
                                             log=subprocess.DEVNULL if self.quiet else None)
         import uvicorn
 
-        from services.main import create_app
+        from services.api.main import create_app
 
         config = uvicorn.Config(create_app(), host=self.host, port=self.port,
                                 log_level="warning", lifespan="on")

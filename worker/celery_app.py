@@ -10,4 +10,4 @@ from worker import kombu_guard
 kombu_guard.install()
 
 app = Celery("lucent", include=["worker.tasks"])
-app.config_from_object("worker.config")
+app.config_from_object("services.farm.celery_config")

@@ -13,7 +13,7 @@ ends during the outage hits the same path through ``ack`` and ``reject``.
 Nothing needs those calls to succeed: a message that could not be acknowledged, rejected or
 restored stays in kombu's ``unacked`` hash in Redis, from which any worker restores it after
 ``visibility_timeout``, and the service's stall rule re-queues the unmerged passes of an idle job
-sooner (``services.merger.requeue_stalled``); merging is exactly once, so a pass run twice
+sooner (``services.farm.merge.requeue_stalled``); merging is exactly once, so a pass run twice
 counts once. ``install`` wraps the three calls so that a dead connection is logged instead of
 raised. It is applied when the worker's Celery app is imported.
 """

@@ -18,8 +18,8 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
-from services.settings import get_settings
-from services.store import JobStore
+from services.farm.settings import get_settings
+from services.farm.store import JobStore
 
 log = logging.getLogger(__name__)
 

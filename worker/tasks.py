@@ -3,7 +3,7 @@
 ``render_pass(job_id, tile, pass_index)`` is thin and idempotent: it takes ids, re-fetches the
 scene from Redis (compiled once per process), renders the pass's sample range with
 ``renderer.render.render_tile``, writes the ``SampleBuffer`` under the deterministic key
-``{prefix}:job:{id}:pass:{tile}:{pass}`` and merges it (``services.merger.merge_pass``, exactly
+``{prefix}:job:{id}:pass:{tile}:{pass}`` and merges it (``services.farm.merge.merge_pass``, exactly
 once however often the task runs). Running it twice costs a render, never a double count.
 """
 
@@ -17,10 +17,10 @@ from celery import signals
 from celery.exceptions import Reject, SoftTimeLimitExceeded
 
 from renderer.film.buffer import SampleBuffer
-from services.merger import merge_pass
-from services.planner import celery_priority
-from services.settings import get_settings
-from services.store import FINAL
+from services.farm.merge import merge_pass
+from services.farm.planner import celery_priority
+from services.farm.settings import get_settings
+from services.farm.store import FINAL
 from worker import runtime
 from worker.celery_app import app
 

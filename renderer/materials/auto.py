@@ -32,6 +32,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from renderer.geometry.transform import rotation_matrix
 from renderer.materials.burley import burley_r_max
 from renderer.materials.diffusion import diffusion_parameters
 
@@ -142,7 +143,6 @@ def _bounding_sphere(obj) -> tuple[np.ndarray, float]:
     if obj.type == "sphere":
         return np.asarray(obj.center, dtype=np.float64), float(obj.radius)
     if obj.type == "box":
-        from renderer.scene.compile import rotation_matrix  # compile imports this module
 
         lo, hi = np.asarray(obj.min, np.float64), np.asarray(obj.max, np.float64)
         c = (lo + hi) / 2

@@ -17,6 +17,7 @@ import numpy as np
 from renderer.geometry.bvh import BVH_WIDTH, MAX_LEAF, build_bvh, stack_size, widen_bvh
 from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_order
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
+from renderer.geometry.transform import rotation_matrix
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
 from renderer.materials.auto import auto_choice
 from renderer.materials.bsdf import (
@@ -79,15 +80,6 @@ class CompiledScene:
 
 def _luminance(c) -> float:
     return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
-
-
-def rotation_matrix(axis, angle_degrees: float) -> np.ndarray:
-    """Right-handed rotation about ``axis`` through the origin (Rodrigues' formula)."""
-    k = np.asarray(axis, dtype=np.float64)
-    k = k / np.linalg.norm(k)
-    a = math.radians(angle_degrees)
-    kx = np.array([[0, -k[2], k[1]], [k[2], 0, -k[0]], [-k[1], k[0], 0]])
-    return np.eye(3) + math.sin(a) * kx + (1 - math.cos(a)) * (kx @ kx)
 
 
 def box_quads(lo, hi, rotate=None, translate=(0.0, 0.0, 0.0)) -> np.ndarray:

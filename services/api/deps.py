@@ -8,8 +8,8 @@ from typing import Annotated
 from celery import Celery
 from fastapi import Depends, HTTPException, Request, status
 
-from services.settings import Settings
-from services.store import JobStore
+from services.farm.settings import Settings
+from services.farm.store import JobStore
 
 
 def get_settings_dep(request: Request) -> Settings:

@@ -4,7 +4,7 @@ process on a free port) and headless Chromium driven by Playwright.
 - ``redis_base_url``: ``REDIS_URL`` when set, else an embedded redis-server of its own
   (tests/conftest.py, ``embedded_or_given_redis``).
 - ``dashboard``: for one test module, a worker node (``--concurrency 2``) and ``uvicorn
-  services.main:app`` on a fresh key prefix, heartbeats every 0.5 s.
+  services.api.main:app`` on a fresh key prefix, heartbeats every 0.5 s.
 - ``browser``: Debian's ``/usr/bin/chromium`` (``make setup`` installs it where it can); tests skip
   with the reason when it is missing. ``page`` is a fresh page at a laptop-sized viewport.
 - ``artifacts``: a folder for the screenshots a test saves (under pytest's tmp path; its path is
@@ -25,8 +25,8 @@ import httpx
 import pytest
 import redis
 
+from services.farm.store import JobStore
 from services.launcher import free_port, start_worker, terminate
-from services.store import JobStore
 from tests.conftest import embedded_or_given_redis, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -59,12 +59,12 @@ class Dashboard:
 
 
 def start_api(redis_url: str, prefix: str, port: int, log) -> subprocess.Popen:
-    """``uvicorn services.main:app`` in its own process (the app reads its settings from env)."""
+    """``uvicorn services.api.main:app``, its own process (the app reads its settings from env)."""
     env = {**os.environ, "REDIS_URL": redis_url, "LUCENT_KEY_PREFIX": prefix,
            "LUCENT_HEARTBEAT_INTERVAL": str(HEARTBEAT), "LUCENT_API_TOKEN": "",
            "PYTHONUNBUFFERED": "1"}
     return subprocess.Popen(
-        [sys.executable, "-m", "uvicorn", "services.main:app", "--host", "127.0.0.1",
+        [sys.executable, "-m", "uvicorn", "services.api.main:app", "--host", "127.0.0.1",
          "--port", str(port), "--log-level", "warning"],
         cwd=ROOT, env=env, stdout=log, stderr=subprocess.STDOUT)
 

@@ -17,12 +17,12 @@ from fastapi.testclient import TestClient
 from PIL import Image
 
 from renderer.film.buffer import SampleBuffer
+from services.api.main import create_app
 from services.api.routes.dashboard import find_examples
-from services.main import create_app
-from services.merger import merge_pass
-from services.planner import Plan
-from services.settings import Settings
-from services.store import JobStore
+from services.farm.merge import merge_pass
+from services.farm.planner import Plan
+from services.farm.settings import Settings
+from services.farm.store import JobStore
 
 ROOT = Path(__file__).resolve().parents[2]
 

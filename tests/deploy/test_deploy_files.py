@@ -53,7 +53,7 @@ def flag(argv: list[str], name: str) -> str:
 def settings_env_names() -> set[str]:
     from pydantic import AliasChoices
 
-    from services.settings import Settings
+    from services.farm.settings import Settings
 
     prefix = Settings.model_config["env_prefix"]
     names = set()
@@ -110,7 +110,7 @@ def test_env_names_are_read_by_the_code() -> None:
 
 
 def test_envs_build_valid_settings(monkeypatch: pytest.MonkeyPatch) -> None:
-    from services.settings import Settings
+    from services.farm.settings import Settings
 
     for where, env in _lucent_envs().items():
         for name in settings_env_names():
@@ -133,7 +133,7 @@ def test_settings_env_names_include_the_documented_ones() -> None:
 def test_api_ports_match_uvicorn() -> None:
     c = container("api")
     port = int(flag(c["command"], "--port"))
-    assert c["command"][:2] == ["uvicorn", "services.main:app"]
+    assert c["command"][:2] == ["uvicorn", "services.api.main:app"]
     (p,) = c["ports"]
     assert p["containerPort"] == port
     (svc,) = by_kind("Service", "api")
@@ -150,14 +150,14 @@ def test_api_ports_match_uvicorn() -> None:
     cmd = re.search(r"^CMD (\[.*\])$", dockerfile, re.M)
     assert cmd, "no exec-form CMD"
     argv = yaml.safe_load(cmd.group(1))
-    assert argv[:2] == ["uvicorn", "services.main:app"]
+    assert argv[:2] == ["uvicorn", "services.api.main:app"]
     assert re.search(rf"^EXPOSE {int(flag(argv, '--port'))}$", dockerfile, re.M)
 
 
 def app_paths() -> set[str]:
     """The GET paths of the FastAPI app (from its OpenAPI schema: included routers are nested)."""
-    from services.main import create_app
-    from services.settings import Settings
+    from services.api.main import create_app
+    from services.farm.settings import Settings
 
     schema = create_app(Settings()).openapi()
     return {path for path, ops in schema["paths"].items() if "get" in ops}
@@ -166,8 +166,8 @@ def app_paths() -> set[str]:
 def test_liveness_path_answers_without_redis() -> None:
     from fastapi.testclient import TestClient
 
-    from services.main import create_app
-    from services.settings import Settings
+    from services.api.main import create_app
+    from services.farm.settings import Settings
 
     path = container("api")["livenessProbe"]["httpGet"]["path"]
     client = TestClient(create_app(Settings()))  # no `with`: no lifespan, no Redis

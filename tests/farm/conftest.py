@@ -23,10 +23,10 @@ import pytest
 import redis
 from fastapi.testclient import TestClient
 
+from services.api.main import create_app
+from services.farm.settings import Settings
+from services.farm.store import JobStore
 from services.launcher import start_worker, terminate
-from services.main import create_app
-from services.settings import Settings
-from services.store import JobStore
 from tests.conftest import embedded_or_given_redis, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]

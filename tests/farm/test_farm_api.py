@@ -10,10 +10,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from renderer.film.buffer import SampleBuffer
-from services.main import create_app
-from services.merger import assemble, merge_pass, sweep
-from services.planner import Plan, celery_priority
-from services.settings import Settings
+from services.api.main import create_app
+from services.farm.merge import assemble, merge_pass, sweep
+from services.farm.planner import Plan, celery_priority
+from services.farm.settings import Settings
 
 # --- validation and limits ----------------------------------------------------------------------
 

@@ -20,7 +20,7 @@ def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_sce
     psutil = pytest.importorskip("psutil")
     port = free_port()
     env = {k: v for k, v in os.environ.items() if k not in ("REDIS_URL", "LUCENT_API_TOKEN")}
-    up = subprocess.Popen([sys.executable, "-m", "renderer.cli", "up", "--port", str(port),
+    up = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--port", str(port),
                            "--workers", "1"], env=env, stderr=subprocess.PIPE, text=True)
     url = f"http://127.0.0.1:{port}"
     try:
@@ -35,7 +35,7 @@ def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_sce
         scene_path.write_text(json.dumps(tiny_scene))
         out = tmp_path / "box.npy"
         done = subprocess.run(
-            [sys.executable, "-m", "renderer.cli", "submit", str(scene_path), "--server", url,
+            [sys.executable, "-m", "services.cli", "submit", str(scene_path), "--server", url,
              "--wait", "-o", str(out), "--quiet"], env=env, capture_output=True, text=True,
             timeout=240)
         assert done.returncode == 0, done.stderr

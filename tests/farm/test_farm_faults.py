@@ -35,14 +35,14 @@ import redis
 from fastapi.testclient import TestClient
 
 from renderer.render import render
+from services.api.main import create_app
 from services.client import Client, JobLost
+from services.farm.merge import StallRule, assemble, requeue_stalled
+from services.farm.planner import Plan, celery_priority
+from services.farm.queue import TASK, celery_client
+from services.farm.settings import Settings
+from services.farm.store import JobStore
 from services.launcher import EmbeddedRedis, free_port, terminate, worker_command, worker_env
-from services.main import create_app
-from services.merger import StallRule, assemble, requeue_stalled
-from services.planner import Plan, celery_priority
-from services.queue import TASK, celery_client
-from services.settings import Settings
-from services.store import JobStore
 
 psutil = pytest.importorskip("psutil")
 
@@ -635,7 +635,7 @@ def test_api_process_killed_mid_job(own_redis, nodes, prefix, cornell, tmp_path)
 
     def serve() -> subprocess.Popen:
         return subprocess.Popen(
-            [sys.executable, "-m", "uvicorn", "services.main:app", "--port", str(port),
+            [sys.executable, "-m", "uvicorn", "services.api.main:app", "--port", str(port),
              "--log-level", "warning"], cwd=ROOT, env=env,
             stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
 

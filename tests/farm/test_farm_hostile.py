@@ -23,10 +23,10 @@ from fastapi.testclient import TestClient
 from hypothesis import HealthCheck, settings
 from schemathesis.python.asgi import shutdown_lifespans
 
-from services.cost import queued_samples
-from services.main import create_app
-from services.planner import Plan
-from services.settings import Settings
+from services.api.main import create_app
+from services.farm.cost import queued_samples
+from services.farm.planner import Plan
+from services.farm.settings import Settings
 
 # --- fuzzing from the OpenAPI schema ------------------------------------------------------------
 

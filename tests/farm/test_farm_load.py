@@ -10,8 +10,8 @@ from concurrent.futures import ThreadPoolExecutor
 import pytest
 
 from bench.load import run_load, small_scene
+from services.farm.settings import get_settings
 from services.launcher import LocalFarm, free_port
-from services.settings import get_settings
 
 
 @pytest.fixture

@@ -19,11 +19,11 @@ from fastapi.testclient import TestClient
 
 from renderer.scene.schema import Scene
 from services.api import deps
+from services.api.main import create_app
+from services.api.models import JobCreate
+from services.farm.queue import TASK, celery_client
+from services.farm.settings import Settings
 from services.launcher import free_port, redis_server_binary, start_worker, terminate
-from services.main import create_app
-from services.models import JobCreate
-from services.queue import TASK, celery_client
-from services.settings import Settings
 
 TOKEN = "correct-horse-battery-staple"
 

@@ -13,10 +13,10 @@ import pytest
 from fastapi.testclient import TestClient
 
 from renderer.render import render
-from services.main import create_app
-from services.merger import assemble
-from services.planner import Plan
-from services.queue import enqueue
+from services.api.main import create_app
+from services.farm.merge import assemble
+from services.farm.planner import Plan
+from services.farm.queue import enqueue
 
 # As long as the farm fixture waits for its first warm processes (conftest.WORKER_START_TIMEOUT).
 POOL_RECOVERY_TIMEOUT = 240.0

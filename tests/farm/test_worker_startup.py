@@ -17,8 +17,8 @@ from pathlib import Path
 import pytest
 import redis
 
+from services.farm.store import JobStore
 from services.launcher import terminate, worker_command, worker_env
-from services.store import JobStore
 from tests.conftest import wait_until
 from worker import runtime
 

@@ -12,7 +12,7 @@ from fastapi import APIRouter, Response, status
 from fastapi.responses import PlainTextResponse
 
 from services.api.deps import StoreDep
-from services.store import STATUSES
+from services.farm.store import STATUSES
 
 router = APIRouter(tags=["health"])
 metrics_router = APIRouter(tags=["health"])

@@ -14,12 +14,12 @@ from fastapi.responses import JSONResponse
 from renderer.materials.auto import auto_choices
 from renderer.scene import Limits, SceneError, load_scene
 from services.api.deps import CeleryDep, SettingsDep, StoreDep
-from services.cost import check_cost
-from services.merger import assemble
-from services.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
-from services.planner import Plan
-from services.queue import enqueue
-from services.store import ACTIVE, JobMeta, JobStore
+from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
+from services.farm.cost import check_cost
+from services.farm.merge import assemble
+from services.farm.planner import Plan
+from services.farm.queue import enqueue
+from services.farm.store import ACTIVE, JobMeta, JobStore
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 

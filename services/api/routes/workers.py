@@ -7,7 +7,7 @@ import time
 from fastapi import APIRouter
 
 from services.api.deps import SettingsDep, StoreDep
-from services.models import WorkerPublic, WorkersPublic
+from services.api.models import WorkerPublic, WorkersPublic
 
 router = APIRouter(prefix="/workers", tags=["workers"])
 

@@ -38,8 +38,8 @@ import redis
 from celery import Celery
 
 from renderer.film.buffer import SampleBuffer
-from services.queue import enqueue, waiting_ahead
-from services.store import ACTIVE, JobStore, pass_member
+from services.farm.queue import enqueue, waiting_ahead
+from services.farm.store import ACTIVE, JobStore, pass_member
 
 log = logging.getLogger(__name__)
 

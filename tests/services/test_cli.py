@@ -10,8 +10,8 @@ from pathlib import Path
 
 import numpy as np
 
-from renderer.cli import main
 from renderer.film.image_io import read_image
+from services.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -103,7 +103,7 @@ def test_console_script_runs_in_a_fresh_process(tmp_path):
     scene.write_text(json.dumps(data))
     out = tmp_path / "mesh.png"
     lucent = Path(sys.executable).with_name("lucent")
-    cmd = [str(lucent)] if lucent.exists() else [sys.executable, "-m", "renderer.cli"]
+    cmd = [str(lucent)] if lucent.exists() else [sys.executable, "-m", "services.cli"]
     proc = subprocess.run([*cmd, "render", str(scene), "-o", str(out), "--spp", "2"],
                           capture_output=True, text=True, timeout=300, env=dict(os.environ))
     assert proc.returncode == 0, proc.stderr

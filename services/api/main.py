@@ -1,4 +1,4 @@
-"""The FastAPI application: ``uvicorn services.main:app`` or ``create_app(settings)``."""
+"""The FastAPI application: ``uvicorn services.api.main:app`` or ``create_app(settings)``."""
 
 from __future__ import annotations
 
@@ -13,10 +13,10 @@ from fastapi.staticfiles import StaticFiles
 from services.api.deps import require_token
 from services.api.guards import BodyLimit, validation_error
 from services.api.routes import dashboard, health, jobs, workers
-from services.merger import StallRule, Sweeper
-from services.queue import celery_client
-from services.settings import Settings, get_settings
-from services.store import JobStore
+from services.farm.merge import StallRule, Sweeper
+from services.farm.queue import celery_client
+from services.farm.settings import Settings, get_settings
+from services.farm.store import JobStore
 
 
 def create_app(settings: Settings | None = None) -> FastAPI:
@@ -67,7 +67,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
 
 def __getattr__(name: str) -> FastAPI:
-    # ``uvicorn services.main:app`` builds the app from the environment on first access.
+    # ``uvicorn services.api.main:app`` builds the app from the environment on first access.
     if name == "app":
         return create_app()
     raise AttributeError(name)

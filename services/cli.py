@@ -1,22 +1,28 @@
-"""The ``lucent`` command line: render and validate scenes on this machine.
+"""The ``lucent`` command line: render scenes here, or run a farm, join it and submit jobs to it.
+
+On this machine:
 
     lucent render SCENE.json -o OUT.{exr,png,pfm,npy} [--spp N] [--seed S] [--threads N]
     lucent validate SCENE.json
 
-and run the farm (the code lives in ``services/`` and ``worker/``):
+On a farm (the code lives in ``services/`` and ``worker/``):
 
     lucent up [--host 127.0.0.1] [--port 8000] [--workers N]
     lucent worker --redis URL [--concurrency N] [--threads N]
-    lucent submit SCENE.json --server URL [--wait] [-o OUT.{exr,png,npy}]
+    lucent submit SCENE.json [--server URL] [--wait] [-o OUT.{exr,png,npy}]
     lucent demo [SCENE.json] [-o OUT ...]
 """
 
 from __future__ import annotations
 
 import argparse
+import os
 import sys
 import time
 from pathlib import Path
+
+# Where `lucent up` serves the API by default (its --host and --port).
+DEFAULT_SERVER = "http://127.0.0.1:8000"
 
 
 def _load(path: str):
@@ -112,7 +118,6 @@ def cmd_render(args: argparse.Namespace) -> int:
 
 def cmd_up(args: argparse.Namespace) -> int:
     """The farm on this machine: Redis (embedded unless REDIS_URL), workers and the API."""
-    import os
 
     from services.launcher import LocalFarm
 
@@ -132,7 +137,6 @@ def cmd_up(args: argparse.Namespace) -> int:
 
 def cmd_worker(args: argparse.Namespace) -> int:
     """Join a farm: a Celery worker node (replaces this process)."""
-    import os
 
     from services.launcher import worker_command, worker_env
 
@@ -143,7 +147,6 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
 
 def cmd_submit(args: argparse.Namespace) -> int:
-    import os
 
     from services.client import submit_and_wait
 
@@ -159,7 +162,6 @@ def cmd_submit(args: argparse.Namespace) -> int:
 
 def cmd_demo(args: argparse.Namespace) -> int:
     """``lucent up`` on a free port, one scene submitted and waited for, images written, stop."""
-    import os
 
     from services.client import submit_and_wait
     from services.launcher import LocalFarm, free_port
@@ -209,29 +211,33 @@ def build_parser() -> argparse.ArgumentParser:
                    help="worker processes (default: one per core)")
     p.add_argument("--threads", type=int, default=1, help="numba threads per worker process")
     p.add_argument("--name", help="Celery node name (default celery@HOST)")
-    p.add_argument("--loglevel", default="INFO")
+    p.add_argument("--loglevel", default="INFO", help="Celery log level (default INFO)")
     p.set_defaults(func=cmd_worker)
 
     p = sub.add_parser("submit", help="submit a scene to a farm")
     p.add_argument("scene", help="scene JSON file (mesh files are sent inline)")
-    p.add_argument("--server", required=True, help="the farm's URL, e.g. http://127.0.0.1:8000")
+    p.add_argument("--server", default=os.environ.get("LUCENT_SERVER") or DEFAULT_SERVER,
+                   help=f"the farm's URL (default: $LUCENT_SERVER, else {DEFAULT_SERVER}, "
+                        "the address of `lucent up`)")
     p.add_argument("--wait", action="store_true", help="wait for the job, with a progress bar")
     p.add_argument("-o", "--output", help="write the image when done (.exr, .png or .npy)")
-    p.add_argument("--name")
-    p.add_argument("--tile-size", type=int)
+    p.add_argument("--name", help="the job's name on the dashboard (default: none)")
+    p.add_argument("--tile-size", type=int, help="tile edge in pixels (default: the planner's)")
     p.add_argument("--spp-per-pass", type=int, help="samples of the first pass (default 8)")
     p.add_argument("--max-spp-per-pass", type=int,
                    help="the largest pass: passes double the samples so far up to it (default 64)")
-    p.add_argument("--priority", type=int, help="0-9, 9 runs first")
+    p.add_argument("--priority", type=int, help="0-9, 9 runs first (default 0)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_submit)
 
     p = sub.add_parser("demo", help="start a farm, render one scene on it, write images, stop")
-    p.add_argument("scene", nargs="?", default="examples/cornell_box.json")
+    p.add_argument("scene", nargs="?", default="examples/cornell_box.json",
+                   help="scene JSON file (default examples/cornell_box.json)")
     p.add_argument("-o", "--output", action="append",
                    help="image to write (repeatable; default out/cornell_box.png and .exr)")
-    p.add_argument("--workers", type=int, default=None)
-    p.add_argument("-q", "--quiet", action="store_true")
+    p.add_argument("--workers", type=int, default=None,
+                   help="worker processes (default: one a core)")
+    p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_demo)
     return parser
 

@@ -15,7 +15,7 @@ once, but wasted work).
 ``stall_timeout`` must exceed ``task_time_limit`` too: the service's sweeper re-queues the
 unmerged passes of a job that has had no pass start or merge for that long while none of its
 passes can be waiting in Celery's queue. A message can be lost for good (a worker node killed
-between Redis popping it and kombu recording it as unacknowledged, see ``services.merger``); the
+between Redis popping it and kombu recording it as unacknowledged, see ``services.farm.merge``); the
 time limit bounds a pass still running, so a shorter stall time would re-run passes in progress.
 Below ``visibility_timeout`` (the default) it also brings back, sooner, the passes of a worker
 node that died as a whole.
@@ -63,7 +63,8 @@ class Settings(BaseSettings):
     """Samples of a tile's first pass (the first preview) and of its second."""
     default_max_spp_per_pass: int = Field(default=64, ge=1)
     """The largest pass when a job names none: passes double the samples so far up to it
-    (``services.planner``). 64 samples of a 32-px tile are ~65 000 paths, ~0.05-0.1 s of one core:
+    (``services.farm.planner``).
+    64 samples of a 32-px tile are ~65 000 paths, ~0.05-0.1 s of one core:
     the ~10 ms a task costs besides rendering stays a small share."""
 
     max_tasks_per_job: int = Field(default=200_000, ge=1)
@@ -72,7 +73,7 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(default=64 * 1024 * 1024, ge=1024)
     """The largest request body (HTTP 413 above it): inline meshes make scenes big."""
 
-    # --- Cost limits (``services.cost``) --------------------------------------------------------
+    # --- Cost limits (``services.farm.cost``) -----------------------------------------------------
     max_samples_per_job: int = Field(default=2**34, ge=1)
     """The most pixel-samples (width x height x spp) one job may plan: 2^34 is a 4096² frame at
     1024 spp, about 1.7e10 camera paths (HTTP 422 on ``render.spp`` above it)."""

@@ -33,7 +33,7 @@ from typing import Any
 
 import redis
 
-from services.planner import Plan
+from services.farm.planner import Plan
 
 STATUSES = ("queued", "running", "done", "failed", "cancelled")
 ACTIVE = ("queued", "running")

@@ -25,9 +25,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from services.planner import Plan
-from services.settings import Settings
-from services.store import JobStore
+from services.farm.planner import Plan
+from services.farm.settings import Settings
+from services.farm.store import JobStore
 
 
 @dataclass(frozen=True)

@@ -6,18 +6,18 @@ from __future__ import annotations
 import redis
 from celery import Celery
 
-from services.planner import celery_priority
-from services.settings import Settings
+from services.farm.planner import celery_priority
+from services.farm.settings import Settings
 
 TASK = "worker.tasks.render_pass"
 
 
 def celery_client(settings: Settings) -> Celery:
     """A Celery app with the workers' configuration for ``settings``, used only to send."""
-    from worker.config import celery_config
+    from services.farm.celery_config import celery_config
 
     app = Celery("lucent")
-    app.config_from_object("worker.config")
+    app.config_from_object("services.farm.celery_config")
     app.conf.update(celery_config(settings))
     return app
 

@@ -9,7 +9,7 @@
   deliveries of each (job, tile, pass) in Redis (``Settings.max_attempts``), so a scene that kills
   the tracer fails its job instead of looping.
 - Time limits: soft (``SoftTimeLimitExceeded`` in the task, a failed try) then hard (the process is
-  killed). ``visibility_timeout`` must exceed the hard limit (see ``services.settings``).
+  killed). ``visibility_timeout`` must exceed the hard limit (see ``services.farm.settings``).
   ``task_acks_on_timeout = False``: a pass killed by the hard limit goes back on the queue (its
   next delivery is a counted try). Celery's default acknowledges it as failed, and the pass, never
   merged, would leave its job running forever (a kernel stuck in numba never sees the soft limit:
@@ -20,17 +20,17 @@
   timeout, at most every 10 s, so a lost pass comes back within 1.1 x the timeout. A message the
   node took with it before kombu recorded it as unacknowledged (killed between ``BRPOP`` and
   ``QoS.append``) never comes back this way: the service's sweeper re-queues the unmerged passes
-  of a job stalled for ``Settings.stall_timeout`` (``services.merger.requeue_stalled``), which
+  of a job stalled for ``Settings.stall_timeout`` (``services.farm.merge.requeue_stalled``), which
   also brings back a dead node's passes before the visibility timeout.
 - Priorities: Redis emulates them with one list per level; 0 is served first.
-  ``services.planner.celery_priority`` maps a job's priority 0–9 (9 most urgent) onto them.
+  ``services.farm.planner.celery_priority`` maps a job's priority 0–9 (9 most urgent) onto them.
 """
 
 from __future__ import annotations
 
 from typing import Any
 
-from services.settings import Settings, get_settings
+from services.farm.settings import Settings, get_settings
 
 
 def celery_config(settings: Settings) -> dict[str, Any]:

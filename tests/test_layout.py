@@ -1,0 +1,157 @@
+"""The import rule of docs/architecture.md ("Layers and the import rule"), checked on the source.
+
+Every module of ``renderer/``, ``services/`` and ``worker/`` is parsed with ``ast``; every import,
+at module level or inside a function, is an edge to the module of this tree it names. Two checks:
+each edge goes to a layer the importer may use, and the graph has no cycle.
+
+``LUCENT_LAYOUT_ROOT`` points the test at another checkout (e.g. one of main) to see what it finds.
+"""
+
+from __future__ import annotations
+
+import ast
+import os
+from pathlib import Path
+
+import pytest
+
+ROOT = Path(os.environ.get("LUCENT_LAYOUT_ROOT") or Path(__file__).resolve().parents[1])
+PACKAGES = ("renderer", "services", "worker")
+
+# Each layer and the layers it may import (itself included). The command line (``lucent``, its
+# HTTP client and the launcher that starts workers as subprocesses) sits above everything.
+MAY_IMPORT = {
+    "renderer": {"renderer"},
+    "farm": {"renderer", "farm"},
+    "api": {"renderer", "farm", "api"},
+    "worker": {"renderer", "farm", "worker"},
+    "cli": {"renderer", "farm", "api", "worker", "cli"},
+}
+CLI_MODULES = {"services", "services.cli", "services.client", "services.launcher"}
+
+
+def layer(module: str) -> str:
+    if module.split(".")[0] == "renderer":
+        return "renderer"
+    if module.split(".")[0] == "worker":
+        return "worker"
+    if module == "services.farm" or module.startswith("services.farm."):
+        return "farm"
+    if module in CLI_MODULES:
+        return "cli"
+    return "api"  # services.api and anything else under services/
+
+
+def modules(root: Path) -> dict[str, Path]:
+    found = {}
+    for package in PACKAGES:
+        for path in sorted((root / package).rglob("*.py")):
+            parts = list(path.relative_to(root).with_suffix("").parts)
+            if parts[-1] == "__init__":
+                parts.pop()
+            found[".".join(parts)] = path
+    return found
+
+
+def imports(module: str, path: Path, known: dict[str, Path]) -> set[str]:
+    """The modules of this tree that ``module`` imports, anywhere in its body."""
+    is_package = path.name == "__init__.py"
+    names: set[str] = set()
+    for node in ast.walk(ast.parse(path.read_text(), str(path))):
+        if isinstance(node, ast.Import):
+            names.update(alias.name for alias in node.names)
+        elif isinstance(node, ast.ImportFrom):
+            base = node.module or ""
+            if node.level:  # relative: from the importer's package upwards
+                package = module.split(".")
+                if not is_package:
+                    package = package[:-1]
+                package = package[: len(package) - (node.level - 1)]
+                base = ".".join(package + ([base] if base else []))
+            names.add(base)
+            # ``from a.b import c`` imports the module a.b.c when there is one
+            names.update(f"{base}.{alias.name}" for alias in node.names)
+    targets = set()
+    for name in names:
+        parts = name.split(".")
+        while parts and ".".join(parts) not in known:
+            parts.pop()
+        if parts and ".".join(parts) != module:
+            targets.add(".".join(parts))
+    return targets
+
+
+def graph(root: Path) -> dict[str, set[str]]:
+    known = modules(root)
+    return {m: imports(m, p, known) for m, p in known.items()}
+
+
+def cycles(edges: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components with more than one module (Tarjan's algorithm)."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(edges.get(v, ())):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(edges):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_tree_has_modules():
+    """A wrong root would find nothing and pass every check below."""
+    found = modules(ROOT)
+    assert "renderer.render" in found and "worker.tasks" in found, sorted(found)[:5]
+
+
+def test_no_import_goes_upwards():
+    wrong = [f"{m} ({layer(m)}) imports {t} ({layer(t)})"
+             for m, targets in graph(ROOT).items() for t in sorted(targets)
+             if layer(t) not in MAY_IMPORT[layer(m)]]
+    assert not wrong, "\n".join(wrong)
+
+
+def test_no_import_cycle():
+    found = cycles(graph(ROOT))
+    assert not found, "\n".join(" <-> ".join(c) for c in found)
+
+
+@pytest.mark.parametrize(("edges", "expected"), [
+    ({"a": {"b"}, "b": {"a"}, "c": {"a"}}, [["a", "b"]]),
+    ({"a": {"b"}, "b": {"c"}, "c": set()}, []),
+    ({"a": {"b"}, "b": {"c"}, "c": {"a"}}, [["a", "b", "c"]]),
+])
+def test_cycles_finds_what_is_there(edges, expected):
+    assert cycles(edges) == expected
+
+
+def test_layers_of_known_modules():
+    assert layer("renderer.scene.compile") == "renderer"
+    assert layer("services.farm.store") == "farm"
+    assert layer("services.api.routes.jobs") == "api"
+    assert layer("services.cli") == "cli"
+    assert layer("worker.tasks") == "worker"
+    assert "api" not in MAY_IMPORT["worker"] and "worker" not in MAY_IMPORT["api"]
