@@ -23,6 +23,16 @@ from pathlib import Path
 
 # Where `lucent up` serves the API by default (its --host and --port).
 DEFAULT_SERVER = "http://127.0.0.1:8000"
+# What a cold compile of the kernels takes on a 2-core machine (docs/performance.md, "Start-up":
+# `python -m bench.startup`).
+COLD_COMPILE = "a minute on 2 cores"
+
+
+def kernels_cached() -> bool:
+    """Whether a worker warm-up already filled this renderer version's kernel cache."""
+    from worker.runtime import warm_marker
+
+    return warm_marker().exists()
 
 
 def _load(path: str):
@@ -167,6 +177,11 @@ def cmd_demo(args: argparse.Namespace) -> int:
     from services.launcher import LocalFarm, free_port
 
     outputs = args.output or ["out/cornell_box.png", "out/cornell_box.exr"]
+    if not kernels_cached():
+        # The workers compile before they take the first pass; without a word the progress bar
+        # would sit at 0 % all that time.
+        print(f"compiling the renderer, first run only, about {COLD_COMPILE} "
+              "(the kernels are cached for later runs)...", file=sys.stderr)
     with LocalFarm(port=free_port(), workers=args.workers,
                    redis_url=os.environ.get("REDIS_URL") or None, quiet=True) as farm:
         print(f"Lucent farm at {farm.url} with {farm.workers} worker processes", file=sys.stderr)

@@ -109,3 +109,36 @@ def test_console_script_runs_in_a_fresh_process(tmp_path):
     assert proc.returncode == 0, proc.stderr
     assert out.stat().st_size > 0
     assert "wrote" in proc.stderr
+
+
+class _FarmStarted(Exception):
+    """Raised by the stand-in for LocalFarm: the test stops where the farm would start."""
+
+
+def _demo_stderr(monkeypatch, capsys, cache: Path) -> str:
+    import services.launcher
+
+    def no_farm(*_args, **_kwargs):
+        raise _FarmStarted
+
+    monkeypatch.setenv("NUMBA_CACHE_DIR", str(cache))
+    monkeypatch.setattr(services.launcher, "LocalFarm", no_farm)
+    try:
+        main(["demo", str(ROOT / "examples" / "cornell_box.json"), "-q"])
+    except _FarmStarted:
+        pass
+    return capsys.readouterr().err
+
+
+def test_demo_says_it_compiles_on_a_cold_cache_only(tmp_path, monkeypatch, capsys):
+    """A cold `make demo` spends its first minute compiling; it says so rather than show a
+    progress bar stuck at 0 %. With the warm-up's marker in the cache folder it says nothing."""
+    from worker.runtime import warm_marker
+
+    cache = tmp_path / "cache"
+    assert "compiling the renderer, first run only" in _demo_stderr(monkeypatch, capsys, cache)
+    marker = warm_marker()
+    assert marker.parent == cache
+    cache.mkdir()
+    marker.touch()
+    assert "compiling" not in _demo_stderr(monkeypatch, capsys, cache)
