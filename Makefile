@@ -53,6 +53,7 @@ test: $(FULL)
 
 lint: $(FULL)
 	$(VENV)/bin/ruff check renderer worker services tests bench
+	$(VENV)/bin/mypy services worker
 
 bench: $(FULL)
 	$(PY) bench/cornell_speed.py

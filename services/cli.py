@@ -98,7 +98,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     for name, choice in compiled.info["auto"].items():
         print(f"auto chose {choice['method']} for {name!r}: {choice['reason']}, expected relMSE "
               f"{choice['expected_error']:.3g}", file=sys.stderr)
-    threads = args.threads or numba.config.NUMBA_NUM_THREADS
+    threads = args.threads or numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
     print(
         f"{args.scene}: {compiled.width}x{compiled.height}, {spp} spp, "
         f"{compiled.info['primitives']} primitives, {compiled.info['lights']} lights, "

@@ -20,6 +20,10 @@ import tempfile
 import threading
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
+
+if TYPE_CHECKING:
+    import uvicorn
 
 # Measured on this 2-core machine (bench/worker_pool.py, docs/performance.md): one single-threaded
 # process per core beats one process with a numba thread per core for tile tasks.
@@ -163,7 +167,7 @@ class LocalFarm:
         self.quiet = quiet
         self.redis: EmbeddedRedis | None = None
         self.worker_proc: subprocess.Popen | None = None
-        self.server = None
+        self.server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
 
     @property
@@ -187,13 +191,13 @@ class LocalFarm:
 
         config = uvicorn.Config(create_app(), host=self.host, port=self.port,
                                 log_level="warning", lifespan="on")
-        self.server = uvicorn.Server(config)
+        self.server = server = uvicorn.Server(config)
         if serve_in_thread:
-            self.server.config.install_signal_handlers = False  # type: ignore[attr-defined]
-            self._thread = threading.Thread(target=self.server.run, daemon=True)
+            server.config.install_signal_handlers = False  # type: ignore[attr-defined]
+            self._thread = threading.Thread(target=server.run, daemon=True)
             self._thread.start()
             deadline = time.monotonic() + 30
-            while not self.server.started:
+            while not server.started:
                 if not self._thread.is_alive() or time.monotonic() > deadline:
                     raise RuntimeError(f"the API did not start on {self.url}")
                 time.sleep(0.05)

@@ -44,7 +44,7 @@ def _guard(name: str, method):
                         "service's stall rule", name, err)
             return None
 
-    guarded.__lucent_guarded__ = True
+    guarded.__lucent_guarded__ = True  # type: ignore[attr-defined]
     return guarded
 
 

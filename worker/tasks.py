@@ -43,7 +43,7 @@ def _init_process(**_: object) -> None:
     import numba
 
     runtime.STATE = state = runtime.WorkerState()
-    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)
+    numba.set_num_threads(numba.config.NUMBA_NUM_THREADS)  # type: ignore[attr-defined]
     state.start_heartbeat()
     seconds = state.warm_up()
     state.set_task("")

@@ -148,7 +148,9 @@ class JobStore:
     """Typed access to the keys above. Thread-safe (redis-py clients are)."""
 
     def __init__(self, client: redis.Redis, prefix: str = "lucent"):
-        self.r = client
+        # redis-py types every reply as bytes | str, whatever decode_responses says; this
+        # client has it off, so replies are bytes (and the store decodes them)
+        self.r: Any = client
         self.prefix = prefix
         self._transition = client.register_script(_TRANSITION)
         self._claim_stall = client.register_script(_CLAIM_STALL)
