@@ -25,8 +25,9 @@ from typing import TYPE_CHECKING
 if TYPE_CHECKING:
     import uvicorn
 
-# Measured on this 2-core machine (bench/worker_pool.py, docs/performance.md): one single-threaded
-# process per core beats one process with a numba thread per core for tile tasks.
+# One single-threaded process per core beats one process with a numba thread per core at the
+# default job shape (`python -m bench.farm_speed`; docs/performance.md, "The farm: preview,
+# completion, per-task overhead, prefork vs threads").
 DEFAULT_WORKERS = os.cpu_count() or 1
 
 

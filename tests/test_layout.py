@@ -155,3 +155,32 @@ def test_layers_of_known_modules():
     assert layer("services.cli") == "cli"
     assert layer("worker.tasks") == "worker"
     assert "api" not in MAY_IMPORT["worker"] and "worker" not in MAY_IMPORT["api"]
+
+
+# The job store's Redis client and key builders: only services/farm/store.py may use them.
+STORE_INTERNALS = {"r", "k", "job_key", "acc_key", "pass_key"}
+
+
+def store_internals_used(path: Path, root: Path = ROOT) -> list[str]:
+    """``x.r``, ``x.k(...)``, ``x.job_key(...)``, … in a module: reaching around the store."""
+    return [f"{path.relative_to(root)}:{node.lineno} .{node.attr}"
+            for node in ast.walk(ast.parse(path.read_text(), str(path)))
+            if isinstance(node, ast.Attribute) and node.attr in STORE_INTERNALS
+            and not (isinstance(node.value, ast.Name) and node.value.id == "self")]
+
+
+def test_only_the_store_touches_redis_keys():
+    """Routes, tasks, the merge, the sweeper and the cost check call the store's methods; none
+    of them reads or writes a Redis key itself (issue #26: "only the store touches Redis keys")."""
+    found = [hit for m, path in modules(ROOT).items()
+             if m.split(".")[0] in ("services", "worker") and m != "services.farm.store"
+             for hit in store_internals_used(path)]
+    assert not found, "\n".join(found)
+
+
+def test_store_internals_are_found(tmp_path):
+    """The scan sees a use around the store, and not the store's own ``self.r``."""
+    module = tmp_path / "m.py"
+    module.write_text("def f(store):\n    return store.r.get(store.acc_key('j', 0))\n"
+                      "class S:\n    def g(self):\n        return self.r\n")
+    assert store_internals_used(module, tmp_path) == ["m.py:2 .r", "m.py:2 .acc_key"]

@@ -126,7 +126,7 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
 def _tile_converged(store, job_id: str, tile: int, target_error: float) -> bool:
     from renderer.film.adaptive import tile_converged
 
-    data = store.r.get(store.acc_key(job_id, tile))
+    data = store.tile_buffer(job_id, tile)
     return data is not None and tile_converged(SampleBuffer.from_bytes(data), target_error)
 
 

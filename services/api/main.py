@@ -34,7 +34,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             sweeper.stop()
-            store.r.close()
+            store.close()
 
     app = FastAPI(title="Lucent", version="0.1.0", lifespan=lifespan,
                   description="A render farm for physically based images of translucent things.")

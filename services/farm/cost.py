@@ -47,11 +47,7 @@ def job_samples(plan: Plan) -> int:
 def queued_samples(store: JobStore) -> int:
     """Pixel-samples that the queued and running jobs have still to render (one status read per
     job, then four fields per active job: finished jobs cost next to nothing)."""
-    pipe = store.r.pipeline()
-    for job_id in store.active_job_ids():
-        pipe.hmget(store.job_key(job_id), "width", "height", "spp", "samples_merged")
-    return sum(max(int(w) * int(h) * int(spp) - int(merged or 0), 0)
-               for w, h, spp, merged in pipe.execute() if w is not None)
+    return sum(store.active_samples_left())
 
 
 def check_cost(plan: Plan, store: JobStore, settings: Settings) -> CostError | None:

@@ -33,13 +33,12 @@ import threading
 import time
 from dataclasses import dataclass
 
-import numpy as np
 import redis
 from celery import Celery
 
 from renderer.film.buffer import SampleBuffer
 from services.farm.queue import enqueue, waiting_ahead
-from services.farm.store import ACTIVE, JobStore, pass_member
+from services.farm.store import JobStore
 
 log = logging.getLogger(__name__)
 
@@ -47,63 +46,8 @@ log = logging.getLogger(__name__)
 def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int) -> bool:
     """Merge one pass buffer into its tile's accumulation if not merged yet. True if this call
     merged it; False if it was merged already or there is no buffer to merge."""
-    r = store.r
-    pass_key = store.pass_key(job_id, tile, pass_index)
-    acc_key = store.acc_key(job_id, tile)
-    merged_key = store.k("job", job_id, "merged")
-    member = pass_member(tile, pass_index)
-    job_key = store.job_key(job_id)
-    samples_key = store.k("job", job_id, "tile_samples")
-    with r.pipeline() as pipe:
-        while True:
-            try:
-                pipe.watch(acc_key, merged_key)
-                if pipe.sismember(merged_key, member):
-                    pipe.unwatch()
-                    r.delete(pass_key)
-                    r.srem(store.k("pending"), pass_key)
-                    return False
-                data = pipe.get(pass_key)
-                if data is None:
-                    pipe.unwatch()
-                    r.srem(store.k("pending"), pass_key)
-                    return False
-                if not pipe.exists(job_key):  # the job was deleted
-                    pipe.unwatch()
-                    r.delete(pass_key)
-                    r.srem(store.k("pending"), pass_key)
-                    return False
-                buf = SampleBuffer.from_bytes(data)
-                acc_bytes = pipe.get(acc_key)
-                if acc_bytes is None:
-                    acc = buf
-                else:
-                    acc = SampleBuffer.from_bytes(acc_bytes)
-                    acc.add(buf)
-                # Samples per pixel this pass planned: drawn ones, added or dropped as non-finite.
-                spp_added = int((buf.count + buf.dropped).max()) if buf.count.size else 0
-                # tile_samples changes only in this transaction, under the same WATCH: the tile
-                # becomes done in the same EXEC that gives it its last samples, so no process
-                # killed in between can leave a complete tile shown as running.
-                tile_spp = int(pipe.hget(samples_key, str(tile)) or 0) + spp_added
-                tile_done = tile_spp >= int(pipe.hget(job_key, "spp") or 0)
-                pipe.multi()
-                pipe.set(acc_key, acc.to_bytes())
-                pipe.sadd(merged_key, member)
-                pipe.delete(pass_key)
-                pipe.srem(store.k("pending"), pass_key)
-                pipe.hincrby(samples_key, str(tile), spp_added)
-                if tile_done:
-                    pipe.hset(store.k("job", job_id, "tile_state"), str(tile), "done")
-                pipe.hincrby(job_key, "tasks_merged", 1)
-                pipe.hincrby(job_key, "samples_merged", int(buf.count.sum()))
-                pipe.hincrby(job_key, "dropped", int(buf.dropped.sum()))
-                pipe.hincrby(job_key, "version", 1)
-                pipe.hset(job_key, "active_at", time.time())  # the stall clock starts again
-                pipe.execute()
-                break
-            except redis.WatchError:
-                continue
+    if not store.merge_pass_buffer(job_id, tile, pass_index):
+        return False
     # After the transaction, idempotent by itself (and redone by the sweeper if this process dies
     # first): the job done once every pass is merged.
     store.finish_if_complete(job_id)
@@ -130,15 +74,13 @@ def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
     its passes can be waiting behind other work. The re-queue does not spend a try of a pass
     (``attempts`` counts deliveries that run), and a pass delivered twice is merged once."""
     now = time.time() if now is None else now
-    h = store.r.hmget(store.job_key(job_id), "status", "priority", "created_at", "active_at",
-                      "requeued_at")
-    if h[0] is None or h[0].decode() not in ACTIVE:
+    clock = store.stall_clock(job_id)
+    if clock is None:
         return []
-    since = max(float(v) for v in h[2:] if v)
+    priority, since = clock
     if now - since < rule.timeout:
         return []  # the cheap test first: the queue is looked at only for idle jobs
-    priority = int(h[1] or 0)
-    if waiting_ahead(rule.celery, store.r, priority):
+    if waiting_ahead(rule.celery, store, priority):
         return []
     stalls = store.claim_stall(job_id, rule.timeout, now)
     if not stalls:
@@ -163,12 +105,11 @@ def sweep(store: JobStore, stall: StallRule | None = None) -> int:
     with a ``stall`` rule, re-queue the passes of stalled jobs. Returns how many passes this
     sweep merged."""
     merged = 0
-    for raw in store.r.smembers(store.k("pending")):
-        key = raw.decode()
+    for key in store.pending_passes():
         # {prefix}:job:{id}:pass:{tile}:{pass}; the prefix may itself hold colons.
         parts = key[len(store.prefix) + 1:].split(":")
         if len(parts) != 5 or parts[0] != "job" or parts[2] != "pass":
-            store.r.srem(store.k("pending"), raw)
+            store.forget_pending(key)
             continue
         try:
             merged += merge_pass(store, parts[1], int(parts[3]), int(parts[4]))
@@ -219,8 +160,3 @@ def assemble(store: JobStore, job_id: str) -> tuple[SampleBuffer, int] | None:
         if data is not None:
             frame.add(SampleBuffer.from_bytes(data))
     return frame, meta.version
-
-
-def frame_image(frame: SampleBuffer) -> np.ndarray:
-    """Linear float32 HxWx3 (pixels with no sample yet are black)."""
-    return frame.mean()

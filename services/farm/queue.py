@@ -3,11 +3,11 @@ kernels (the API process stays light)."""
 
 from __future__ import annotations
 
-import redis
 from celery import Celery
 
 from services.farm.planner import celery_priority
 from services.farm.settings import Settings
+from services.farm.store import JobStore
 
 TASK = "worker.tasks.render_pass"
 
@@ -31,7 +31,7 @@ def enqueue(app: Celery, job_id: str, tasks: list[tuple[int, int]], priority: in
                           producer=producer)
 
 
-def waiting_ahead(app: Celery, client: redis.Redis, priority: int) -> int:
+def waiting_ahead(app: Celery, store: JobStore, priority: int) -> int:
     """Messages in Celery's queue that a worker takes before or along with the passes of a job of
     this priority: 0 means none of the job's passes is waiting in the queue (each is running,
     held by a worker, or lost). kombu keeps one Redis list per priority level (``celery``,
@@ -39,7 +39,5 @@ def waiting_ahead(app: Celery, client: redis.Redis, priority: int) -> int:
     them in that order; a job's passes are all sent at its level."""
     queue = app.conf.task_default_queue
     sep = app.conf.broker_transport_options.get("sep", ":")
-    pipe = client.pipeline()
-    for level in range(celery_priority(priority) + 1):
-        pipe.llen(queue if level == 0 else f"{queue}{sep}{level}")
-    return sum(pipe.execute())
+    return store.broker_messages([queue if level == 0 else f"{queue}{sep}{level}"
+                                  for level in range(celery_priority(priority) + 1)])

@@ -12,7 +12,7 @@ Key                                Type    What
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
 ``{p}:job:{id}:attempts``          hash    ``tile:pass`` -> deliveries (the redelivery cap)
 ``{p}:job:{id}:merged``            set     ``tile:pass`` merged into the accumulation
-``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (npz)
+``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (``to_bytes``)
 ``{p}:job:{id}:pass:{tile}:{pass}`` string a rendered pass, deleted once merged
 ``{p}:pending``                    set     pass keys written and not merged (the sweeper's)
 ``{p}:workers``                    zset    worker id -> last heartbeat time
@@ -33,6 +33,7 @@ from typing import Any
 
 import redis
 
+from renderer.film.buffer import SampleBuffer
 from services.farm.planner import Plan
 
 STATUSES = ("queued", "running", "done", "failed", "cancelled")
@@ -220,6 +221,14 @@ class JobStore:
             metas = [m for m in metas if m.status == status]
         return metas[offset:offset + limit], len(metas)
 
+    def active_samples_left(self) -> list[int]:
+        """Pixel-samples that each queued or running job has still to render."""
+        pipe = self.r.pipeline()
+        for job_id in self.active_job_ids():
+            pipe.hmget(self.job_key(job_id), "width", "height", "spp", "samples_merged")
+        return [max(int(w) * int(h) * int(spp) - int(merged or 0), 0)
+                for w, h, spp, merged in pipe.execute() if w is not None]
+
     def active_job_ids(self) -> list[str]:
         ids = [i.decode() for i in self.r.zrange(self.k("jobs"), 0, -1)]
         pipe = self.r.pipeline()
@@ -274,6 +283,15 @@ class JobStore:
         pipe.execute()
         self.transition(job_id, "running", ("failed", "cancelled"))
         return todo
+
+    def stall_clock(self, job_id: str) -> tuple[int, float] | None:
+        """(priority, when anything of the job last happened) for a queued or running job, else
+        None: the stall rule's inputs."""
+        h = self.r.hmget(self.job_key(job_id), "status", "priority", "created_at", "active_at",
+                         "requeued_at")
+        if h[0] is None or h[0].decode() not in ACTIVE:
+            return None
+        return int(h[1] or 0), max(float(v) for v in h[2:] if v)
 
     def claim_stall(self, job_id: str, stall_timeout: float, now: float | None = None) -> int:
         """If the job is queued or running and nothing of it happened for ``stall_timeout``
@@ -337,11 +355,108 @@ class JobStore:
         pipe.execute()
         return key
 
+    def merge_pass_buffer(self, job_id: str, tile: int, pass_index: int) -> bool:
+        """Add the pass buffer of (tile, pass_index) into its tile's merged buffer, mark it
+        merged, update the tile's samples and state and the job's counters, in one transaction
+        (WATCH on the tile's buffer and the merged set, retried on a conflict). True if this call
+        merged it; False if it was merged already, there is no buffer, or the job is gone (the
+        pass buffer is then dropped)."""
+        r = self.r
+        pass_key = self.pass_key(job_id, tile, pass_index)
+        acc_key = self.acc_key(job_id, tile)
+        merged_key = self.k("job", job_id, "merged")
+        member = pass_member(tile, pass_index)
+        job_key = self.job_key(job_id)
+        samples_key = self.k("job", job_id, "tile_samples")
+        with r.pipeline() as pipe:
+            while True:
+                try:
+                    pipe.watch(acc_key, merged_key)
+                    if pipe.sismember(merged_key, member):
+                        pipe.unwatch()
+                        r.delete(pass_key)
+                        r.srem(self.k("pending"), pass_key)
+                        return False
+                    data = pipe.get(pass_key)
+                    if data is None:
+                        pipe.unwatch()
+                        r.srem(self.k("pending"), pass_key)
+                        return False
+                    if not pipe.exists(job_key):  # the job was deleted
+                        pipe.unwatch()
+                        r.delete(pass_key)
+                        r.srem(self.k("pending"), pass_key)
+                        return False
+                    buf = SampleBuffer.from_bytes(data)
+                    acc_bytes = pipe.get(acc_key)
+                    if acc_bytes is None:
+                        acc = buf
+                    else:
+                        acc = SampleBuffer.from_bytes(acc_bytes)
+                        acc.add(buf)
+                    # Samples per pixel this pass planned: drawn ones, added or dropped as
+                    # non-finite.
+                    spp_added = int((buf.count + buf.dropped).max()) if buf.count.size else 0
+                    # tile_samples changes only in this transaction, under the same WATCH: the
+                    # tile becomes done in the same EXEC that gives it its last samples, so no
+                    # process killed in between can leave a complete tile shown as running.
+                    tile_spp = int(pipe.hget(samples_key, str(tile)) or 0) + spp_added
+                    tile_done = tile_spp >= int(pipe.hget(job_key, "spp") or 0)
+                    pipe.multi()
+                    pipe.set(acc_key, acc.to_bytes())
+                    pipe.sadd(merged_key, member)
+                    pipe.delete(pass_key)
+                    pipe.srem(self.k("pending"), pass_key)
+                    pipe.hincrby(samples_key, str(tile), spp_added)
+                    if tile_done:
+                        pipe.hset(self.k("job", job_id, "tile_state"), str(tile), "done")
+                    pipe.hincrby(job_key, "tasks_merged", 1)
+                    pipe.hincrby(job_key, "samples_merged", int(buf.count.sum()))
+                    pipe.hincrby(job_key, "dropped", int(buf.dropped.sum()))
+                    pipe.hincrby(job_key, "version", 1)
+                    pipe.hset(job_key, "active_at", time.time())  # the stall clock restarts
+                    pipe.execute()
+                    break
+                except redis.WatchError:
+                    continue
+        return True
+
+    def tile_buffer(self, job_id: str, tile: int) -> bytes | None:
+        """The tile's merged buffer (``SampleBuffer.to_bytes``); None before its first merge."""
+        return self.r.get(self.acc_key(job_id, tile))
+
     def tile_buffers(self, job_id: str, n_tiles: int) -> list[bytes | None]:
         pipe = self.r.pipeline()
         for t in range(n_tiles):
             pipe.get(self.acc_key(job_id, t))
         return pipe.execute()
+
+    def pending_passes(self) -> list[str]:
+        """The keys of the pass buffers written and not merged yet."""
+        return [raw.decode() for raw in self.r.smembers(self.k("pending"))]
+
+    def forget_pending(self, key: str) -> None:
+        self.r.srem(self.k("pending"), key)
+
+    def broker_messages(self, queues: list[str]) -> int:
+        """Messages waiting in these Celery queues (kombu keeps a Redis list per queue and
+        priority level, in the Redis this store uses when it is also the broker)."""
+        pipe = self.r.pipeline()
+        for name in queues:
+            pipe.llen(name)
+        return sum(pipe.execute())
+
+    def pending_count(self) -> int:
+        """Pass buffers written and not merged yet (the sweeper's set)."""
+        return int(self.r.scard(self.k("pending")))
+
+    # --- the connection -------------------------------------------------------------------------
+    def ping(self) -> None:
+        """Raises ``redis.RedisError`` when Redis does not answer."""
+        self.r.ping()
+
+    def close(self) -> None:
+        self.r.close()
 
     # --- workers --------------------------------------------------------------------------------
     def heartbeat(self, worker_id: str, fields: dict[str, Any], ttl: float) -> None:

@@ -26,7 +26,7 @@ def healthz() -> dict[str, str]:
 @router.get("/readyz")
 def readyz(store: StoreDep, response: Response) -> dict[str, str]:
     try:
-        store.r.ping()
+        store.ping()
     except redis.RedisError as err:
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
         return {"status": "unavailable", "redis": str(err)}
@@ -59,6 +59,6 @@ def metrics(store: StoreDep) -> str:
         f"lucent_render_seconds_total {counters.get('render_seconds', 0):g}",
         "# HELP lucent_pending_passes Pass buffers written and not merged yet.",
         "# TYPE lucent_pending_passes gauge",
-        f"lucent_pending_passes {store.r.scard(store.k('pending'))}",
+        f"lucent_pending_passes {store.pending_count()}",
     ]
     return "\n".join(lines) + "\n"
