@@ -17,10 +17,9 @@ from celery import signals
 from celery.exceptions import Reject, SoftTimeLimitExceeded
 
 from renderer.film.buffer import SampleBuffer
-from services.farm.merge import merge_pass
+from services.farm.passes import begin_pass, converged, deliver, pass_failed
 from services.farm.planner import celery_priority
 from services.farm.settings import get_settings
-from services.farm.store import FINAL
 from worker import runtime
 from worker.celery_app import app
 
@@ -80,54 +79,24 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
     store = state.store
     settings = state.settings
 
-    # Cancelled, failed, done or deleted: queued tasks of such a job do nothing.
-    meta = store.get_job(job_id)
-    if meta is None or meta.status in FINAL:
-        return f"skipped: {meta.status if meta else 'no such job'}"
-    # Not a pass of this job's plan (a message sent for another plan of the same id, by hand or
-    # by an older service): nothing to render, and no reason to fail the job's tiles over it.
-    if not (0 <= tile < meta.plan.n_tiles and 0 <= pass_index < meta.plan.n_passes):
-        return "skipped: no such pass"
-    # Delivered again after it was merged (a redelivery): nothing to do.
-    if store.is_merged(job_id, tile, pass_index):
-        return "duplicate"
-    # Count every delivery, so that a pass that keeps killing its worker stops being retried. Only
-    # deliveries that run are counted (one lost by the broker, then re-queued by the sweeper, is
-    # not), and counting one marks the job alive for the sweeper's stall rule.
-    attempt = store.add_attempt(job_id, tile, pass_index)
-    if attempt > settings.max_attempts:
-        store.fail_tile(job_id, tile, f"pass {pass_index} gave up after {attempt - 1} tries "
-                        "(its worker was lost or timed out each time)")
-        return "failed"
-
-    if meta.status == "queued":  # the job's first pass (one round trip fewer for the others)
-        store.mark_started(job_id)
-    store.set_tile_running(job_id, tile)
+    delivery = begin_pass(store, settings, job_id, tile, pass_index)
+    if isinstance(delivery, str):
+        return delivery
     state.set_task(f"{job_id}/{tile}/{pass_index}")
     try:
-        return _render_and_merge(state, meta, tile, pass_index, t_task)
+        return _render_and_merge(state, delivery.meta, tile, pass_index, t_task)
     except REDIS_DOWN:
         raise  # not the pass's fault: no try is spent on recording it
     except Exception as err:  # every other failure is recorded on the tile
         reason = ("timed out" if isinstance(err, SoftTimeLimitExceeded)
                   else f"{type(err).__name__}: {err}")
-        if attempt >= settings.max_attempts:
-            store.fail_tile(job_id, tile, f"pass {pass_index}: {reason} "
-                            f"(after {attempt} tries)")
+        if not pass_failed(store, settings, delivery, tile, pass_index, reason):
             return "failed"
-        store.note_tile_error(job_id, tile, f"pass {pass_index}, try {attempt}: {reason}")
         render_pass.apply_async((job_id, tile, pass_index), countdown=1.0,
-                                priority=celery_priority(meta.priority))
+                                priority=celery_priority(delivery.meta.priority))
         return "retrying"
     finally:
         state.set_task("")
-
-
-def _tile_converged(store, job_id: str, tile: int, target_error: float) -> bool:
-    from renderer.film.adaptive import tile_converged
-
-    data = store.tile_buffer(job_id, tile)
-    return data is not None and tile_converged(SampleBuffer.from_bytes(data), target_error)
 
 
 def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: int,
@@ -152,14 +121,12 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
 
     x0, y0, w, h = meta.plan.tile_rect(tile)
     start, count = meta.plan.sample_range(pass_index)
-    if compiled.target_error is not None and _tile_converged(store, job_id, tile,
-                                                             compiled.target_error):
-        # Adaptive sampling: the tile's merged buffer meets the scene's target (a pure rule of
-        # that buffer, renderer.film.adaptive.tile_converged), so this pass adds no samples. It
-        # is still stored and merged, empty, so the job's task count completes as planned.
-        buf = SampleBuffer.empty(x0, y0, w, h)
-        store.put_pass(job_id, tile, pass_index, buf.to_bytes(), ttl=state.settings.pass_ttl)
-        merged = merge_pass(store, job_id, tile, pass_index)
+    if compiled.target_error is not None and converged(store, job_id, tile,
+                                                       compiled.target_error):
+        # Adaptive sampling: this pass adds no samples. It is still stored and merged, empty,
+        # so the job's task count completes as planned.
+        merged = deliver(store, state.settings, job_id, tile, pass_index,
+                         SampleBuffer.empty(x0, y0, w, h))
         store.set_tile_state(job_id, tile, "done")
         return "converged" if merged else "duplicate"
     t0 = time.perf_counter()
@@ -167,8 +134,7 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
     seconds = time.perf_counter() - t0
     state.count_pass(w * h * count, seconds)
 
-    store.put_pass(job_id, tile, pass_index, buf.to_bytes(), ttl=state.settings.pass_ttl)
-    merged = merge_pass(store, job_id, tile, pass_index)
+    merged = deliver(store, state.settings, job_id, tile, pass_index, buf)
     # task_seconds - render_seconds: the per-task overhead (Redis, buffers, merge, bookkeeping).
     store.count(tasks_done=1, render_seconds=seconds, paths=w * h * count,
                 task_seconds=time.perf_counter() - t_task)

@@ -2,45 +2,20 @@
 
 from __future__ import annotations
 
-import json
-import re
 import time
-import uuid
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, HTTPException, Query, Request, Response, status
 from fastapi.responses import JSONResponse
 
-from renderer.materials.auto import auto_choices
-from renderer.scene import Limits, SceneError, load_scene
 from services.api.deps import CeleryDep, SettingsDep, StoreDep
 from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
-from services.farm.cost import check_cost
+from services.farm.jobs import JobRequest, Refusal, submit_job
+from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
-from services.farm.planner import Plan
-from services.farm.queue import enqueue
 from services.farm.store import ACTIVE, JobMeta, JobStore
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
-
-_PATH_TOKEN = re.compile(r'\.?([A-Za-z_][A-Za-z0-9_\-]*)|\[(\d+)\]|\[("(?:[^"\\]|\\.)*")\]')
-
-
-def scene_loc(path: str) -> list[str | int]:
-    """``objects[3].radius`` -> ``["body", "scene", "objects", 3, "radius"]``."""
-    loc: list[str | int] = ["body", "scene"]
-    for name, index, quoted in _PATH_TOKEN.findall(path):
-        loc.append(name if name else int(index) if index else json.loads(quoted))
-    return loc
-
-
-def _unprocessable(errors: list[tuple[list[str | int], str, str]],
-                   status_code: int = status.HTTP_422_UNPROCESSABLE_CONTENT,
-                   headers: dict[str, str] | None = None) -> JSONResponse:
-    return JSONResponse(
-        status_code=status_code, headers=headers,
-        content={"detail": [{"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in errors]},
-    )
 
 
 def to_public(meta: JobMeta) -> JobPublic:
@@ -83,40 +58,11 @@ def _get_or_404(store: JobStore, job_id: str) -> JobMeta:
 def create_job(body: JobCreate, store: StoreDep, celery: CeleryDep, settings: SettingsDep):
     """Validate the scene, plan tiles × passes and queue them. Nothing is queued if the scene is
     invalid or over a limit."""
-    try:
-        scene = load_scene(body.scene, limits=Limits())  # mesh paths are refused
-    except SceneError as err:
-        return _unprocessable([(scene_loc(p), m, "scene") for p, m in err.errors])
-    first = min(body.spp_per_pass or settings.default_spp_per_pass, scene.render.spp)
-    # The largest pass: as asked, else the default but never below the first pass
-    largest = body.max_spp_per_pass or max(first, settings.default_max_spp_per_pass)
-    if largest < first:
-        return _unprocessable([(["body", "max_spp_per_pass"],
-                                f"the largest pass ({largest}) is smaller than the first "
-                                f"(spp_per_pass {first})", "value_error")])
-    plan = Plan(scene.film.width, scene.film.height, scene.render.spp,
-                body.tile_size or settings.default_tile_size, first, largest)
-    if plan.n_tasks > settings.max_tasks_per_job:
-        msg = (f"{plan.n_tiles} tiles x {plan.n_passes} passes = {plan.n_tasks} tasks exceed the "
-               f"limit {settings.max_tasks_per_job} (LUCENT_MAX_TASKS_PER_JOB): use larger tiles "
-               "or passes")
-        return _unprocessable([(["body", "tile_size"], msg, "limit"),
-                               (["body", "spp_per_pass"], msg, "limit"),
-                               (["body", "max_spp_per_pass"], msg, "limit")])
-    refused = check_cost(plan, store, settings)
-    if refused is not None:
-        # 429 (a full backlog) clears by itself as jobs finish; 422 needs a smaller job.
-        headers = {"Retry-After": "60"} if refused.status == 429 else None
-        return _unprocessable([(list(loc), refused.msg, "limit") for loc in refused.locs],
-                              refused.status, headers)
-    job_id = uuid.uuid4().hex
-    # What `auto` picks for each material (the workers compile the same choice)
-    methods = {name: f"{c.method}: {c.reason}, expected relMSE {c.expected_error:.3g}"
-               for name, c in auto_choices(scene).items()}
-    meta = store.create_job(job_id, body.name, body.priority, plan, json.dumps(body.scene),
-                            methods)
-    enqueue(celery, job_id, plan.order(), body.priority)
-    return to_public(meta)
+    answer = submit_job(store, celery, settings, JobRequest(**body.model_dump()))
+    if isinstance(answer, Refusal):
+        return JSONResponse(status_code=answer.status, headers=answer.headers, content={
+            "detail": [{"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in answer.errors]})
+    return to_public(answer)
 
 
 @router.get("", response_model=JobsPublic)
@@ -203,12 +149,7 @@ def cancel_job(job_id: str, store: StoreDep):
 @router.post("/{job_id}/retry", response_model=JobPublic)
 def retry_job(job_id: str, store: StoreDep, celery: CeleryDep):
     """Requeue every pass not merged yet of a failed or cancelled job (tries counted afresh)."""
-    meta = _get_or_404(store, job_id)
-    if meta.status not in ("failed", "cancelled"):
-        raise HTTPException(status.HTTP_409_CONFLICT,
-                            detail=f"job {job_id} is {meta.status}: only failed or cancelled "
-                                   "jobs can be retried")
-    todo = store.reopen_job(job_id)
-    enqueue(celery, job_id, todo, meta.priority)
-    store.finish_if_complete(job_id)
+    refused = retry(store, celery, _get_or_404(store, job_id))
+    if refused is not None:
+        raise HTTPException(status.HTTP_409_CONFLICT, detail=refused)
     return to_public(_get_or_404(store, job_id))
