@@ -12,7 +12,7 @@ from fastapi.testclient import TestClient
 from renderer.film.buffer import SampleBuffer
 from services.api.main import create_app
 from services.farm.merge import assemble, merge_pass, sweep
-from services.farm.planner import Plan, celery_priority
+from services.farm.planner import Plan
 from services.farm.settings import Settings
 
 # --- validation and limits ----------------------------------------------------------------------
@@ -130,50 +130,6 @@ def test_submission_is_planned_and_listed(client, tiny_scene):
 
 
 # --- planning -----------------------------------------------------------------------------------
-
-
-def test_plan_covers_the_frame_once_and_goes_centre_first():
-    plan = Plan(width=50, height=30, spp=20, tile_size=16, spp_per_pass=8)
-    cover = np.zeros((30, 50), int)
-    for t in range(plan.n_tiles):
-        x0, y0, w, h = plan.tile_rect(t)
-        cover[y0:y0 + h, x0:x0 + w] += 1
-    assert (cover == 1).all()
-    assert [plan.sample_range(p) for p in range(plan.n_passes)] == [(0, 8), (8, 8), (16, 4)]
-    order = plan.order()
-    assert len(order) == len(set(order)) == plan.n_tasks
-    # Pass 0 of every tile before any pass 1; the first tile is one of the central ones.
-    assert {p for _, p in order[:plan.n_tiles]} == {0}
-    x0, y0, w, h = plan.tile_rect(order[0][0])
-    assert x0 <= 25 <= x0 + w and y0 <= 15 <= y0 + h
-    assert celery_priority(9) == 0 and celery_priority(0) == 9
-
-
-def test_passes_grow_from_the_first_to_the_largest_and_cover_every_sample():
-    # 8, 8, then the samples so far (16, 32), then the largest (64) until spp
-    plan = Plan(width=8, height=8, spp=1000, tile_size=8, spp_per_pass=8, max_spp_per_pass=64)
-    assert plan.passes[:6] == ((0, 8), (8, 8), (16, 16), (32, 32), (64, 64), (128, 64))
-    assert plan.passes[-1] == (960, 40)
-    assert plan.n_passes == 19 and plan.n_tasks == 19
-    for spp, first, largest in [(1000, 8, 64), (64, 8, 64), (17, 3, 5), (5, 8, 64), (1, 1, 1),
-                                (300, 7, 7), (300, 7, 0), (4096, 1, 1000)]:
-        p = Plan(width=8, height=8, spp=spp, tile_size=8, spp_per_pass=first,
-                 max_spp_per_pass=largest)
-        starts = [s for s, _ in p.passes]
-        counts = [c for _, c in p.passes]
-        # Contiguous, from 0 to spp, none empty, none above the larger of first and largest.
-        assert starts == [0] + list(np.cumsum(counts)[:-1]), (spp, first, largest)
-        assert sum(counts) == spp and min(counts) >= 1
-        assert max(counts) <= max(first, largest)
-        assert [p.sample_range(i) for i in range(p.n_passes)] == list(p.passes)
-        # Each pass after the second doubles the samples so far, until it reaches the largest.
-        for (start, count), nxt in zip(p.passes[1:], p.passes[2:], strict=False):
-            assert nxt[1] == min(max(first, largest), start + count, spp - nxt[0])
-    # Equal passes: largest 0 or equal to the first, the plan of before passes grew.
-    assert Plan(8, 8, 20, 8, 8).passes == ((0, 8), (8, 8), (16, 4))
-    assert Plan(8, 8, 20, 8, 8, 8).passes == Plan(8, 8, 20, 8, 8).passes
-    with pytest.raises(IndexError):
-        Plan(8, 8, 20, 8, 8).sample_range(3)
 
 
 def test_a_submission_gets_growing_passes_by_default(client, tiny_scene):
