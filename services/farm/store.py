@@ -7,7 +7,7 @@ Key                                Type    What
 ``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``,
                                            ``active_at``, ``stalls`` (the stall re-queues)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
-``{p}:job:{id}:tile_state``        hash    tile -> queued / running / done / failed
+``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass rendering) / done / failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
 ``{p}:job:{id}:attempts``          hash    ``tile:pass`` -> deliveries (the redelivery cap)
@@ -402,6 +402,10 @@ class JobStore:
                     # process killed in between can leave a complete tile shown as running.
                     tile_spp = int(pipe.hget(samples_key, str(tile)) or 0) + spp_added
                     tile_done = tile_spp >= int(pipe.hget(job_key, "spp") or 0)
+                    # "running" means a pass of the tile is rendering now: a tile that has more
+                    # passes to come goes back to queued (not a failed tile: that stays failed)
+                    state_key = self.k("job", job_id, "tile_state")
+                    requeue = not tile_done and _s(pipe.hget(state_key, str(tile))) == "running"
                     pipe.multi()
                     pipe.set(acc_key, acc.to_bytes())
                     pipe.sadd(merged_key, member)
@@ -409,7 +413,9 @@ class JobStore:
                     pipe.srem(self.k("pending"), pass_key)
                     pipe.hincrby(samples_key, str(tile), spp_added)
                     if tile_done:
-                        pipe.hset(self.k("job", job_id, "tile_state"), str(tile), "done")
+                        pipe.hset(state_key, str(tile), "done")
+                    elif requeue:
+                        pipe.hset(state_key, str(tile), "queued")
                     pipe.hincrby(job_key, "tasks_merged", 1)
                     pipe.hincrby(job_key, "samples_merged", int(buf.count.sum()))
                     pipe.hincrby(job_key, "dropped", int(buf.dropped.sum()))

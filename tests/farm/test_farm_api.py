@@ -169,6 +169,26 @@ def _job(store, spp=16, per_pass=8):
     return plan
 
 
+def test_a_tile_runs_only_while_a_pass_of_it_renders(store):
+    """A tile is "running" while a pass of it renders; merged with passes still to come, it is
+    queued again (the dashboard once showed every started tile as running until its last pass),
+    and its last merge makes it done. A failed tile stays failed."""
+    _job(store)
+    store.set_tile_running("j1", 0)
+    assert store.tile_states("j1")[0] == "running"
+    store.put_pass("j1", 0, 0, _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
+    assert merge_pass(store, "j1", 0, 0)
+    assert store.tile_states("j1")[0] == "queued"
+    store.set_tile_running("j1", 0)
+    store.put_pass("j1", 0, 1, _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
+    assert merge_pass(store, "j1", 0, 1)
+    assert store.tile_states("j1")[0] == "done"
+    store.fail_tile("j1", 1, "a pass gave up")
+    store.put_pass("j1", 1, 0, _pass_buffer(8, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
+    assert merge_pass(store, "j1", 1, 0)
+    assert store.tile_states("j1")[1] == "failed"
+
+
 def test_a_pass_written_twice_is_merged_once(store):
     plan = _job(store)
     buf = _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes()
