@@ -7,7 +7,7 @@ Key                                Type    What
 ``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``,
                                            ``active_at``, ``stalls`` (the stall re-queues)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
-``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass rendering) / done / failed
+``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass renders) / done / failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
 ``{p}:job:{id}:attempts``          hash    ``tile:pass`` -> deliveries (the redelivery cap)
