@@ -10,9 +10,9 @@ keyed by its sources, under the shared ``LUCENT_CACHE_DIR``). Every run renders 
 frame with ``render_tile`` (best of 3 after a warm-up) and reports paths/s; the sample buffers
 (sums, squares, counts) of the working tree are compared bit for bit with the base's (and where
 they differ, the share of pixels that do and the relative L1 distance of the sums are printed).
-Scenes are names of ``examples/*.json``. Prints the median of each side and the ratio. An
-optimization that is only an optimization keeps "identical"; docs/performance.md records what was
-measured this way.
+Scenes are names of ``examples/*.json`` or paths of scene files (``/tmp/x.json``). Prints the
+median of each side and the ratio. An optimization that is only an optimization keeps
+"identical"; docs/performance.md records what was measured this way.
 """
 
 from __future__ import annotations
@@ -34,6 +34,11 @@ SCENES = {"cornell_box": 32, "seed_paper_boxes_low_density": 16, "translucent_sp
           "mesh_torus": 16}
 
 
+def scene_path(name: str) -> Path:
+    """An example's name, or a scene file's path."""
+    return Path(name) if name.endswith(".json") else ROOT / "examples" / f"{name}.json"
+
+
 def measure(scenes: list[str], out: Path) -> None:
     """One run in this process: paths/s per scene, buffers saved for the comparison."""
     from renderer.render import _as_compiled, render_tile
@@ -41,7 +46,7 @@ def measure(scenes: list[str], out: Path) -> None:
 
     result = {}
     for name in scenes:
-        cs = _as_compiled(load_scene_file(ROOT / "examples" / f"{name}.json"))
+        cs = _as_compiled(load_scene_file(scene_path(name)))
         spp = SCENES.get(name, 16)
         render_tile(cs, 0, 0, cs.width, cs.height, 0, 1)
         best = float("inf")
@@ -50,7 +55,8 @@ def measure(scenes: list[str], out: Path) -> None:
             buf = render_tile(cs, 0, 0, cs.width, cs.height, 0, spp)
             best = min(best, time.perf_counter() - start)
         result[name] = cs.width * cs.height * spp / best
-        np.savez(out / f"{name}.npz", sum=buf.sum, sum_sq=buf.sum_sq, count=buf.count)
+        np.savez(out / f"{Path(name).stem}.npz", sum=buf.sum, sum_sq=buf.sum_sq,
+                 count=buf.count)
     (out / "speed.json").write_text(json.dumps(result))
 
 
@@ -100,8 +106,9 @@ def main() -> int:
                         speeds[side].setdefault(name, []).append(v)
                     if side == "new":
                         for name in args.scenes:
-                            verdict = compare(Path(tmp) / f"base{r}" / f"{name}.npz",
-                                              out / f"{name}.npz")
+                            stem = Path(name).stem
+                            verdict = compare(Path(tmp) / f"base{r}" / f"{stem}.npz",
+                                              out / f"{stem}.npz")
                             if verdict != "identical":
                                 same[name] = verdict
         finally:

@@ -19,7 +19,7 @@ import math
 
 from renderer.geometry.shapes import QUAD, SPHERE
 from renderer.jit import inline_kernel, kernel
-from renderer.sampling import INV_4PI, uniform_cone, uniform_triangle
+from renderer.sampling import INV_4PI, sample_discrete, uniform_cone, uniform_triangle
 from renderer.vecmath import to_world
 
 AREA = 0
@@ -60,17 +60,7 @@ def sample_light(light_kind, light_prim, light_data, light_cdf, light_pmf, prim_
     n_lights = light_kind.shape[0]
     if n_lights == 0:
         return zero, zero, 0.0, 0.0, False
-    # sample_discrete inline: the light whose cdf bracket contains u_sel
-    target = u_sel * light_cdf[n_lights - 1]
-    lo = 0
-    hi = n_lights - 1
-    while lo < hi:
-        mid = (lo + hi) // 2
-        if light_cdf[mid] <= target:
-            lo = mid + 1
-        else:
-            hi = mid
-    li = lo
+    li = sample_discrete(light_cdf, u_sel)  # the light whose cdf bracket contains u_sel
     pmf = light_pmf[li]
     kind = light_kind[li]
     radiance = (light_data[li, 3], light_data[li, 4], light_data[li, 5])

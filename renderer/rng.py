@@ -18,10 +18,7 @@ from renderer.jit import kernel
 _GOLDEN = np.uint64(0x9E3779B97F4A7C15)
 _M1 = np.uint64(0xBF58476D1CE4E5B9)
 _M2 = np.uint64(0x94D049BB133111EB)
-_S30 = np.uint64(30)
-_S27 = np.uint64(27)
-_S31 = np.uint64(31)
-_S11 = np.uint64(11)
+_S30, _S27, _S31, _S11 = np.uint64(30), np.uint64(27), np.uint64(31), np.uint64(11)  # shifts
 _ONE = np.uint64(1)
 _TWO_POW_M53 = 1.0 / 9007199254740992.0
 
@@ -60,35 +57,30 @@ def uniform(key, dim):
 
 _U32 = np.uint64(0xFFFFFFFF)
 _TOP = np.uint64(1 << 31)
-_LK1 = np.uint64(0x6C50B47C)
-_LK2 = np.uint64(0xB82F1E52)
-_LK3 = np.uint64(0xC7AFE638)
-_LK4 = np.uint64(0x8D22F6E6)
-_B1 = np.uint64(0x55555555)
-_B2 = np.uint64(0x33333333)
-_B4 = np.uint64(0x0F0F0F0F)
-_B8 = np.uint64(0x00FF00FF)
-_B16 = np.uint64(0x0000FFFF)
+# Laine–Karras hash multipliers (Burley's constants)
+_LK = tuple(np.uint64(m) for m in (0x6C50B47C, 0xB82F1E52, 0xC7AFE638, 0x8D22F6E6))
+# bit reversal: swap bits, pairs, nibbles, bytes, halves (mask, shift)
+_B = tuple(np.uint64(m) for m in (0x55555555, 0x33333333, 0x0F0F0F0F, 0x00FF00FF, 0x0000FFFF))
 _SH = (np.uint64(1), np.uint64(2), np.uint64(4), np.uint64(8), np.uint64(16))
 _TWO_POW_M32 = 1.0 / 4294967296.0
 
 
 @kernel
 def reverse_bits32(x):
-    x = ((x >> _SH[0]) & _B1) | ((x & _B1) << _SH[0])
-    x = ((x >> _SH[1]) & _B2) | ((x & _B2) << _SH[1])
-    x = ((x >> _SH[2]) & _B4) | ((x & _B4) << _SH[2])
-    x = ((x >> _SH[3]) & _B8) | ((x & _B8) << _SH[3])
-    return ((x >> _SH[4]) & _B16) | ((x & _B16) << _SH[4])
+    x = ((x >> _SH[0]) & _B[0]) | ((x & _B[0]) << _SH[0])
+    x = ((x >> _SH[1]) & _B[1]) | ((x & _B[1]) << _SH[1])
+    x = ((x >> _SH[2]) & _B[2]) | ((x & _B[2]) << _SH[2])
+    x = ((x >> _SH[3]) & _B[3]) | ((x & _B[3]) << _SH[3])
+    return ((x >> _SH[4]) & _B[4]) | ((x & _B[4]) << _SH[4])
 
 
 @kernel
 def _laine_karras(x, seed):
     x = (x + seed) & _U32
-    x ^= (x * _LK1) & _U32
-    x ^= (x * _LK2) & _U32
-    x ^= (x * _LK3) & _U32
-    x ^= (x * _LK4) & _U32
+    x ^= (x * _LK[0]) & _U32
+    x ^= (x * _LK[1]) & _U32
+    x ^= (x * _LK[2]) & _U32
+    x ^= (x * _LK[3]) & _U32
     return x
 
 

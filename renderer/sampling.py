@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import math
 
-from renderer.jit import kernel
+from renderer.jit import inline_kernel, kernel
 
 INV_PI = 1.0 / math.pi
 INV_4PI = 1.0 / (4.0 * math.pi)
@@ -92,9 +92,10 @@ def power_heuristic(pdf_a, pdf_b):
     return a2 / (a2 + b2)
 
 
-@kernel
+@inline_kernel
 def sample_discrete(cdf, u):
-    """Index i with cdf[i-1] <= u·total < cdf[i]; ``cdf`` is an inclusive running sum."""
+    """Index i with cdf[i-1] <= u·total < cdf[i]; ``cdf`` is an inclusive running sum. Inlined:
+    ``sample_light`` picks its light with it at every vertex."""
     target = u * cdf[cdf.shape[0] - 1]
     lo = 0
     hi = cdf.shape[0] - 1

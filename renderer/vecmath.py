@@ -1,81 +1,23 @@
-"""Small 3-vector helpers on tuples of floats, inlined by numba into the kernels.
+"""The orthonormal basis the kernels build local frames with, and the luminance weights.
 
-Tuples keep vectors in registers: no allocation inside the hot loops.
+Vectors are tuples of floats in the kernels: they stay in registers, no allocation inside the hot
+loops. Dot products and the like are written out where they are used.
 """
 
 from __future__ import annotations
 
 import math
 
+import numpy as np
+
 from renderer.jit import kernel
 
-
-@kernel
-def add(a, b):
-    return (a[0] + b[0], a[1] + b[1], a[2] + b[2])
-
-
-@kernel
-def sub(a, b):
-    return (a[0] - b[0], a[1] - b[1], a[2] - b[2])
-
-
-@kernel
-def mul(a, b):
-    return (a[0] * b[0], a[1] * b[1], a[2] * b[2])
-
-
-@kernel
-def scale(a, s):
-    return (a[0] * s, a[1] * s, a[2] * s)
-
-
-@kernel
-def madd(a, b, s):
-    """a + s·b"""
-    return (a[0] + b[0] * s, a[1] + b[1] * s, a[2] + b[2] * s)
-
-
-@kernel
-def dot(a, b):
-    return a[0] * b[0] + a[1] * b[1] + a[2] * b[2]
-
-
-@kernel
-def cross(a, b):
-    return (a[1] * b[2] - a[2] * b[1], a[2] * b[0] - a[0] * b[2], a[0] * b[1] - a[1] * b[0])
-
-
-@kernel
-def length(a):
-    return math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-
-
-@kernel
-def normalize(a):
-    inv = 1.0 / math.sqrt(a[0] * a[0] + a[1] * a[1] + a[2] * a[2])
-    return (a[0] * inv, a[1] * inv, a[2] * inv)
-
-
-@kernel
-def neg(a):
-    return (-a[0], -a[1], -a[2])
-
-
-@kernel
-def max_abs(a):
-    return max(abs(a[0]), abs(a[1]), abs(a[2]))
-
-
-@kernel
-def max_component(a):
-    return max(a[0], a[1], a[2])
-
-
-@kernel
-def luminance(c):
-    """Rec. 709 luminance of a linear RGB colour."""
-    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+# Rec. 709 luminance Y = Y_R·R + Y_G·G + Y_B·B of a linear RGB colour (ITU-R BT.709): the
+# renderer's one copy, for kernels (the scalars fold as constants) and for numpy (LUMINANCE)
+Y_R = 0.2126
+Y_G = 0.7152
+Y_B = 0.0722
+LUMINANCE = np.array([Y_R, Y_G, Y_B])
 
 
 @kernel

@@ -21,6 +21,7 @@ from __future__ import annotations
 import numpy as np
 
 from renderer.film.buffer import SampleBuffer
+from renderer.vecmath import LUMINANCE
 
 EPSILON = 0.01
 # Stopping on a pixel's own samples biases it low where its distribution is heavy-tailed (the
@@ -28,7 +29,6 @@ EPSILON = 0.01
 # came out 3.8 % low with 16, 2.6 % with 32 and 1.4 % with 64 minimum samples; the Cornell box
 # shows no bias at 64 (bench/adaptive.py, docs/adaptive-sampling.md).
 MIN_SAMPLES = 64
-_LUMINANCE = np.array([0.2126, 0.7152, 0.0722])
 
 
 def relative_error(buf: SampleBuffer, pooled: bool = True) -> np.ndarray:
@@ -39,11 +39,11 @@ def relative_error(buf: SampleBuffer, pooled: bool = True) -> np.ndarray:
     """
     n = buf.count.astype(np.float64)
     with np.errstate(divide="ignore", invalid="ignore"):
-        lum_sum = buf.sum @ _LUMINANCE
+        lum_sum = buf.sum @ LUMINANCE
         # Σ Y² of the luminance Y = w·L needs cross terms the buffer does not keep; since the
         # weights sum to 1, (w·L)² ≤ Σ w_c L_c² (Cauchy–Schwarz): an upper bound, exact for grey
         # pixels, so the variance is never underestimated.
-        lum_sq = buf.sum_sq @ _LUMINANCE
+        lum_sq = buf.sum_sq @ LUMINANCE
         mean = lum_sum / n
         # Var[mean] = s²/n with s² = (Σ Y² − n·mean²)/(n − 1)
         var = np.maximum(lum_sq - n * mean * mean, 0.0) / ((n - 1) * n)

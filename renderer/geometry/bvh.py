@@ -39,6 +39,13 @@ def _area(lo0, lo1, lo2, hi0, hi1, hi2):
 
 
 @kernel
+def _grow(b_lo, b_hi, b, l0, l1, l2, h0, h1, h2):
+    """The box (l0..2, h0..2) grown to hold bucket b's bounds."""
+    return (min(l0, b_lo[b, 0]), min(l1, b_lo[b, 1]), min(l2, b_lo[b, 2]),
+            max(h0, b_hi[b, 0]), max(h1, b_hi[b, 1]), max(h2, b_hi[b, 2]))
+
+
+@kernel
 def _centroid(lo, hi, i, axis):
     """A primitive's box centre, computed where needed rather than stored: (n, 3) floats fewer."""
     return 0.5 * (lo[i, axis] + hi[i, axis])
@@ -143,24 +150,14 @@ def build_bvh(lo, hi):
                 h0 = h1 = h2 = -INF
                 for b in range(N_BUCKETS - 1):
                     c_below += b_count[b]
-                    l0 = min(l0, b_lo[b, 0])
-                    l1 = min(l1, b_lo[b, 1])
-                    l2 = min(l2, b_lo[b, 2])
-                    h0 = max(h0, b_hi[b, 0])
-                    h1 = max(h1, b_hi[b, 1])
-                    h2 = max(h2, b_hi[b, 2])
+                    l0, l1, l2, h0, h1, h2 = _grow(b_lo, b_hi, b, l0, l1, l2, h0, h1, h2)
                     cost[b] = c_below * _area(l0, l1, l2, h0, h1, h2) if c_below > 0 else 0.0
                 c_above = 0
                 l0 = l1 = l2 = INF
                 h0 = h1 = h2 = -INF
                 for b in range(N_BUCKETS - 1, 0, -1):
                     c_above += b_count[b]
-                    l0 = min(l0, b_lo[b, 0])
-                    l1 = min(l1, b_lo[b, 1])
-                    l2 = min(l2, b_lo[b, 2])
-                    h0 = max(h0, b_hi[b, 0])
-                    h1 = max(h1, b_hi[b, 1])
-                    h2 = max(h2, b_hi[b, 2])
+                    l0, l1, l2, h0, h1, h2 = _grow(b_lo, b_hi, b, l0, l1, l2, h0, h1, h2)
                     if c_above > 0:
                         cost[b - 1] += c_above * _area(l0, l1, l2, h0, h1, h2)
                 for b in range(N_BUCKETS - 1):

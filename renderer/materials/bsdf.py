@@ -1,6 +1,7 @@
 """Dispatch on the material tag: the fixed list of material types (pbrt-v4's TaggedPointer idea).
 
-Material kinds are small integers in ``mat_kind``, their parameters a row of ``mat_param``. All
+Material kinds are small integers in ``mat_kind``, their parameters a row of ``mat_param`` whose
+slots each family's file names and packs (``renderer.scene.compile`` calls its packer). All
 surfaces but dielectrics are two-sided for reflection (scene format v1), so their normal is turned
 to the side ``wo`` lies on before the model is asked.
 """
@@ -10,11 +11,13 @@ from __future__ import annotations
 import math
 
 from renderer.jit import inline_kernel, kernel
-from renderer.materials.dielectric import dielectric_sample
+from renderer.materials.dielectric import IOR, dielectric_sample
 from renderer.materials.diffuse import diffuse_eval, diffuse_pdf, diffuse_sample
+from renderer.materials.diffusion import C_NORM
 from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.mirror import mirror_sample
 from renderer.materials.phong import phong_eval, phong_pdf, phong_sample
+from renderer.materials.translucent import ALBEDO, REFLECTED
 
 DIFFUSE = 0
 PHONG = 1
@@ -25,9 +28,9 @@ SINGLE_SCATTER = 5  # the seed paper's method: Lambertian at the surface or one 
 DIFFUSE_ENTRY = 6  # the seed student project's method: a random walk that starts at the surface
 DIFFUSION = 8  # a BSSRDF: the integrator probes for the exit point (materials/diffusion.py)
 DIFFUSION_EXIT = 9  # the exit vertex of DIFFUSION: S_w(wi) = (1 − F(cos θi))/(cπ)
-BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo, kept in param[12:15],
-# plus the integrator's transmitted direct light (integrators/path.py, backlight_transmission),
-# which falls with thickness at the per-channel rate in param[16:19]
+BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo (slots REFLECTED), plus
+# the integrator's transmitted direct light (integrators/subsurface/backlight.py), which falls
+# with thickness at the per-channel rate in the SIGMA_EFF slots
 
 N_PARAMS = 20
 
@@ -56,15 +59,15 @@ def bsdf_eval(kind, param, wo, wi, n):
     if kind == DIFFUSE:
         return diffuse_eval(param, wo, wi, ns)
     if kind == SINGLE_SCATTER:
-        return diffuse_eval(param[1:], wo, wi, ns)  # its albedo is in param[1:4]
+        return diffuse_eval(param[ALBEDO:], wo, wi, ns)  # its albedo, where diffuse's would be
     if kind == BACKLIGHT:
-        return diffuse_eval(param[12:], wo, wi, ns)
+        return diffuse_eval(param[REFLECTED:], wo, wi, ns)
     if kind == DIFFUSION_EXIT:
         cos_i = wi[0] * ns[0] + wi[1] * ns[1] + wi[2] * ns[2]
         if cos_i <= 0.0:
             return (0.0, 0.0, 0.0)
-        f, _ = fresnel_dielectric(cos_i, param[0])
-        s = (1.0 - f) / (param[7] * math.pi) * cos_i
+        f, _ = fresnel_dielectric(cos_i, param[IOR])
+        s = (1.0 - f) / (param[C_NORM] * math.pi) * cos_i
         return (s, s, s)
     if kind == PHONG:
         return phong_eval(param, wo, wi, ns)
@@ -85,7 +88,7 @@ def bsdf_pdf(kind, param, wo, wi, n):
 def bsdf_sample(kind, param, wo, n, uc, u1, u2):
     """(wi, f·|cos|/pdf, pdf, ok); pdf is 0 for the delta materials."""
     if kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY or kind == DIFFUSION:
-        # both keep the boundary's ior in param[0]
+        # all keep the boundary's ior in dielectric's IOR slot
         wi, w = dielectric_sample(param, wo, n, uc)
         return wi, (w, w, w), 0.0, True
     ns = _facing(wo, n)
@@ -95,13 +98,13 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
     if kind == PHONG:
         return phong_sample(param, wo, ns, uc, u1, u2)
     if kind == SINGLE_SCATTER:
-        return diffuse_sample(param[1:], wo, ns, u1, u2)
+        return diffuse_sample(param[ALBEDO:], wo, ns, u1, u2)
     if kind == BACKLIGHT:
-        return diffuse_sample(param[12:], wo, ns, u1, u2)
+        return diffuse_sample(param[REFLECTED:], wo, ns, u1, u2)
     if kind == DIFFUSION_EXIT:
         wi, _, pdf, ok = diffuse_sample(param, wo, ns, u1, u2)
         f, _ = fresnel_dielectric(max(0.0, wi[0] * ns[0] + wi[1] * ns[1] + wi[2] * ns[2]),
-                                  param[0])
-        w = (1.0 - f) / param[7]  # S_w·cos/pdf = (1 − F)/(cπ)·cos / (cos/π)
+                                  param[IOR])
+        w = (1.0 - f) / param[C_NORM]  # S_w·cos/pdf = (1 − F)/(cπ)·cos / (cos/π)
         return wi, (w, w, w), pdf, ok
     return diffuse_sample(param, wo, ns, u1, u2)

@@ -1,14 +1,21 @@
-"""Lambertian reflection. Parameters: ``albedo`` (RGB, 0..1) in ``param[0:3]``."""
+"""Lambertian reflection.
+
+Row: ``ALBEDO`` (RGB, 0..1) in ``param[ALBEDO:ALBEDO + 3]``; ``pack_diffuse`` writes it. Other
+families with a Lambertian lobe pass their row sliced so that their colour starts at ``ALBEDO``.
+"""
 
 from __future__ import annotations
 
-import math
-
 from renderer.jit import kernel
-from renderer.sampling import cosine_hemisphere
+from renderer.sampling import INV_PI, cosine_hemisphere
 from renderer.vecmath import to_world
 
-INV_PI = 1.0 / math.pi
+ALBEDO = 0
+
+
+def pack_diffuse(p, m) -> None:
+    """Write a ``diffuse`` material's row into ``p``."""
+    p[ALBEDO:ALBEDO + 3] = m.albedo
 
 
 @kernel
@@ -17,7 +24,7 @@ def diffuse_eval(param, wo, wi, n):
     if cos_i <= 0.0:
         return (0.0, 0.0, 0.0)
     s = cos_i * INV_PI
-    return (param[0] * s, param[1] * s, param[2] * s)
+    return (param[ALBEDO] * s, param[ALBEDO + 1] * s, param[ALBEDO + 2] * s)
 
 
 @kernel
@@ -32,4 +39,4 @@ def diffuse_sample(param, wo, n, u1, u2):
     wi = to_world(local, n)
     pdf = local[2] * INV_PI
     # f·cos/pdf = (ρ/π)·cos / (cos/π) = ρ
-    return wi, (param[0], param[1], param[2]), pdf, local[2] > 0.0
+    return wi, (param[ALBEDO], param[ALBEDO + 1], param[ALBEDO + 2]), pdf, local[2] > 0.0

@@ -18,8 +18,9 @@ tangent with 1/4; the radius from one of the three channels' profiles), and the 
 by the multiple-importance density over all 9 axis×channel strategies (King et al., "BSSRDF
 Importance Sampling", 2013; as in pbrt-v3 and Cycles).
 
-Parameter layout in ``mat_param``: 0 ior, 1:4 albedo, 4 density, 5 g, 7 c, 10 "opaque" flag (the
-zero-radius limit, renderer/materials/opaque.py), 12:15 A, 16:19 d.
+Row (``pack_diffusion``): the translucent slots (``renderer/materials/translucent.py``), then
+``C_NORM`` c, ``OPAQUE`` (1: the zero-radius limit, renderer/materials/opaque.py), ``MS_ALBEDO``
+A (three slots) and ``PROFILE_D`` d (three slots).
 """
 
 from __future__ import annotations
@@ -27,6 +28,13 @@ from __future__ import annotations
 import numpy as np
 
 from renderer.materials.burley import burley_s
+from renderer.materials.opaque import opaque_albedo
+from renderer.materials.translucent import pack_translucent
+
+C_NORM = 7
+OPAQUE = 10
+MS_ALBEDO = 12
+PROFILE_D = 16
 
 
 def fresnel_moment1(eta: float) -> float:
@@ -59,3 +67,20 @@ def diffusion_parameters(albedo, density: float, g: float, ior: float):
     c = 1 - 2 * fresnel_moment1(1 / ior)
     return big_a, d, c
 
+
+
+def pack_diffusion(p, m) -> None:
+    """Write a ``diffusion`` material's row into ``p``."""
+    pack_translucent(p, m)
+    big_a, d, c = diffusion_parameters(m.albedo, m.density, m.g, m.ior)
+    p[C_NORM] = c
+    p[MS_ALBEDO:MS_ALBEDO + 3] = big_a
+    p[PROFILE_D:PROFILE_D + 3] = d
+
+
+def pack_opaque(p, m) -> None:
+    """Switch the ``diffusion`` row ``p`` of an effectively opaque material to its zero-radius
+    limit (renderer/materials/opaque.py): A is the semi-infinite medium's albedo from a walk, not
+    the dipole's."""
+    p[OPAQUE] = 1.0
+    p[MS_ALBEDO:MS_ALBEDO + 3] = [opaque_albedo(a, m.g, m.ior) for a in m.albedo]

@@ -5,8 +5,9 @@ modified Phong reflectance model for physically based rendering", 1994). The (n 
 makes the specular lobe's albedo at normal incidence exactly ks; with kd + ks ≤ 1 per channel (the
 schema checks it) the surface never reflects more than it receives.
 
-Parameters: ``diffuse`` kd in ``param[0:3]``, ``specular`` ks in ``param[3:6]``, ``exponent`` n in
-``param[6]``. Sampling picks a lobe with probability in proportion to its luminance.
+Row (``pack_phong``): ``diffuse`` kd in the three slots from ``KD``, ``specular`` ks in the three
+from ``KS``, ``exponent`` n in ``EXPONENT``. Sampling picks a lobe with probability in proportion
+to its luminance.
 """
 
 from __future__ import annotations
@@ -15,17 +16,27 @@ import math
 
 from renderer.jit import kernel
 from renderer.materials.fresnel import reflect
-from renderer.sampling import cosine_hemisphere, phong_lobe
-from renderer.vecmath import to_world
+from renderer.sampling import INV_PI, cosine_hemisphere, phong_lobe
+from renderer.vecmath import Y_B, Y_G, Y_R, to_world
 
-INV_PI = 1.0 / math.pi
 INV_2PI = 0.5 / math.pi
+
+KD = 0
+KS = 3
+EXPONENT = 6
+
+
+def pack_phong(p, m) -> None:
+    """Write a ``phong`` material's row into ``p``."""
+    p[KD:KD + 3] = m.diffuse
+    p[KS:KS + 3] = m.specular
+    p[EXPONENT] = m.exponent
 
 
 @kernel
 def _specular_probability(param):
-    ld = 0.2126 * param[0] + 0.7152 * param[1] + 0.0722 * param[2]
-    ls = 0.2126 * param[3] + 0.7152 * param[4] + 0.0722 * param[5]
+    ld = Y_R * param[KD] + Y_G * param[KD + 1] + Y_B * param[KD + 2]
+    ls = Y_R * param[KS] + Y_G * param[KS + 1] + Y_B * param[KS + 2]
     if ld + ls <= 0.0:
         return 0.0
     return ls / (ld + ls)
@@ -38,12 +49,12 @@ def phong_eval(param, wo, wi, n):
         return (0.0, 0.0, 0.0)
     r = reflect(wo, n)
     cos_a = r[0] * wi[0] + r[1] * wi[1] + r[2] * wi[2]
-    exponent = param[6]
+    exponent = param[EXPONENT]
     spec = (exponent + 2.0) * INV_2PI * cos_a**exponent if cos_a > 0.0 else 0.0
     return (
-        (param[0] * INV_PI + param[3] * spec) * cos_i,
-        (param[1] * INV_PI + param[4] * spec) * cos_i,
-        (param[2] * INV_PI + param[5] * spec) * cos_i,
+        (param[KD] * INV_PI + param[KS] * spec) * cos_i,
+        (param[KD + 1] * INV_PI + param[KS + 1] * spec) * cos_i,
+        (param[KD + 2] * INV_PI + param[KS + 2] * spec) * cos_i,
     )
 
 
@@ -55,7 +66,7 @@ def phong_pdf(param, wo, wi, n):
     p_spec = _specular_probability(param)
     r = reflect(wo, n)
     cos_a = r[0] * wi[0] + r[1] * wi[1] + r[2] * wi[2]
-    exponent = param[6]
+    exponent = param[EXPONENT]
     pdf_spec = (exponent + 1.0) * INV_2PI * cos_a**exponent if cos_a > 0.0 else 0.0
     return (1.0 - p_spec) * cos_i * INV_PI + p_spec * pdf_spec
 
@@ -64,7 +75,7 @@ def phong_pdf(param, wo, wi, n):
 def phong_sample(param, wo, n, uc, u1, u2):
     p_spec = _specular_probability(param)
     if uc < p_spec:
-        wi = to_world(phong_lobe(u1, u2, param[6]), reflect(wo, n))
+        wi = to_world(phong_lobe(u1, u2, param[EXPONENT]), reflect(wo, n))
     else:
         wi = to_world(cosine_hemisphere(u1, u2), n)
     pdf = phong_pdf(param, wo, wi, n)

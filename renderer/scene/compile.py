@@ -32,9 +32,19 @@ from renderer.materials.bsdf import (
     SINGLE_SCATTER,
     TRANSLUCENT,
 )
-from renderer.materials.diffusion import diffusion_parameters
-from renderer.materials.opaque import opaque_albedo
+from renderer.materials.dielectric import IOR, pack_dielectric
+from renderer.materials.diffuse import pack_diffuse
+from renderer.materials.diffusion import pack_diffusion, pack_opaque
+from renderer.materials.mirror import pack_mirror
+from renderer.materials.phong import pack_phong
+from renderer.materials.translucent import (
+    pack_backlight,
+    pack_diffuse_entry,
+    pack_single_scatter,
+    pack_translucent,
+)
 from renderer.scene.schema import DielectricMaterial
+from renderer.vecmath import LUMINANCE, Y_B, Y_G, Y_R
 
 SceneArrays = namedtuple(
     "SceneArrays",
@@ -79,7 +89,7 @@ class CompiledScene:
 
 
 def _luminance(c) -> float:
-    return 0.2126 * c[0] + 0.7152 * c[1] + 0.0722 * c[2]
+    return Y_R * c[0] + Y_G * c[1] + Y_B * c[2]
 
 
 def box_quads(lo, hi, rotate=None, translate=(0.0, 0.0, 0.0)) -> np.ndarray:
@@ -113,68 +123,30 @@ def _resolve_auto(scene, name: str, m):
     return m.model_copy(update={"method": choice.method}), choice
 
 
-def _make_opaque(p: np.ndarray, m) -> None:
-    """Switch the ``diffusion`` row ``p`` of an effectively opaque material to its zero-radius
-    limit (renderer/materials/opaque.py): A is the semi-infinite medium's albedo from a walk, not
-    the dipole's."""
-    p[10] = 1.0
-    p[12:15] = [opaque_albedo(a, m.g, m.ior) for a in m.albedo]
+# Each family's file packs its row (its slots are named there); the kind tag says which
+_PACKERS = {"diffuse": (DIFFUSE, pack_diffuse), "phong": (PHONG, pack_phong),
+            "mirror": (MIRROR, pack_mirror), "dielectric": (DIELECTRIC, pack_dielectric)}
+_METHODS = {"volumetric": (TRANSLUCENT, pack_translucent),
+            "single_scatter": (SINGLE_SCATTER, pack_single_scatter),
+            "diffuse_entry": (DIFFUSE_ENTRY, pack_diffuse_entry),
+            "backlight": (BACKLIGHT, pack_backlight),
+            "diffusion": (DIFFUSION, pack_diffusion)}
 
 
 def _material_row(name: str, m) -> tuple[int, np.ndarray]:
+    """A material's kind tag and parameter row (a translucent one's by its method)."""
+    if m.type == "translucent":
+        if m.method not in _METHODS:
+            raise CompileError(
+                f"materials.{name}: the translucent method {m.method!r} is not implemented in "
+                "this version of the renderer"
+            )
+        kind, pack = _METHODS[m.method]
+    else:
+        kind, pack = _PACKERS[m.type]
     p = np.zeros(N_PARAMS)
-    if m.type == "diffuse":
-        p[0:3] = m.albedo
-        return DIFFUSE, p
-    if m.type == "phong":
-        p[0:3] = m.diffuse
-        p[3:6] = m.specular
-        p[6] = m.exponent
-        return PHONG, p
-    if m.type == "mirror":
-        p[0:3] = m.reflectance
-        return MIRROR, p
-    if m.type == "dielectric":
-        p[0] = m.ior
-        p[1:4] = m.absorption
-        return DIELECTRIC, p
-    # Common translucent parameters, then each method's knobs (docs/methods/)
-    p[0] = m.ior
-    p[1:4] = m.albedo
-    p[4] = m.density
-    p[5] = m.g
-    if m.method == "volumetric":
-        return TRANSLUCENT, p
-    if m.method == "single_scatter":
-        p[7] = 0.8 if m.surface_fraction is None else m.surface_fraction
-        return SINGLE_SCATTER, p
-    if m.method == "diffuse_entry":
-        p[7] = 1.0 if m.direct_light else 0.0
-        p[8] = 0.0 if m.specular_exponent is None else m.specular_exponent
-        return DIFFUSE_ENTRY, p
-    if m.method == "backlight":
-        p[7] = 0.2 if m.distortion is None else m.distortion
-        p[8] = 4.0 if m.power is None else m.power
-        p[9] = min(1.0, 0.5 if m.scale is None else m.scale)  # the transmitted share
-        p[12:15] = (1.0 - p[9]) * np.asarray(m.albedo)  # what the surface still reflects
-        # Diffuse light decays through a slab as e^{−σ_eff·d}, σ_eff = √(3σa(σa + σs')) with
-        # σs' = σs(1 − g) (diffusion theory, e.g. Jensen et al. 2001): not e^{−σt·d}, which is the
-        # unscattered part only and would make any dense material black from behind.
-        albedo = np.asarray(m.albedo)
-        sigma_a = m.density * (1.0 - albedo)
-        sigma_s_reduced = m.density * albedo * (1.0 - m.g)
-        p[16:19] = np.sqrt(3.0 * sigma_a * (sigma_a + sigma_s_reduced))
-        return BACKLIGHT, p
-    if m.method == "diffusion":
-        big_a, d, c = diffusion_parameters(m.albedo, m.density, m.g, m.ior)
-        p[7] = c
-        p[12:15] = big_a
-        p[16:19] = d
-        return DIFFUSION, p
-    raise CompileError(
-        f"materials.{name}: the translucent method {m.method!r} is not implemented in this "
-        "version of the renderer"
-    )
+    pack(p, m)
+    return kind, p
 
 
 def _camera(cam, width: int, height: int) -> np.ndarray:
@@ -202,7 +174,7 @@ def compile_scene(scene) -> CompiledScene:
             m, auto[name] = _resolve_auto(scene, name, m)
         mat_kind[i], mat_param[i] = _material_row(name, m)
         if name in auto and auto[name].method == "opaque":
-            _make_opaque(mat_param[i], m)
+            pack_opaque(mat_param[i], m)
 
     # Objects → primitives
     kinds, geos, mats, emissions = [], [], [], []
@@ -281,7 +253,7 @@ def compile_scene(scene) -> CompiledScene:
         sph = prim_kind[emissive] == SPHERE
         area[sph] = 4.0 * math.pi * g[sph, 3] ** 2
         le = prim_emission[emissive]
-        lum = le @ np.array([0.2126, 0.7152, 0.0722])
+        lum = le @ LUMINANCE
         prim_light[emissive] = np.arange(len(emissive))
         light_kind.append(np.full(len(emissive), AREA, np.int32))
         light_prim.append(emissive.astype(np.int64))
@@ -341,7 +313,7 @@ def compile_scene(scene) -> CompiledScene:
         camera=_camera(scene.camera, scene.film.width, scene.film.height),
         background=background,
         null_media=np.array([bool(np.any(
-            ((mat_kind == TRANSLUCENT) & (mat_param[:, 0] == 1.0)) | (mat_kind == SINGLE_SCATTER)
+            ((mat_kind == TRANSLUCENT) & (mat_param[:, IOR] == 1.0)) | (mat_kind == SINGLE_SCATTER)
         ))]),
         sampler=np.array([1 if scene.render.sampler == "sobol" else 0], np.int64),
     )

@@ -13,7 +13,7 @@ import pytest
 
 import renderer.scene.compile as compile_module
 from renderer.geometry.bvh import traversal_stack
-from renderer.integrators.path import (
+from renderer.integrators.shadow import (
     flat_transmittance,
     transmittance,
     transmittance_by_crossing,

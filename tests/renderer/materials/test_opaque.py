@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 
 from renderer.materials import auto
+from renderer.materials.diffusion import MS_ALBEDO, OPAQUE
 from renderer.materials.opaque import opaque_albedo, semi_infinite_albedo
 from renderer.render import render_buffer
 from renderer.scene import load_scene
@@ -110,8 +111,8 @@ def test_compiled_as_the_zero_radius_limit():
     cs = compile_scene(scene)
     assert cs.info["auto"]["wax"]["method"] == "opaque"
     row = cs.arrays.mat_param[list(scene.materials).index("wax")]
-    assert row[10] == 1.0
-    np.testing.assert_allclose(row[12:15], opaque_albedo(0.95, 0.0, 1.4))
+    assert row[OPAQUE] == 1.0
+    np.testing.assert_allclose(row[MS_ALBEDO:MS_ALBEDO + 3], opaque_albedo(0.95, 0.0, 1.4))
 
 
 def _furnace(albedo: float, ior: float, density: float = 1e4, spp: int = 64):
