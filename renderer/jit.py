@@ -90,3 +90,14 @@ def inline_kernel(fn):
     ``forceinline``), compiled once for the plain types of its arguments: for device functions
     that take the whole ``SceneArrays`` tuple, which a call passes as ~180 scalar arguments."""
     return _unliteral_calls(njit(forceinline=True, _nrt=False, **JIT_OPTIONS)(fn))
+
+
+def block(fn):
+    """A block of its caller's code, given a name and a file of its own for the reader: numba
+    inlines its IR at the call site before typing (``inline="always"``), so it is typed and
+    compiled as part of its caller and has no compile of its own. For functions called from one
+    or two sites (each site types its own copy): the subsurface methods' steps and the path's
+    next-event estimates. As ``inline_kernel``s, each was also compiled and optimized alone, which
+    added ~4 s to a 23 s cold compile (``python -m bench.compile_passes``)."""
+    return njit(inline="always", _nrt=False, **JIT_OPTIONS)(fn)
+

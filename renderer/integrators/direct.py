@@ -17,14 +17,14 @@ import math
 from renderer.integrators.sampler import draw
 from renderer.integrators.shadow import SHADOW_SLACK, surface_shadow, transmittance
 from renderer.integrators.subsurface.backlight import backlight_light
-from renderer.jit import inline_kernel
+from renderer.jit import block
 from renderer.lights import sample_light
 from renderer.materials.bsdf import BACKLIGHT, bsdf_eval, bsdf_pdf
 from renderer.materials.phase import hg_pdf
 from renderer.sampling import power_heuristic
 
 
-@inline_kernel
+@block
 def light_sample(S, p, key, dim, sidx, sob):
     """One sample of the scene's lights seen from p, from the vertex's light dimensions (0–2):
     (wi, Li, pdf, distance to the light point, delta)."""
@@ -33,7 +33,7 @@ def light_sample(S, p, key, dim, sidx, sob):
                         draw(S, key, dim, 1, sidx, sob), draw(S, key, dim, 2, sidx, sob))
 
 
-@inline_kernel
+@block
 def surface_direct(S, mk, mp, p, n, wo, scale, medium, null_media, br, bg, bb, key, dim, sidx,
                    sob, stack):
     """β·f·Li·Tr/pdf of one light sample at a surface vertex of material kind ``mk`` (row
@@ -58,7 +58,7 @@ def surface_direct(S, mk, mp, p, n, wo, scale, medium, null_media, br, bg, bb, k
     return none
 
 
-@inline_kernel
+@block
 def medium_direct(S, p, d, g, medium, br, bg, bb, key, dim, sidx, sob, stack):
     """β·phase·Li·Tr/pdf of one light sample at a scattering event at p inside ``medium`` (ray
     direction d before the event, Henyey–Greenstein asymmetry g), MIS-weighted against the phase

@@ -38,7 +38,7 @@ from renderer.integrators.subsurface.diffuse_entry import entry_direct, entry_sc
 from renderer.integrators.subsurface.diffusion import diffusion_exit
 from renderer.integrators.subsurface.single_scatter import after_the_event, passes_straight
 from renderer.integrators.subsurface.volumetric import ENDED, SCATTERED, medium_segment
-from renderer.jit import inline_kernel, kernel, parallel_kernel
+from renderer.jit import block, inline_kernel, kernel, parallel_kernel
 from renderer.lights import area_light_pdf
 from renderer.materials.bsdf import (
     DIELECTRIC,
@@ -61,7 +61,7 @@ from renderer.sampling import INV_4PI, power_heuristic
 MAX_SEGMENTS = 1 << 18
 
 
-@inline_kernel
+@block
 def null_boundary(S, mk, mp, mat, cos_o, medium, single_done, skip_emission, key, dim, sidx, sob):
     """Whether the ray crosses the surface of material ``mat`` straight on, with no scattering
     event (Mitsuba's null BSDF does not count towards depth either): an index-matched boundary

@@ -10,7 +10,7 @@ short). So an unlimited ``max_depth`` (−1) stays unbiased.
 from __future__ import annotations
 
 from renderer.integrators.sampler import draw
-from renderer.jit import inline_kernel, kernel
+from renderer.jit import block, kernel
 
 RR_DEPTH = 5
 RR_MAX = 0.95  # at surfaces; inside media the survival probability is not capped (see there)
@@ -25,7 +25,7 @@ def survive(br, bg, bb, eta_scale, cap, u):
     return True, br / q, bg / q, bb / q
 
 
-@inline_kernel
+@block
 def roulette(S, br, bg, bb, eta_scale, cap, depth, key, dim, sidx, sob):
     """The roulette after a vertex's ``depth``-th scattering event: (alive, β); no draw before
     ``RR_DEPTH``."""

@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import math
 
-from renderer.jit import inline_kernel, kernel
+from renderer.jit import block, kernel
 from renderer.materials.fresnel import fresnel_dielectric, reflect, refract
 
 IOR = 0
@@ -28,7 +28,7 @@ def pack_dielectric(p, m) -> None:
     p[ABSORPTION:ABSORPTION + 3] = m.absorption
 
 
-@inline_kernel
+@block
 def absorbed(param, t, br, bg, bb):
     """β after t of the interior: Beer–Lambert, exp(−σa·t) per channel."""
     return (br * math.exp(-param[ABSORPTION] * t), bg * math.exp(-param[ABSORPTION + 1] * t),

@@ -16,7 +16,7 @@ import math
 from renderer.geometry.bvh import intersect_closest
 from renderer.geometry.shapes import spawn_offset, surface_point
 from renderer.integrators.shadow import surface_shadow
-from renderer.jit import inline_kernel, kernel
+from renderer.jit import block, kernel
 from renderer.materials.translucent import ALBEDO, DISTORTION, POWER, SCALE, SIGMA_EFF
 
 
@@ -63,7 +63,7 @@ def backlight_transmission(S, mp, p, n, wo, wi, t_max, stack):
             k * math.exp(-mp[SIGMA_EFF + 2] * t))
 
 
-@inline_kernel
+@block
 def backlight_light(S, mp, p, n, wo, wi, li_rgb, pdf_l, t_max, br, bg, bb, stack):
     """β·albedo·Li·T/pdf: what the light sample (wi, Li, pdf) from behind the surface adds."""
     tr, tg, tb = backlight_transmission(S, mp, p, n, wo, wi, t_max, stack)

@@ -16,7 +16,7 @@ import math
 from renderer.integrators.direct import light_sample
 from renderer.integrators.sampler import draw
 from renderer.integrators.shadow import surface_shadow_call
-from renderer.jit import inline_kernel
+from renderer.jit import block
 from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.phase import hg_sample
 from renderer.materials.translucent import ALBEDO, DIRECT_LIGHT, IOR, SPECULAR_EXP, G
@@ -24,7 +24,7 @@ from renderer.sampling import phong_lobe
 from renderer.vecmath import to_world
 
 
-@inline_kernel
+@block
 def entry_direct(S, mp, p, n, cos_o, scale, null_media, br, bg, bb, key, dim, sidx, sob, stack):
     """β times the separate direct light at an entry point seen from outside: what enters here
     and comes back out is lit as a Lambertian surface of albedo (1 − F)·colour, from one light
@@ -43,7 +43,7 @@ def entry_direct(S, mp, p, n, cos_o, scale, null_media, br, bg, bb, key, dim, si
             bb * mp[ALBEDO + 2] * li_rgb[2] * w)
 
 
-@inline_kernel
+@block
 def entry_scatter(S, mp, n, cos_o, wi, weight, eta_scale, key, dim, sidx, sob):
     """The boundary's sample (wi, weight) at a diffuse_entry surface, turned into the method's:
     a ray that enters scatters at once about its refracted direction; a reflection off a glossy

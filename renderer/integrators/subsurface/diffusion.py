@@ -17,7 +17,7 @@ import numpy as np
 from renderer.geometry.bvh import intersect_closest
 from renderer.geometry.shapes import spawn_offset, surface_point
 from renderer.integrators.sampler import draw
-from renderer.jit import inline_kernel, kernel
+from renderer.jit import block, kernel
 from renderer.materials.bsdf import DIFFUSION_EXIT
 from renderer.materials.burley import (
     burley_pdf_area,
@@ -115,7 +115,7 @@ def diffusion_probe(S, mat, p, n, mp, key, stack):
     return True, chosen_p, chosen_n, chosen_prim, w
 
 
-@inline_kernel
+@block
 def diffusion_exit(S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, max_depth, key,
                    dim, sidx, sob, stack):
     """The diffusion material ``mat`` (row ``mp``) hit from outside at p on ``prim``: where the

@@ -14,18 +14,18 @@ from __future__ import annotations
 import math
 
 from renderer.integrators.sampler import draw
-from renderer.jit import inline_kernel
+from renderer.jit import block
 from renderer.materials.translucent import DENSITY, SURFACE_FRACTION
 
 
-@inline_kernel
+@block
 def passes_straight(S, mp, cos_o, key, dim, sidx, sob):
     """Whether a hit on the surface (row ``mp``; cos_o < 0 from inside) goes straight through:
     always on the way out, with probability 1 − surface_fraction on the way in."""
     return cos_o < 0.0 or draw(S, key, dim, 3, sidx, sob) >= mp[SURFACE_FRACTION]
 
 
-@inline_kernel
+@block
 def after_the_event(S, medium, t, br, bg, bb):
     """β over a segment of length t inside ``medium`` after its one scattering event: light only
     attenuates on its way out, by exp(−σt·t)."""

@@ -17,7 +17,7 @@ import math
 from renderer.integrators.direct import medium_direct
 from renderer.integrators.roulette import roulette
 from renderer.integrators.sampler import draw
-from renderer.jit import inline_kernel
+from renderer.jit import block
 from renderer.materials.bsdf import SINGLE_SCATTER
 from renderer.materials.phase import hg_sample
 from renderer.materials.translucent import ALBEDO, DENSITY, IOR, G
@@ -28,7 +28,7 @@ SCATTERED = 1  # a scattering event: the path goes on from it
 ENDED = 2  # the path ends (the depth limit, roulette)
 
 
-@inline_kernel
+@block
 def medium_segment(S, medium, t, o, d, depth, unweighted, prev_pdf, prev_p, single_done, lr, lg,
                    lb, br, bg, bb, eta_scale, max_depth, key, dim, sidx, sob, stack):
     """A segment from o along d inside ``medium``, whose boundary is t away: a free flight from
