@@ -90,7 +90,7 @@ def submit_job(store: JobStore, celery: Celery, settings: Settings,
         return Refusal(refused.status,
                        [(list(loc), refused.msg, "limit") for loc in refused.locs],
                        {"Retry-After": "60"} if refused.status == 429 else None)
-    job_id = uuid.uuid4().hex
+    job_id = uuid.uuid4().hex  # store.JOB_ID's form
     # What `auto` picks for each material (the workers compile the same choice)
     methods = {name: f"{c.method}: {c.reason}, expected relMSE {c.expected_error:.3g}"
                for name, c in auto_choices(scene).items()}

@@ -27,6 +27,7 @@ flight. ``version`` counts merges and is the preview image's ETag.
 from __future__ import annotations
 
 import json
+import re
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -85,6 +86,15 @@ local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
 if redis.call('EXISTS', KEYS[2]) == 1 then redis.call('HSET', KEYS[2], 'active_at', ARGV[2]) end
 return n
 """
+
+
+# A job id as ``submit_job`` makes it (``uuid4().hex``). The API refuses any other form before it
+# becomes part of a key: ``<id>:scene`` would otherwise name the job's other keys.
+JOB_ID = re.compile(r"[0-9a-f]{32}")
+
+
+def is_job_id(text: str) -> bool:
+    return JOB_ID.fullmatch(text) is not None
 
 
 def _s(value: bytes | str | None) -> str | None:

@@ -7,6 +7,7 @@ import io
 import json
 import os
 import signal
+import uuid
 
 import numpy as np
 import pytest
@@ -164,9 +165,10 @@ def test_a_poison_scene_fails_the_job_not_the_worker(farm, farm_client, wait_for
     bad["objects"][0]["edge1"] = [0, 0, 0]  # degenerate quad: refused by load_scene
     store = farm.store()
     plan = Plan(32, 24, 16, 16, 8)
-    store.create_job("poison", "poison", 0, plan, json.dumps(bad))
-    enqueue(farm_client.app.state.celery, "poison", plan.order(), 0)
-    job = wait_for_job(farm_client, "poison")
+    poison = uuid.uuid4().hex  # an id of the API's form
+    store.create_job(poison, "poison", 0, plan, json.dumps(bad))
+    enqueue(farm_client.app.state.celery, poison, plan.order(), 0)
+    job = wait_for_job(farm_client, poison)
     assert job["status"] == "failed"
     assert "objects[0]" in job["error"]
     assert farm.proc.poll() is None
