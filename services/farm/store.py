@@ -264,10 +264,20 @@ class JobStore:
         return self.transition(job_id, "cancelled", ACTIVE, "finished_at")
 
     def finish_if_complete(self, job_id: str) -> bool:
-        """Mark the job done if every task has been merged."""
-        h = self.r.hmget(self.job_key(job_id), "tasks_merged", "tasks_total")
+        """Once every task has been merged, mark the job done; or failed, with the reason, when
+        every sample of it was dropped as non-finite (its image would be black, and "done"
+        would hide why). True if the status changed."""
+        h = self.r.hmget(self.job_key(job_id), "tasks_merged", "tasks_total", "samples_merged",
+                         "dropped")
         if h[0] is None or int(h[0]) < int(h[1]):
             return False
+        dropped = int(h[3] or 0)
+        if dropped and not int(h[2] or 0):
+            return self.fail_job(job_id, f"every sample ({dropped}) was dropped: its radiance "
+                                 "was not a finite number (NaN or infinite). The scene's numbers "
+                                 "overflow where the renderer computes with them: scale down "
+                                 "those near the largest float, 1.8e308 (background, emission, "
+                                 "lights)")
         return self.transition(job_id, "done", ACTIVE, "finished_at")
 
     def unmerged(self, job_id: str, plan: Plan) -> list[tuple[int, int]]:

@@ -256,3 +256,30 @@ def test_a_failed_tile_is_reported_once_in_errors(client, store):
         "stalled: no pass started", "tile 0: pass 0, try 1: boom",
         "tile 1: pass 0: boom (after 3 tries)"]
 
+
+def _dropped_buffer(x0, y0, w, h, dropped, finite=0):
+    buf = SampleBuffer.empty(x0, y0, w, h)
+    buf.dropped[:] = dropped
+    buf.count[:] = finite
+    buf.sum[:] = 0.5 * finite
+    buf.sum_sq[:] = 0.25 * finite
+    return buf
+
+
+@pytest.mark.parametrize("finite", [0, 1])
+def test_a_job_whose_every_sample_was_dropped_fails_with_the_reason(store, finite):
+    """Every sample non-finite (a background of 1e308): "done" with a black image hid why. One
+    finite sample a pixel is an image: done."""
+    _job(store, spp=8, per_pass=8)  # 2 tiles, 1 pass each
+    for tile, x0 in ((0, 0), (1, 8)):
+        store.put_pass(J1, tile, 0, _dropped_buffer(x0, 0, 8, 8, 8 - finite, finite).to_bytes(),
+                       ttl=60)
+        assert merge_pass(store, J1, tile, 0)
+    meta = store.get_job(J1)
+    if finite:
+        assert (meta.status, meta.error) == ("done", None)
+        return
+    assert meta.status == "failed"
+    assert meta.error.startswith("every sample (1024) was dropped")
+    assert "not a finite number" in meta.error
+    assert meta.finished_at is not None
