@@ -144,14 +144,15 @@ def echo_error(error: dict[str, Any]) -> dict[str, Any]:
 
 
 def error_content(errors: Iterable[dict[str, Any]]) -> dict[str, Any]:
-    """``{"detail": [...]}`` of a 4xx that names fields, safe to encode (``echo_error``)."""
-    return {"detail": [echo_error(e) for e in errors]}
+    """``{"detail": [...]}`` of a 4xx that names fields, safe to encode (``echo_error``); an
+    unknown field is said in the scene's words."""
+    return {"detail": [echo_error({**e, "msg": "unknown field"}
+                                  if e.get("type") == "extra_forbidden" else e)
+                       for e in errors]}
 
 
 async def validation_error(request: Request, exc: Exception) -> JSONResponse:
     """FastAPI's 422 for an invalid request, safe to encode whatever the client sent."""
     assert isinstance(exc, RequestValidationError)
-    errors = [{**e, "msg": "unknown field"} if e.get("type") == "extra_forbidden" else e
-              for e in exc.errors()]  # the scene's words for the same error
     return JSONResponse(status_code=status.HTTP_422_UNPROCESSABLE_CONTENT,
-                        content=error_content(errors))
+                        content=error_content(exc.errors()))

@@ -186,7 +186,7 @@ class JobStore:
 
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
-                   scene_json: str, methods: dict[str, str] | None = None) -> JobMeta:
+                   scene_json: str | bytes, methods: dict[str, str] | None = None) -> JobMeta:
         now = time.time()
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
