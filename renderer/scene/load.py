@@ -31,6 +31,7 @@ from renderer.scene.schema import (
     VOLUME_MATERIAL_TYPES,
     Mesh,
     Scene,
+    overflow_message,
 )
 
 ROOT = "(root)"
@@ -395,9 +396,29 @@ def _check_mesh(scene: Scene, i: int, mesh: Mesh, base_dir: Path | None) -> list
             )
         return errors
 
+    # Triangles too large to compute with (an edge's squared length overflows): said as such,
+    # from a file too, where a degenerate one would be dropped.
+    degenerate, overflow = triangle_faults(vertices, triangles)
+    if overflow.any():
+        bad = np.flatnonzero(overflow)
+        message = overflow_message("an edge of the triangle")
+        errors = [
+            (f"{where}.path", f"triangle {t}: {message}")
+            if from_file
+            else (f"{where}.triangles[{t}]", message)
+            for t in bad[:MAX_REPORTED]
+        ]
+        if bad.size > MAX_REPORTED:
+            errors.append(
+                (
+                    f"{where}.path" if from_file else f"{where}.triangles",
+                    f"{bad.size - MAX_REPORTED} more triangles that overflow",
+                )
+            )
+        return errors
+
     # Degenerate triangles: errors inline (the user wrote them), dropped from files (real OBJ
     # files have a few, and they cannot be hit anyway).
-    degenerate = degenerate_triangles(vertices, triangles)
     dropped = 0
     if degenerate.any():
         bad = np.flatnonzero(degenerate)
@@ -467,10 +488,30 @@ def _read_mesh_file(
 
 def degenerate_triangles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndarray:
     """Boolean mask (T,) of zero-area triangles: |e1 x e2| <= eps * (two longest edges)."""
-    mask = np.empty(triangles.shape[0], dtype=bool)
+    return triangle_faults(vertices, triangles)[0]
+
+
+def triangle_faults(vertices: np.ndarray, triangles: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Boolean masks (T,): degenerate triangles (zero area: |e1 x e2| <= eps * (product of the
+    two longest edges)), and triangles that overflow (an edge's squared length is not a finite
+    float: the renderer cannot compute with it; ``schema.overflows``). An overflowing triangle is
+    not called degenerate."""
+    degenerate = np.empty(triangles.shape[0], dtype=bool)
+    overflow = np.empty(triangles.shape[0], dtype=bool)
     for start in range(0, triangles.shape[0], _BLOCK):
         p = vertices[triangles[start : start + _BLOCK]]  # (n, 3 corners, xyz)
-        e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 2] - p[:, 1]
+        block = slice(start, start + p.shape[0])
+        with np.errstate(over="ignore", invalid="ignore"):  # the overflow is what is looked for
+            e1, e2, e3 = p[:, 1] - p[:, 0], p[:, 2] - p[:, 0], p[:, 2] - p[:, 1]
+            big = ~np.isfinite(
+                np.maximum.reduce([np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3)])
+            )
+        overflow[block] = big
+        # The test is scale-free: on the edges over their largest component, whose products
+        # cannot overflow (an area of 1e200 x 1e200 would be inf <= inf: "degenerate").
+        scale = np.maximum.reduce([np.abs(e).max(axis=1) for e in (e1, e2, e3)])
+        scale[big | (scale == 0.0)] = 1.0
+        e1, e2, e3 = (np.where(big[:, None], 0.0, e) / scale[:, None] for e in (e1, e2, e3))
         # Squared on both sides: no square roots. |e1 x e2|² = (2 area)².
         cx = e1[:, 1] * e2[:, 2] - e1[:, 2] * e2[:, 1]
         cy = e1[:, 2] * e2[:, 0] - e1[:, 0] * e2[:, 2]
@@ -478,8 +519,8 @@ def degenerate_triangles(vertices: np.ndarray, triangles: np.ndarray) -> np.ndar
         twice_area_sq = cx * cx + cy * cy + cz * cz
         a, b, c = (np.einsum("ij,ij->i", e, e) for e in (e1, e2, e3))
         longest_pair_sq = np.maximum(np.maximum(a * b, a * c), b * c)
-        mask[start : start + p.shape[0]] = twice_area_sq <= EPS_DEGENERATE**2 * longest_pair_sq
-    return mask
+        degenerate[block] = ~big & (twice_area_sq <= EPS_DEGENERATE**2 * longest_pair_sq)
+    return degenerate, overflow
 
 
 def find_open_edge(triangles: np.ndarray) -> str | None:

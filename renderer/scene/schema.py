@@ -60,7 +60,10 @@ Colour = tuple[NonNegative, NonNegative, NonNegative]
 Albedo = tuple[UnitInterval, UnitInterval, UnitInterval]
 """Linear RGB reflectance-like colour, each channel in [0, 1]."""
 
-VertexIndex = Annotated[int, Strict(), Field(ge=0)]
+INT64_MAX = 2**63 - 1
+
+VertexIndex = Annotated[int, Strict(), Field(ge=0, le=INT64_MAX)]
+"""An index into the mesh's vertices; the kernels hold indices as int64 (``Mesh.arrays``)."""
 
 CHANNELS = ("red", "green", "blue")
 AXES = ("x", "y", "z")
@@ -95,9 +98,30 @@ def nearly_parallel(a: tuple[float, ...], b: tuple[float, ...]) -> bool:
     return _norm(_cross(a, b)) <= EPS_PARALLEL * _norm(a) * _norm(b)
 
 
+def overflows(*vectors: tuple[float, ...]) -> bool:
+    """True if a vector's squared length is not a finite float: normalizing it (and the tests
+    below) overflow, though each component is finite (1e200: its square is 1e400)."""
+    return not all(math.isfinite(v[0] * v[0] + v[1] * v[1] + v[2] * v[2]) for v in vectors)
+
+
+def overflow_message(what: str) -> str:
+    """What ``overflows`` found, said as it is rather than as the geometric fault that the
+    overflowed numbers would look like (an infinite cross product reads as "parallel")."""
+    return (
+        f"{what} overflows: its squared length exceeds the largest float (about 1.8e308), "
+        "which the renderer cannot compute with; scale the scene down"
+    )
+
+
+def overflow_error(what: str) -> PydanticCustomError:
+    return scene_error(overflow_message(what))
+
+
 def _require_nonzero(v: Vec3) -> Vec3:
     if not any(v):
         raise scene_error("must be a non-zero vector")
+    if overflows(v):
+        raise overflow_error(f"the vector {format_vec(v)}")
     return v
 
 
@@ -125,6 +149,12 @@ class Camera(SceneModel):
         forward = tuple(t - p for t, p in zip(self.look_at, self.position, strict=True))
         if not any(forward):
             raise scene_error("look_at must differ from position")
+        # The renderer normalizes forward (and up was checked alike): past that, the cross
+        # product below may be infinite, but then the two are not parallel.
+        if overflows(forward):
+            raise overflow_error(
+                f"the viewing direction {format_vec(forward)} (look_at - position)"
+            )
         # right = normalize(cross(forward, up)) would be NaN: no image orientation.
         if nearly_parallel(forward, self.up):
             raise scene_error(
@@ -148,7 +178,7 @@ class RenderSettings(SceneModel):
     """Samples per pixel."""
     max_depth: Int = Field(default=-1, ge=-1)
     """Largest number of scattering events on a path; -1: unlimited (Russian roulette only)."""
-    seed: Int = Field(default=0, ge=0, le=2**63 - 1)
+    seed: Int = Field(default=0, ge=0, le=INT64_MAX)
     """Same scene, same seed: same image, however it is split into tiles and passes."""
     target_error: Float | None = Field(default=None, gt=0)
     """Adaptive sampling: a pixel stops receiving samples once its estimated relative MSE is
@@ -299,6 +329,11 @@ class Quad(ObjectBase):
 
     @model_validator(mode="after")
     def _check_area(self) -> Quad:
+        if overflows(self.edge1, self.edge2, _cross(self.edge1, self.edge2)):
+            raise overflow_error(
+                f"the quad's normal (edge1 x edge2 = {format_vec(self.edge1)} x "
+                f"{format_vec(self.edge2)})"
+            )
         if nearly_parallel(self.edge1, self.edge2):
             raise scene_error("degenerate quad: edge1 and edge2 are parallel or zero")
         return self
@@ -487,3 +522,19 @@ class Scene(SceneModel):
     materials: dict[str, Material]
     objects: list[Object] = Field(min_length=1)
     lights: list[Light] = Field(default_factory=list)
+
+    @field_validator("materials")
+    @classmethod
+    def _check_names(cls, materials: dict[str, Material]) -> dict[str, Material]:
+        # A str field refuses a lone UTF-16 surrogate ("\ud800" in JSON: no Unicode text, which
+        # no UTF-8 file or reply can hold); a dict key is not checked, so the names are here.
+        for name in materials:
+            try:
+                name.encode("utf-8")
+            except UnicodeEncodeError:
+                shown = name.encode("utf-8", "backslashreplace").decode("utf-8")
+                raise scene_error(
+                    f"the material name {shown!r} is not Unicode text (it holds a lone UTF-16 "
+                    "surrogate)"
+                ) from None
+        return materials

@@ -12,6 +12,7 @@ from fastapi.staticfiles import StaticFiles
 
 from services.api.deps import require_token
 from services.api.guards import BodyLimit, validation_error
+from services.api.intake import Intake
 from services.api.routes import dashboard, health, jobs, workers
 from services.farm.merge import StallRule, Sweeper
 from services.farm.queue import celery_client
@@ -34,11 +35,13 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             yield
         finally:
             sweeper.stop()
+            app.state.intake.close()
             store.close()
 
     app = FastAPI(title="Lucent", version="0.1.0", lifespan=lifespan,
                   description="A render farm for physically based images of translucent things.")
     app.state.settings = settings
+    app.state.intake = Intake(settings.intake_inline_bytes, settings.intake_processes)
     # Read-only allow-lists for the dashboard, built once: requests name entries, never paths.
     app.state.examples = dashboard.find_examples()
     app.state.figures = dashboard.find_figures()

@@ -2,25 +2,33 @@
 
 from __future__ import annotations
 
-from typing import Any, Literal
+from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, Field
+from pydantic import BaseModel, ConfigDict, Field, Strict
 
 JobStatus = Literal["queued", "running", "done", "failed", "cancelled"]
 
+# As in the scene (renderer/scene/schema.py): a JSON string ("32") or a float (32.0) is not an
+# integer.
+StrictInt = Annotated[int, Strict()]
+
 
 class JobCreate(BaseModel):
+    # As the scene does: an unknown field (a typo such as "tilesize") is an error, not ignored.
+    model_config = ConfigDict(extra="forbid")
+
     scene: dict[str, Any] = Field(description="a scene, format v1 (docs/scene-format.md)")
     name: str = Field(default="", max_length=200)
-    tile_size: int | None = Field(default=None, ge=8, le=1024,
-                                  description="tile edge in pixels (default 32)")
-    spp_per_pass: int | None = Field(default=None, ge=1, le=65_536,
-                                     description="samples per pixel of the first pass (default 8)")
-    max_spp_per_pass: int | None = Field(
+    tile_size: StrictInt | None = Field(default=None, ge=8, le=1024,
+                                        description="tile edge in pixels (default 32)")
+    spp_per_pass: StrictInt | None = Field(
+        default=None, ge=1, le=65_536,
+        description="samples per pixel of the first pass (default 8)")
+    max_spp_per_pass: StrictInt | None = Field(
         default=None, ge=1, le=65_536,
         description="the largest pass: passes grow from spp_per_pass, each as many samples as "
                     "all before it, up to this (default 64; equal to spp_per_pass: equal passes)")
-    priority: int = Field(default=0, ge=0, le=9, description="9 runs first")
+    priority: StrictInt = Field(default=0, ge=0, le=9, description="9 runs first")
 
 
 class TilePublic(BaseModel):

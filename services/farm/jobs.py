@@ -1,11 +1,16 @@
-"""Submitting a job: the farm's policy between a validated request and the queue.
+"""Submitting a job: the farm's policy between a validated request and the queue, in two steps.
 
-``submit_job`` checks the scene (``renderer.scene.load_scene`` with the farm's limits; mesh paths
-are refused), chooses the passes (the first pass as asked or the default, never more than the
-scene's spp; the largest pass as asked, else the default but never below the first), plans tiles
-× passes, refuses a plan over the task limit or the cost limits (``services.farm.cost``), records
-what ``auto`` picks for each material, creates the job in the store and queues its passes. The
-route (``services/api/routes/jobs.py``) only turns a ``Refusal`` into its HTTP answer.
+``check_scene`` is pure CPU work, no store: the scene through ``renderer.scene.load_scene`` with
+the farm's limits (mesh paths are refused), what ``auto`` picks for each material, and the scene's
+JSON as it is stored. The API runs it off its event loop (``services/api/intake.py``: a process
+of its own for large bodies).
+
+``queue_job`` takes a checked scene: chooses the passes (the first pass as asked or the default,
+never more than the scene's spp; the largest pass as asked, else the default but never below the
+first), plans tiles × passes, refuses a plan over the task limit or the cost limits
+(``services.farm.cost``), creates the job in the store and queues its passes.
+
+The route (``services/api/routes/jobs.py``) only turns a ``Refusal`` into its HTTP answer.
 """
 
 from __future__ import annotations
@@ -50,10 +55,10 @@ class Refusal:
 
 
 @dataclass(frozen=True)
-class JobRequest:
-    """What a client asks for, as the API validated it (``JobCreate``)."""
+class JobOptions:
+    """How a client asks for its scene to be rendered, as the API validated it (``JobCreate``
+    less the scene)."""
 
-    scene: dict[str, Any]
     name: str = ""
     priority: int = 0
     tile_size: int | None = None
@@ -61,22 +66,42 @@ class JobRequest:
     max_spp_per_pass: int | None = None
 
 
-def submit_job(store: JobStore, celery: Celery, settings: Settings,
-               request: JobRequest) -> JobMeta | Refusal:
-    """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal."""
+@dataclass(frozen=True)
+class CheckedScene:
+    """A scene that ``load_scene`` accepted, reduced to what planning and queueing need."""
+
+    width: int
+    height: int
+    spp: int
+    methods: dict[str, str]  # what ``auto`` picks for each material, and why
+    scene_json: bytes  # the scene as submitted, as the store keeps it (workers re-fetch it)
+
+
+def check_scene(scene: Any, limits: Limits) -> CheckedScene | Refusal:
+    """Validate a scene document with ``limits`` (the farm's, read where the request came in)."""
     try:
-        scene = load_scene(request.scene, limits=Limits())  # mesh paths are refused
+        parsed = load_scene(scene, limits=limits)  # mesh paths are refused
     except SceneError as err:
         return Refusal(422, [(scene_loc(p), m, "scene") for p, m in err.errors])
-    first = min(request.spp_per_pass or settings.default_spp_per_pass, scene.render.spp)
+    # What `auto` picks for each material (the workers compile the same choice)
+    methods = {name: f"{c.method}: {c.reason}, expected relMSE {c.expected_error:.3g}"
+               for name, c in auto_choices(parsed).items()}
+    return CheckedScene(parsed.film.width, parsed.film.height, parsed.render.spp, methods,
+                        json.dumps(scene).encode())
+
+
+def queue_job(store: JobStore, celery: Celery, settings: Settings, options: JobOptions,
+              scene: CheckedScene) -> JobMeta | Refusal:
+    """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal."""
+    first = min(options.spp_per_pass or settings.default_spp_per_pass, scene.spp)
     # The largest pass: as asked, else the default but never below the first pass
-    largest = request.max_spp_per_pass or max(first, settings.default_max_spp_per_pass)
+    largest = options.max_spp_per_pass or max(first, settings.default_max_spp_per_pass)
     if largest < first:
         return Refusal(422, [(["body", "max_spp_per_pass"],
                               f"the largest pass ({largest}) is smaller than the first "
                               f"(spp_per_pass {first})", "value_error")])
-    plan = Plan(scene.film.width, scene.film.height, scene.render.spp,
-                request.tile_size or settings.default_tile_size, first, largest)
+    plan = Plan(scene.width, scene.height, scene.spp,
+                options.tile_size or settings.default_tile_size, first, largest)
     if plan.n_tasks > settings.max_tasks_per_job:
         msg = (f"{plan.n_tiles} tiles x {plan.n_passes} passes = {plan.n_tasks} tasks exceed the "
                f"limit {settings.max_tasks_per_job} (LUCENT_MAX_TASKS_PER_JOB): use larger tiles "
@@ -90,13 +115,10 @@ def submit_job(store: JobStore, celery: Celery, settings: Settings,
         return Refusal(refused.status,
                        [(list(loc), refused.msg, "limit") for loc in refused.locs],
                        {"Retry-After": "60"} if refused.status == 429 else None)
-    job_id = uuid.uuid4().hex
-    # What `auto` picks for each material (the workers compile the same choice)
-    methods = {name: f"{c.method}: {c.reason}, expected relMSE {c.expected_error:.3g}"
-               for name, c in auto_choices(scene).items()}
-    meta = store.create_job(job_id, request.name, request.priority, plan,
-                            json.dumps(request.scene), methods)
-    enqueue(celery, job_id, plan.order(), request.priority)
+    job_id = uuid.uuid4().hex  # store.JOB_ID's form
+    meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
+                            scene.methods)
+    enqueue(celery, job_id, plan.order(), options.priority)
     return meta
 
 

@@ -73,6 +73,15 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(default=64 * 1024 * 1024, ge=1024)
     """The largest request body (HTTP 413 above it): inline meshes make scenes big."""
 
+    intake_inline_bytes: int = Field(default=1024 * 1024, ge=0)
+    """Submissions up to this size are parsed and checked in the API's thread pool; larger ones
+    in a process of their own, so that parsing (which holds the GIL) never stalls the other
+    routes (``services.api.intake``)."""
+
+    intake_processes: int = Field(default=1, ge=1)
+    """Processes that parse and check large submissions, one submission each at a time (a
+    64 MB scene takes a few seconds and several hundred MB there)."""
+
     # --- Cost limits (``services.farm.cost``) -----------------------------------------------------
     max_samples_per_job: int = Field(default=2**34, ge=1)
     """The most pixel-samples (width x height x spp) one job may plan: 2^34 is a 4096² frame at

@@ -27,6 +27,7 @@ flight. ``version`` counts merges and is the preview image's ETag.
 from __future__ import annotations
 
 import json
+import re
 import time
 from dataclasses import dataclass
 from typing import Any
@@ -85,6 +86,15 @@ local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
 if redis.call('EXISTS', KEYS[2]) == 1 then redis.call('HSET', KEYS[2], 'active_at', ARGV[2]) end
 return n
 """
+
+
+# A job id as ``submit_job`` makes it (``uuid4().hex``). The API refuses any other form before it
+# becomes part of a key: ``<id>:scene`` would otherwise name the job's other keys.
+JOB_ID = re.compile(r"[0-9a-f]{32}")
+
+
+def is_job_id(text: str) -> bool:
+    return JOB_ID.fullmatch(text) is not None
 
 
 def _s(value: bytes | str | None) -> str | None:
@@ -176,7 +186,7 @@ class JobStore:
 
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
-                   scene_json: str, methods: dict[str, str] | None = None) -> JobMeta:
+                   scene_json: str | bytes, methods: dict[str, str] | None = None) -> JobMeta:
         now = time.time()
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -254,10 +264,20 @@ class JobStore:
         return self.transition(job_id, "cancelled", ACTIVE, "finished_at")
 
     def finish_if_complete(self, job_id: str) -> bool:
-        """Mark the job done if every task has been merged."""
-        h = self.r.hmget(self.job_key(job_id), "tasks_merged", "tasks_total")
+        """Once every task has been merged, mark the job done; or failed, with the reason, when
+        every sample of it was dropped as non-finite (its image would be black, and "done"
+        would hide why). True if the status changed."""
+        h = self.r.hmget(self.job_key(job_id), "tasks_merged", "tasks_total", "samples_merged",
+                         "dropped")
         if h[0] is None or int(h[0]) < int(h[1]):
             return False
+        dropped = int(h[3] or 0)
+        if dropped and not int(h[2] or 0):
+            return self.fail_job(job_id, f"every sample ({dropped}) was dropped: its radiance "
+                                 "was not a finite number (NaN or infinite). The scene's numbers "
+                                 "overflow where the renderer computes with them: scale down "
+                                 "those near the largest float, 1.8e308 (background, emission, "
+                                 "lights)")
         return self.transition(job_id, "done", ACTIVE, "finished_at")
 
     def unmerged(self, job_id: str, plan: Plan) -> list[tuple[int, int]]:

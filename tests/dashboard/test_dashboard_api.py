@@ -101,19 +101,22 @@ def test_examples_and_figures_need_the_token_when_one_is_set(redis_base_url):
         assert c.get("/").status_code == 200  # the page itself holds no farm data
 
 
+J1 = uuid.uuid4().hex  # the API answers 404 to an id of another form
+
+
 def _job_with_one_merged_pass(settings: Settings, value: float) -> str:
     store = JobStore(redis.Redis.from_url(settings.redis_url), settings.key_prefix)
     plan = Plan(width=16, height=8, spp=16, tile_size=8, spp_per_pass=8)
-    store.create_job("j1", "", 0, plan, "{}")
+    store.create_job(J1, "", 0, plan, "{}")
     for tile, x0 in ((0, 0), (1, 8)):
         buf = SampleBuffer.empty(x0, 0, 8, 8)
         buf.sum[:] = value * 8
         buf.sum_sq[:] = value * value * 8
         buf.count[:] = 8
-        store.put_pass("j1", tile, 0, buf.to_bytes(), ttl=60)
-        merge_pass(store, "j1", tile, 0)
+        store.put_pass(J1, tile, 0, buf.to_bytes(), ttl=60)
+        merge_pass(store, J1, tile, 0)
     store.r.close()
-    return "j1"
+    return J1
 
 
 def _mean(png: bytes) -> float:

@@ -4,6 +4,7 @@ against a real Redis."""
 from __future__ import annotations
 
 import threading
+import uuid
 
 import numpy as np
 import pytest
@@ -163,9 +164,12 @@ def _pass_buffer(x0, y0, w, h, samples, value):
     return buf
 
 
+J1 = uuid.uuid4().hex  # the API answers 404 to an id of another form
+
+
 def _job(store, spp=16, per_pass=8):
     plan = Plan(width=16, height=8, spp=spp, tile_size=8, spp_per_pass=per_pass)
-    store.create_job("j1", "", 0, plan, "{}")
+    store.create_job(J1, "", 0, plan, "{}")
     return plan
 
 
@@ -174,64 +178,108 @@ def test_a_tile_runs_only_while_a_pass_of_it_renders(store):
     queued again (the dashboard once showed every started tile as running until its last pass),
     and its last merge makes it done. A failed tile stays failed."""
     _job(store)
-    store.set_tile_running("j1", 0)
-    assert store.tile_states("j1")[0] == "running"
-    store.put_pass("j1", 0, 0, _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
-    assert merge_pass(store, "j1", 0, 0)
-    assert store.tile_states("j1")[0] == "queued"
-    store.set_tile_running("j1", 0)
-    store.put_pass("j1", 0, 1, _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
-    assert merge_pass(store, "j1", 0, 1)
-    assert store.tile_states("j1")[0] == "done"
-    store.fail_tile("j1", 1, "a pass gave up")
-    store.put_pass("j1", 1, 0, _pass_buffer(8, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
-    assert merge_pass(store, "j1", 1, 0)
-    assert store.tile_states("j1")[1] == "failed"
+    store.set_tile_running(J1, 0)
+    assert store.tile_states(J1)[0] == "running"
+    store.put_pass(J1, 0, 0, _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
+    assert merge_pass(store, J1, 0, 0)
+    assert store.tile_states(J1)[0] == "queued"
+    store.set_tile_running(J1, 0)
+    store.put_pass(J1, 0, 1, _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
+    assert merge_pass(store, J1, 0, 1)
+    assert store.tile_states(J1)[0] == "done"
+    store.fail_tile(J1, 1, "a pass gave up")
+    store.put_pass(J1, 1, 0, _pass_buffer(8, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
+    assert merge_pass(store, J1, 1, 0)
+    assert store.tile_states(J1)[1] == "failed"
 
 
 def test_a_pass_written_twice_is_merged_once(store):
     plan = _job(store)
     buf = _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes()
-    store.put_pass("j1", 0, 0, buf, ttl=60)
-    assert merge_pass(store, "j1", 0, 0)
-    store.put_pass("j1", 0, 0, buf, ttl=60)  # a redelivered task writes the same pass again
-    assert not merge_pass(store, "j1", 0, 0)
-    assert not merge_pass(store, "j1", 0, 0)
-    frame, version = assemble(store, "j1")
+    store.put_pass(J1, 0, 0, buf, ttl=60)
+    assert merge_pass(store, J1, 0, 0)
+    store.put_pass(J1, 0, 0, buf, ttl=60)  # a redelivered task writes the same pass again
+    assert not merge_pass(store, J1, 0, 0)
+    assert not merge_pass(store, J1, 0, 0)
+    frame, version = assemble(store, J1)
     assert version == 1
     assert (frame.count[:, :8] == 8).all() and (frame.count[:, 8:] == 0).all()
-    assert store.r.get(store.pass_key("j1", 0, 0)) is None  # pass buffers are freed
-    assert store.get_job("j1").tasks_merged == 1
+    assert store.r.get(store.pass_key(J1, 0, 0)) is None  # pass buffers are freed
+    assert store.get_job(J1).tasks_merged == 1
     assert plan.n_tasks == 4
 
 
 def test_concurrent_merges_count_each_pass_once(store):
     _job(store, spp=32, per_pass=4)
     for p in range(8):
-        store.put_pass("j1", 1, p, _pass_buffer(8, 0, 8, 8, 4, float(p)).to_bytes(), ttl=60)
+        store.put_pass(J1, 1, p, _pass_buffer(8, 0, 8, 8, 4, float(p)).to_bytes(), ttl=60)
     # 4 threads race to merge every pass of the same tile (the same accumulation key).
-    threads = [threading.Thread(target=lambda: [merge_pass(store, "j1", 1, p) for p in range(8)])
+    threads = [threading.Thread(target=lambda: [merge_pass(store, J1, 1, p) for p in range(8)])
                for _ in range(4)]
     for t in threads:
         t.start()
     for t in threads:
         t.join()
-    frame, _ = assemble(store, "j1")
+    frame, _ = assemble(store, J1)
     assert (frame.count[:, 8:] == 32).all()
     np.testing.assert_allclose(frame.sum[:, 8:], 4 * sum(range(8)))
-    assert store.get_job("j1").tasks_merged == 8
-    assert store.tile_samples("j1") == {1: 32}
-    assert store.tile_states("j1")[1] == "done"
+    assert store.get_job(J1).tasks_merged == 8
+    assert store.tile_samples(J1) == {1: 32}
+    assert store.tile_states(J1)[1] == "done"
 
 
 def test_the_last_merge_finishes_the_job_and_the_sweeper_merges_leftovers(store, settings):
     _job(store, spp=8, per_pass=8)
-    store.put_pass("j1", 0, 0, _pass_buffer(0, 0, 8, 8, 8, 1.0).to_bytes(), ttl=60)
+    store.put_pass(J1, 0, 0, _pass_buffer(0, 0, 8, 8, 8, 1.0).to_bytes(), ttl=60)
     # A worker died after writing its pass, before merging it: the service merges it on start.
     with TestClient(create_app(settings)) as c:
-        assert c.get("/api/jobs/j1").json()["tasks_merged"] == 1
-    store.put_pass("j1", 1, 0, _pass_buffer(8, 0, 8, 8, 8, 2.0).to_bytes(), ttl=60)
+        assert c.get(f"/api/jobs/{J1}").json()["tasks_merged"] == 1
+    store.put_pass(J1, 1, 0, _pass_buffer(8, 0, 8, 8, 8, 2.0).to_bytes(), ttl=60)
     assert sweep(store) == 1
     assert sweep(store) == 0
-    assert store.get_job("j1").status == "done"
+    assert store.get_job(J1).status == "done"
     assert store.r.scard(store.k("pending")) == 0
+
+
+def test_a_failed_tile_is_reported_once_in_errors(client, store):
+    """The tile's error and the job's (the same words, "tile 1: ...") were both listed."""
+    _job(store)
+    store.note_tile_error(J1, 0, "pass 0, try 1: boom")  # a try that will be retried
+    store.fail_tile(J1, 1, "pass 0: boom (after 3 tries)")
+    job = client.get(f"/api/jobs/{J1}").json()
+    assert job["status"] == "failed"
+    assert job["error"] == "tile 1: pass 0: boom (after 3 tries)"
+    assert job["errors"] == ["tile 0: pass 0, try 1: boom", "tile 1: pass 0: boom (after 3 tries)"]
+    # A job's own error (not a tile's) is listed with the tiles' errors.
+    store.r.hset(store.job_key(J1), "error", "stalled: no pass started")
+    assert client.get(f"/api/jobs/{J1}").json()["errors"] == [
+        "stalled: no pass started", "tile 0: pass 0, try 1: boom",
+        "tile 1: pass 0: boom (after 3 tries)"]
+
+
+def _dropped_buffer(x0, y0, w, h, dropped, finite=0):
+    buf = SampleBuffer.empty(x0, y0, w, h)
+    buf.dropped[:] = dropped
+    buf.count[:] = finite
+    buf.sum[:] = 0.5 * finite
+    buf.sum_sq[:] = 0.25 * finite
+    return buf
+
+
+@pytest.mark.parametrize("finite", [0, 1])
+def test_a_job_whose_every_sample_was_dropped_fails_with_the_reason(store, finite):
+    """Every sample non-finite (a background of 1e308): "done" with a black image hid why. One
+    finite sample a pixel is an image: done."""
+    _job(store, spp=8, per_pass=8)  # 2 tiles, 1 pass each
+    for tile, x0 in ((0, 0), (1, 8)):
+        store.put_pass(J1, tile, 0, _dropped_buffer(x0, 0, 8, 8, 8 - finite, finite).to_bytes(),
+                       ttl=60)
+        assert merge_pass(store, J1, tile, 0)
+    meta = store.get_job(J1)
+    if finite:
+        assert (meta.status, meta.error) == ("done", None)
+        return
+    assert meta.status == "failed"
+    assert meta.error.startswith("every sample (1024) was dropped")
+    assert "not a finite number" in meta.error
+    assert meta.finished_at is not None

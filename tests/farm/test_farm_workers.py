@@ -7,6 +7,7 @@ import io
 import json
 import os
 import signal
+import uuid
 
 import numpy as np
 import pytest
@@ -61,6 +62,24 @@ def test_job_equals_the_local_render(farm, farm_client, wait_for_job, tiny_scene
                             headers={"If-None-Match": png.headers["etag"]})
     assert again.status_code == 304
     assert farm_client.get(f"/api/jobs/{job['id']}/image.exr").content[:4] == b"\x76\x2f\x31\x01"
+
+
+def test_a_job_whose_every_sample_is_dropped_fails_with_the_reason(farm_client, wait_for_job,
+                                                                  tiny_scene):
+    """A background of 1e308 is a valid number, but it lights a sphere with infinite power: each
+    sample is dropped as non-finite. The job ended "done" with a black image; it fails, saying
+    why. (In the Cornell box, 80 % of the samples are dropped: the paths that never meet the
+    background are kept.)"""
+    tiny_scene["background"] = [1e308, 1e308, 1e308]
+    tiny_scene["objects"] = [{"type": "sphere", "center": [0, 0, 0], "radius": 0.5,
+                              "material": "white"}]
+    r = farm_client.post("/api/jobs", json={"scene": tiny_scene, "spp_per_pass": 16})
+    assert r.status_code == 201, r.text
+    job = wait_for_job(farm_client, r.json()["id"])
+    assert job["status"] == "failed", job
+    assert job["error"].startswith("every sample (12288) was dropped"), job["error"]
+    assert job["errors"] == [job["error"]]
+    assert job["dropped_samples"] == 12288 and job["tasks_merged"] == job["tasks_total"]
 
 
 def test_a_task_delivered_twice_is_merged_once(farm, farm_client, wait_for_job, tiny_scene):
@@ -164,9 +183,10 @@ def test_a_poison_scene_fails_the_job_not_the_worker(farm, farm_client, wait_for
     bad["objects"][0]["edge1"] = [0, 0, 0]  # degenerate quad: refused by load_scene
     store = farm.store()
     plan = Plan(32, 24, 16, 16, 8)
-    store.create_job("poison", "poison", 0, plan, json.dumps(bad))
-    enqueue(farm_client.app.state.celery, "poison", plan.order(), 0)
-    job = wait_for_job(farm_client, "poison")
+    poison = uuid.uuid4().hex  # an id of the API's form
+    store.create_job(poison, "poison", 0, plan, json.dumps(bad))
+    enqueue(farm_client.app.state.celery, poison, plan.order(), 0)
+    job = wait_for_job(farm_client, poison)
     assert job["status"] == "failed"
     assert "objects[0]" in job["error"]
     assert farm.proc.poll() is None

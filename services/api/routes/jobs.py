@@ -5,15 +5,18 @@ from __future__ import annotations
 import time
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, HTTPException, Query, Request, Response, status
+from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Response, status
 from fastapi.responses import JSONResponse
+from starlette.concurrency import run_in_threadpool
 
 from services.api.deps import CeleryDep, SettingsDep, StoreDep
+from services.api.guards import echo_text, error_content
+from services.api.intake import Rejection
 from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
-from services.farm.jobs import JobRequest, Refusal, submit_job
+from services.farm.jobs import Refusal, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
-from services.farm.store import ACTIVE, JobMeta, JobStore
+from services.farm.store import ACTIVE, JobMeta, JobStore, is_job_id
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -45,6 +48,20 @@ def to_public(meta: JobMeta) -> JobPublic:
     )
 
 
+def valid_job_id(job_id: Annotated[str, Path(description="the id POST /api/jobs answered "
+                                                       "(32 hexadecimal digits)")]) -> str:
+    """The path's job id, or 404 when it has not the form of one: checked before the id becomes
+    part of a Redis key, where ``<id>:scene`` would name another of the job's keys."""
+    if not is_job_id(job_id):
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            detail=f"no job {echo_text(job_id, 64)!r}: not a job id "
+                                   "(32 hexadecimal digits)")
+    return job_id
+
+
+JobId = Annotated[str, Depends(valid_job_id)]
+
+
 def _get_or_404(store: JobStore, job_id: str) -> JobMeta:
     meta = store.get_job(job_id)
     if meta is None:
@@ -52,16 +69,31 @@ def _get_or_404(store: JobStore, job_id: str) -> JobMeta:
     return meta
 
 
-@router.post("", status_code=status.HTTP_201_CREATED, response_model=JobPublic, responses={
-    422: {"description": "invalid or over-limit scene; `loc` names the field"},
-    429: {"description": "the farm's backlog is full (LUCENT_MAX_QUEUED_SAMPLES)"}})
-def create_job(body: JobCreate, store: StoreDep, celery: CeleryDep, settings: SettingsDep):
-    """Validate the scene, plan tiles × passes and queue them. Nothing is queued if the scene is
-    invalid or over a limit."""
-    answer = submit_job(store, celery, settings, JobRequest(**body.model_dump()))
+# The body is read by the route (services/api/intake.py), not by FastAPI; the schema says what
+# it holds all the same (the OpenAPI document, the fuzzing).
+_JOB_CREATE_BODY = {"requestBody": {"required": True, "content": {
+    "application/json": {"schema": JobCreate.model_json_schema()}}}}
+
+
+@router.post("", status_code=status.HTTP_201_CREATED, response_model=JobPublic,
+             openapi_extra=_JOB_CREATE_BODY, responses={
+                 400: {"description": "a body the JSON parser gives up on"},
+                 422: {"description": "an invalid request or an invalid or over-limit scene; "
+                                      "`loc` names the field"},
+                 429: {"description": "the farm's backlog is full (LUCENT_MAX_QUEUED_SAMPLES)"}})
+async def create_job(request: Request, store: StoreDep, celery: CeleryDep,
+                     settings: SettingsDep):
+    """Validate the request and its scene (``JobCreate``), plan tiles × passes and queue them.
+    Nothing is queued if the scene is invalid or over a limit."""
+    read = await request.app.state.intake.read(await request.body(),
+                                               request.headers.get("content-type"))
+    if isinstance(read, Rejection):
+        return JSONResponse(status_code=read.status, content=read.content)
+    answer = await run_in_threadpool(queue_job, store, celery, settings, read.options, read.scene)
     if isinstance(answer, Refusal):
-        return JSONResponse(status_code=answer.status, headers=answer.headers, content={
-            "detail": [{"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in answer.errors]})
+        return JSONResponse(status_code=answer.status, headers=answer.headers,
+                            content=error_content({"loc": loc, "msg": msg, "type": kind}
+                                                  for loc, msg, kind in answer.errors))
     return to_public(answer)
 
 
@@ -75,7 +107,7 @@ def list_jobs(store: StoreDep,
 
 
 @router.get("/{job_id}", response_model=JobDetail)
-def get_job(job_id: str, store: StoreDep):
+def get_job(job_id: JobId, store: StoreDep):
     """Status, progress, per-tile state and samples: answered from Redis, no image touched."""
     meta = _get_or_404(store, job_id)
     states = store.tile_states(job_id)
@@ -87,18 +119,26 @@ def get_job(job_id: str, store: StoreDep):
         tiles.append(TilePublic(index=t, x0=x0, y0=y0, width=w, height=h,
                                 state=states.get(t, "queued"), samples=samples.get(t, 0),
                                 error=errors.get(t)))
-    all_errors = ([meta.error] if meta.error else []) + [
-        f"tile {t}: {e}" for t, e in sorted(errors.items())]
+    tile_errors = [f"tile {t}: {e}" for t, e in sorted(errors.items())]
+    # A failed tile fails its job with the same words: say it once.
+    all_errors = ([meta.error] if meta.error and meta.error not in tile_errors else []) + \
+        tile_errors
     return JobDetail(**to_public(meta).model_dump(), tile_states=tiles, errors=all_errors)
 
 
 _MEDIA = {"png": "image/png", "exr": "image/x-exr", "npy": "application/octet-stream"}
 
+# Stops: the preview is scaled by 2**exposure in float32 (to_srgb8). A finite number in a range
+# that float32 holds with room to spare (2**64 ~ 1.8e19; the dashboard's slider spans +-5).
+MAX_EXPOSURE = 64.0
+Exposure = Annotated[float, Query(ge=-MAX_EXPOSURE, le=MAX_EXPOSURE, allow_inf_nan=False,
+                                  description="stops, PNG only: the image times 2**exposure")]
+
 
 @router.get("/{job_id}/image.{fmt}", responses={
     200: {"content": {m: {} for m in _MEDIA.values()}}, 304: {"description": "not modified"}})
-def get_image(job_id: str, fmt: Literal["png", "exr", "npy"], request: Request,
-              store: StoreDep, exposure: float = 0.0,
+def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request,
+              store: StoreDep, exposure: Exposure = 0.0,
               tonemap: Literal["clamp", "reinhard", "aces"] = "clamp"):
     """The merged image as it stands (progressive while running). ``ETag`` changes with every
     merge; send it back in ``If-None-Match`` to get 304 when nothing changed."""
@@ -139,7 +179,7 @@ def _encode(image, fmt: str, exposure: float, tonemap: str) -> bytes:
 
 
 @router.delete("/{job_id}", response_model=JobPublic)
-def cancel_job(job_id: str, store: StoreDep):
+def cancel_job(job_id: JobId, store: StoreDep):
     """Cancel: queued tasks do nothing when they come up; running ones finish their pass."""
     _get_or_404(store, job_id)
     store.cancel_job(job_id)
@@ -147,7 +187,7 @@ def cancel_job(job_id: str, store: StoreDep):
 
 
 @router.post("/{job_id}/retry", response_model=JobPublic)
-def retry_job(job_id: str, store: StoreDep, celery: CeleryDep):
+def retry_job(job_id: JobId, store: StoreDep, celery: CeleryDep):
     """Requeue every pass not merged yet of a failed or cancelled job (tries counted afresh)."""
     refused = retry(store, celery, _get_or_404(store, job_id))
     if refused is not None:

@@ -14,7 +14,7 @@ import pytest
 
 from renderer.geometry import meshgen
 from renderer.scene import Limits, Scene, SceneError, load_scene, load_scene_file
-from renderer.scene.load import degenerate_triangles, find_open_edge
+from renderer.scene.load import degenerate_triangles, find_open_edge, triangle_faults
 from renderer.scene.schema import (
     Box,
     Camera,
@@ -654,6 +654,82 @@ def test_degenerate_test_is_scale_free():
     )
 
 
+def test_degenerate_test_is_scale_free_up_to_where_squares_overflow():
+    # 1e150 and 1e-150: the products of the old test overflowed (inf <= inf: "degenerate") or
+    # underflowed (0 <= 0) there; an edge of 1e200 overflows where the renderer squares it.
+    vertices = np.array([[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 1e-14, 0], [0.5, 0.5, 0]])
+    triangles = np.array([[0, 1, 2], [0, 1, 3], [1, 2, 4]])
+    for scale in (1e150, 1e-150):
+        degenerate, overflow = triangle_faults(vertices * scale, triangles)
+        np.testing.assert_array_equal(degenerate, [False, True, True])
+        np.testing.assert_array_equal(overflow, [False, False, False])
+    degenerate, overflow = triangle_faults(vertices * 1e200, triangles)
+    np.testing.assert_array_equal(degenerate, [False, False, False])
+    np.testing.assert_array_equal(overflow, [True, True, True])
+
+
+# --- Numbers too large to compute with ------------------------------------------------------------
+
+OVERFLOW = "overflows: its squared length exceeds the largest float (about 1.8e308)"
+
+
+@pytest.mark.parametrize(
+    "change, path",
+    [
+        # The issue's case: each coordinate finite, their differences' squares not
+        pytest.param(_set(("camera", "position"), [1e308, 1e308, 1e308]), "camera",
+                     id="camera at 1e308"),
+        pytest.param(_set(("camera", "position"), [1e308, 0, 0]), "camera",
+                     id="look_at - position is -inf"),
+        pytest.param(_set(("camera", "up"), [0, 1e200, 0]), "camera.up", id="up"),
+        pytest.param(_set(("objects", 1, "edge1"), [1e200, 0, 0]), "objects[1]", id="quad edge"),
+        pytest.param(_set(("objects", 1), {"type": "quad", "origin": [0, 0, 0],
+                                           "edge1": [1e100, 0, 0], "edge2": [0, 0, 1e100],
+                                           "material": "red"}),
+                     "objects[1]", id="quad normal"),
+        pytest.param(_set(("lights", 0), {"type": "directional", "direction": [1e200, -1, 0],
+                                          "irradiance": [1, 1, 1]}),
+                     "lights[0].direction", id="light direction"),
+        pytest.param(_set(("objects", 1), {"type": "box", "min": [0, 0, 0], "max": [1, 1, 1],
+                                           "rotate": {"axis": [0, 1e200, 0], "angle": 10},
+                                           "material": "red"}),
+                     "objects[1].rotate.axis", id="rotation axis"),
+    ],
+)
+def test_overflow_is_reported_as_overflow(change, path):
+    """Finite numbers whose squares overflow are said to overflow, not to be parallel or
+    degenerate (what the infinite cross products looked like)."""
+    data = scene_dict()
+    change(data)
+    ((where, message),) = errors_of(data)
+    assert where == path
+    assert OVERFLOW in message
+    assert "parallel" not in message and "degenerate" not in message
+
+
+def test_mesh_triangles_that_overflow_are_named():
+    vertices = [[0, 0, 0], [1e200, 0, 0], [0, 1e200, 0], [0, 0, 1], [1, 0, 0], [0, 1, 0]]
+    data = scene_dict(objects=[tet_mesh("red", vertices=vertices,
+                                        triangles=[[3, 4, 5], [0, 1, 2]])])
+    ((where, message),) = errors_of(data)
+    assert where == "objects[0].triangles[1]"
+    assert message.startswith(f"an edge of the triangle {OVERFLOW}")
+
+
+def test_vertex_indices_beyond_int64_are_errors_not_overflow():
+    """An index past int64 (the kernels' integers) is refused by the schema, before numpy."""
+    for index in (2**63, 2**64, 10**30):
+        data = scene_dict(objects=[tet_mesh("red", triangles=[[0, 1, 2], [0, 1, index]])])
+        assert errors_of(data) == [
+            ("objects[0].triangles[1][2]", f"must be <= {2**63 - 1}")
+        ]
+    data = scene_dict(objects=[tet_mesh("red", triangles=[[0, 1, 2], [0, 1, 2**63 - 1]])])
+    assert errors_of(data) == [
+        ("objects[0].triangles[1]",
+         f"vertex index {2**63 - 1} out of range (the mesh has 4 vertices)")
+    ]
+
+
 def test_large_closed_mesh_validates_fast():
     # 200k triangles: inline lists, pydantic, numpy checks (about 0.3 s; not asserted).
     vertices, triangles = torus(500, 200)
@@ -817,3 +893,14 @@ def test_models_construct_with_defaults():
     assert box.type == "box" and box.rotate is None and box.translate == (0, 0, 0)
     with pytest.raises(ValueError, match="degenerate quad"):
         Quad(origin=(0, 0, 0), edge1=(1, 0, 0), edge2=(2, 0, 0), material="m")
+
+
+def test_a_material_name_with_a_lone_surrogate_is_an_error():
+    """A str field refuses "\\ud800" (no Unicode text); a dict key was not checked, so the name
+    reached replies and Redis, which cannot encode it."""
+    data = scene_dict()
+    data["materials"]["a\ud800"] = data["materials"].pop("red")
+    assert errors_of(data) == [
+        ("materials", "the material name 'a\\\\ud800' is not Unicode text (it holds a lone "
+         "UTF-16 surrogate)")
+    ]
