@@ -46,7 +46,9 @@ Mapping (Lucent → Mitsuba 3)
      ``homogeneous`` medium, ``sigma_t=absorption``, ``albedo=0`` (pure Beer–Lambert).
  * - translucent, method "volumetric"
    - ``dielectric`` (ior ≠ 1) or ``null`` (ior = 1) boundary; interior ``homogeneous`` medium with
-     ``sigma_t=density``, ``albedo``, phase ``hg`` g (``isotropic`` when g = 0). Mitsuba's ``hg``
+     ``sigma_t`` and ``albedo`` per channel from any form of the coefficients (density, grey or
+     RGB; sigma_s and sigma_a; a preset: ``TranslucentMaterial.sigma_t``, ``albedo_rgb``), a
+     ``constvolume`` RGB when chromatic, phase ``hg`` g (``isotropic`` when g = 0). Mitsuba's ``hg``
      with g > 0 scatters forward, as Lucent's does. Other methods: ``NotImplementedError``.
  * - phong
    - ``NotImplementedError`` — Mitsuba 3 has no Phong plugin.
@@ -96,6 +98,8 @@ import re
 from typing import Any
 
 import numpy as np
+
+from renderer.scene.schema import TranslucentMaterial
 
 __all__ = ["default_variant", "render_mitsuba", "to_mitsuba_dict"]
 
@@ -327,10 +331,15 @@ def _material(materials: dict, name: str, path: str) -> tuple[dict, dict | None]
         ior = float(mat["ior"])
         g = float(mat.get("g", 0.0))
         phase = {"type": "isotropic"} if g == 0.0 else {"type": "hg", "g": g}
+        # Every form of the coefficients (albedo and density, grey or per channel; sigma_s and
+        # sigma_a; a preset) as the renderer reads them: (albedo, σt) per channel
+        m = TranslucentMaterial.model_validate(mat)
+        sigma_t: Any = (_unbounded_rgb(m.sigma_t, f"{mpath}.density") if m.chromatic
+                        else m.sigma_t[0])
         medium = {
             "type": "homogeneous",
-            "sigma_t": float(mat["density"]),
-            "albedo": _rgb(mat["albedo"], f"{mpath}.albedo"),
+            "sigma_t": sigma_t,
+            "albedo": _rgb(m.albedo_rgb, f"{mpath}.albedo"),
             "phase": phase,
         }
         if ior == 1.0:

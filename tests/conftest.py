@@ -20,6 +20,7 @@ points ``NUMBA_CACHE_DIR`` at a folder keyed by the renderer's source (``rendere
 
 from __future__ import annotations
 
+import math
 import os
 import time
 import zlib
@@ -309,3 +310,30 @@ def embedded_or_given_redis() -> Iterator[str]:
         yield server.url
     finally:
         server.stop()
+
+
+# --- radiative transfer references ----------------------------------------------------------------
+
+
+def h_function(albedo: float, n: int = 128):
+    """Chandrasekhar's H-function of isotropic scattering (Radiative Transfer, 1950, ch. V) on
+    Gauss–Legendre nodes of [0, 1], by iterating 1/H(μ) = √(1−ϖ) + (ϖ/2)∫₀¹ μ'H(μ')/(μ+μ') dμ'."""
+    x, w = np.polynomial.legendre.leggauss(n)
+    mu, w = (x + 1) / 2, w / 2
+    h = np.ones(n)
+    for _ in range(10_000):
+        new = 1 / (math.sqrt(1 - albedo)
+                   + albedo / 2 * (w * mu * h / (mu[:, None] + mu[None, :])).sum(axis=1))
+        if np.max(np.abs(new - h)) < 1e-13:
+            return mu, w, new
+        h = new
+    raise AssertionError("H-function iteration did not converge")
+
+
+def plane_albedo_normal(albedo: float) -> float:
+    """The plane albedo of a semi-infinite, index-matched, isotropically scattering medium for
+    light arriving along the normal: 1 − H(1)·√(1−ϖ) (Chandrasekhar, Radiative Transfer, §VI),
+    with H(1) from the H-equation's right-hand side at μ = 1."""
+    mu, w, h = h_function(albedo)
+    h1 = 1 / (math.sqrt(1 - albedo) + albedo / 2 * (w * mu * h / (1 + mu)).sum())
+    return 1 - h1 * math.sqrt(1 - albedo)

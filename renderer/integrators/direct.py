@@ -46,12 +46,13 @@ def surface_direct(S, mk, mp, p, n, wo, scale, medium, null_media, br, bg, bb, k
     f = bsdf_eval(mk, mp, wo, wi, n)
     if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
         tr = surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack)
-        if not tr > 0.0:
+        if not (tr[0] > 0.0 or tr[1] > 0.0 or tr[2] > 0.0):
             return none
-        w = tr / pdf_l
+        wr, wg, wb = tr[0] / pdf_l, tr[1] / pdf_l, tr[2] / pdf_l
         if not delta_l:
-            w *= power_heuristic(pdf_l, bsdf_pdf(mk, mp, wo, wi, n))
-        return br * f[0] * li_rgb[0] * w, bg * f[1] * li_rgb[1] * w, bb * f[2] * li_rgb[2] * w
+            mis = power_heuristic(pdf_l, bsdf_pdf(mk, mp, wo, wi, n))
+            wr, wg, wb = wr * mis, wg * mis, wb * mis
+        return br * f[0] * li_rgb[0] * wr, bg * f[1] * li_rgb[1] * wg, bb * f[2] * li_rgb[2] * wb
     if mk == BACKLIGHT:
         # The light is behind the surface: the backlight approximation's term
         return backlight_light(S, mp, p, n, wo, wi, li_rgb, pdf_l, t_max, br, bg, bb, stack)
@@ -70,10 +71,11 @@ def medium_direct(S, p, d, g, medium, br, bg, bb, key, dim, sidx, sob, stack):
     if t_max < math.inf:
         t_max *= 1.0 - SHADOW_SLACK
     tr = transmittance(S, p, wi, t_max, medium, stack)
-    if not tr > 0.0:
+    if not (tr[0] > 0.0 or tr[1] > 0.0 or tr[2] > 0.0):
         return 0.0, 0.0, 0.0
     ph = hg_pdf(d[0] * wi[0] + d[1] * wi[1] + d[2] * wi[2], g)
-    w = tr * ph / pdf_l
+    wr, wg, wb = tr[0] * ph / pdf_l, tr[1] * ph / pdf_l, tr[2] * ph / pdf_l
     if not delta_l:
-        w *= power_heuristic(pdf_l, ph)
-    return br * li_rgb[0] * w, bg * li_rgb[1] * w, bb * li_rgb[2] * w
+        mis = power_heuristic(pdf_l, ph)
+        wr, wg, wb = wr * mis, wg * mis, wb * mis
+    return br * li_rgb[0] * wr, bg * li_rgb[1] * wg, bb * li_rgb[2] * wb

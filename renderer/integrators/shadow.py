@@ -23,7 +23,7 @@ from renderer.geometry.shapes import (
 )
 from renderer.jit import inline_kernel, kernel
 from renderer.materials.bsdf import SINGLE_SCATTER, TRANSLUCENT
-from renderer.materials.translucent import DENSITY, IOR, SURFACE_FRACTION
+from renderer.materials.translucent import IOR, SIGMA_T, SURFACE_FRACTION
 
 # A shadow ray stops this fraction of its length (plus SPAWN_EPSILON of the light point's
 # coordinates) short of the light point it aims at, so it does not hit the light's own surface;
@@ -41,11 +41,11 @@ def shadow_passable(S, mat):
 
 @inline_kernel
 def transmittance(S, o, d, t_max, medium, stack):
-    """Fraction of light that travels from o to o + t_max·d: 0 when a surface blocks it, else
-    exp(−σt·length) over the stretches inside index-matched translucent media (their boundaries
-    neither reflect nor refract, so a shadow ray may cross them) and single-scatter objects (whose
-    surface lets 1 − surface_fraction of the light in, straight on). ``medium`` is the material of
-    the medium at o (−1: vacuum).
+    """Fraction of light (RGB) that travels from o to o + t_max·d: 0 when a surface blocks it,
+    else exp(−σt·length), σt per channel, over the stretches inside index-matched translucent
+    media (their boundaries neither reflect nor refract, so a shadow ray may cross them) and
+    single-scatter objects (whose surface lets 1 − surface_fraction of the light in, straight
+    on). ``medium`` is the material of the medium at o (−1: vacuum).
 
     A flat scene takes every crossing from one pass (flat_transmittance); in a tree the ray is
     traced on from each surface it crosses (transmittance_by_crossing)."""
@@ -62,38 +62,47 @@ def transmittance_by_crossing(S, o, d, t_max, medium, stack):
     crossing outweighs the call. Inlined in numba's IR, its copies at three sites in
     the integrator cost compile time; inlined by LLVM, the renders were no faster
     (docs/performance.md, "Start-up", "Inlined by LLVM")."""
-    tr = 1.0
+    tr_r = tr_g = tr_b = 1.0
     for _ in range(64):
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
                                           S.prim_kind, S.prim_geo, o, d, t_max, stack)
         if medium >= 0:
-            tr *= math.exp(-S.mat_param[medium, DENSITY] * min(t, t_max))
+            s = min(t, t_max)
+            tr_r *= math.exp(-S.mat_param[medium, SIGMA_T] * s)
+            tr_g *= math.exp(-S.mat_param[medium, SIGMA_T + 1] * s)
+            tr_b *= math.exp(-S.mat_param[medium, SIGMA_T + 2] * s)
         if prim < 0:
-            return tr
+            return tr_r, tr_g, tr_b
         mat = S.prim_material[prim]
         kind = S.mat_kind[mat]
-        if not shadow_passable(S, mat) or tr == 0.0:
-            return 0.0
+        if not shadow_passable(S, mat) or (tr_r == 0.0 and tr_g == 0.0 and tr_b == 0.0):
+            return 0.0, 0.0, 0.0
         p, n = surface_point(S.prim_kind[prim], S.prim_geo[prim], o, d, t, u, v)
         entering = d[0] * n[0] + d[1] * n[1] + d[2] * n[2] < 0.0
         if entering and kind == SINGLE_SCATTER:
-            tr *= 1.0 - S.mat_param[mat, SURFACE_FRACTION]
+            f = 1.0 - S.mat_param[mat, SURFACE_FRACTION]
+            tr_r, tr_g, tr_b = tr_r * f, tr_g * f, tr_b * f
         medium = mat if entering else -1
         o2 = spawn_offset(p, n, d, S.prim_scale[prim])
         t_max -= (o2[0] - o[0]) * d[0] + (o2[1] - o[1]) * d[1] + (o2[2] - o[2]) * d[2]
         o = o2
-    return 0.0
+    return 0.0, 0.0, 0.0
 
 
 @inline_kernel
 def crossing(S, mat, t, entering, tau, open_sigma, n_open, tr):
-    """One crossing of ``flat_transmittance``'s sum: (tau, open_sigma, n_open, tr) after it."""
-    sigma = S.mat_param[mat, DENSITY]
+    """One crossing of ``flat_transmittance``'s sum: (tau, open_sigma, n_open, tr) after it;
+    tau and open_sigma per channel."""
+    sr = S.mat_param[mat, SIGMA_T]
+    sg = S.mat_param[mat, SIGMA_T + 1]
+    sb = S.mat_param[mat, SIGMA_T + 2]
     if entering:
         if S.mat_kind[mat] == SINGLE_SCATTER:
             tr *= 1.0 - S.mat_param[mat, SURFACE_FRACTION]
-        return tau - sigma * t, open_sigma + sigma, n_open + 1, tr
-    return tau + sigma * t, open_sigma - sigma, n_open - 1, tr
+        return ((tau[0] - sr * t, tau[1] - sg * t, tau[2] - sb * t),
+                (open_sigma[0] + sr, open_sigma[1] + sg, open_sigma[2] + sb), n_open + 1, tr)
+    return ((tau[0] + sr * t, tau[1] + sg * t, tau[2] + sb * t),
+            (open_sigma[0] - sr, open_sigma[1] - sg, open_sigma[2] - sb), n_open - 1, tr)
 
 
 @inline_kernel
@@ -109,8 +118,11 @@ def flat_transmittance(S, o, d, t_max, medium, out):
     closed object's boundary entered and left in turn), up to rounding; a shadow ray to a light
     at infinity (t_max = inf) that leaves every medium it entered has a finite depth. ``out`` is
     (3, FLAT_MAX) scratch."""
-    tau = 0.0
-    open_sigma = S.mat_param[medium, DENSITY] if medium >= 0 else 0.0
+    tau = (0.0, 0.0, 0.0)
+    open_sigma = (0.0, 0.0, 0.0)
+    if medium >= 0:
+        open_sigma = (S.mat_param[medium, SIGMA_T], S.mat_param[medium, SIGMA_T + 1],
+                      S.mat_param[medium, SIGMA_T + 2])
     n_open = 1 if medium >= 0 else 0
     tr = 1.0
     k = 0
@@ -121,7 +133,7 @@ def flat_transmittance(S, o, d, t_max, medium, out):
         if enters or leaves:
             mat = S.prim_material[k]
             if not shadow_passable(S, mat):
-                return 0.0
+                return 0.0, 0.0, 0.0
             if enters:
                 tau, open_sigma, n_open, tr = crossing(S, mat, t0, True, tau, open_sigma,
                                                        n_open, tr)
@@ -135,7 +147,7 @@ def flat_transmittance(S, o, d, t_max, medium, out):
         if t < t_max:
             mat = S.prim_material[k]
             if not shadow_passable(S, mat):
-                return 0.0
+                return 0.0, 0.0, 0.0
             g = S.prim_geo[k]
             # d·(e1 × e2): the sign that tells entering (< 0) from leaving, as surface_point's
             # outward normal does
@@ -144,13 +156,16 @@ def flat_transmittance(S, o, d, t_max, medium, out):
             tau, open_sigma, n_open, tr = crossing(S, mat, t, dn < 0.0, tau, open_sigma,
                                                    n_open, tr)
     if n_open > 0:
-        tau += open_sigma * t_max
-    return tr * math.exp(-max(tau, 0.0))
+        tau = (tau[0] + open_sigma[0] * t_max, tau[1] + open_sigma[1] * t_max,
+               tau[2] + open_sigma[2] * t_max)
+    return (tr * math.exp(-max(tau[0], 0.0)), tr * math.exp(-max(tau[1], 0.0)),
+            tr * math.exp(-max(tau[2], 0.0)))
 
 
 @inline_kernel
 def surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack):
-    """Transmittance of the shadow ray from surface point p towards a light t_max away along wi.
+    """Transmittance (RGB) of the shadow ray from surface point p towards a light t_max away
+    along wi.
 
     The ray starts lifted off the surface (``spawn_offset``); its length is measured from there,
     and it stops short of the light's own surface by more than the rounding of the light point
@@ -169,8 +184,8 @@ def surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack):
         return transmittance(S, origin, wi, t_max, medium, stack)
     if occluded(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat, S.prim_kind, S.prim_geo,
                 origin, wi, t_max, stack):
-        return 0.0
-    return 1.0
+        return 0.0, 0.0, 0.0
+    return 1.0, 1.0, 1.0
 
 
 @kernel

@@ -66,6 +66,10 @@ OPAQUE_ERROR = 0.00847
 OPAQUE_QUANTILE = 0.99  # of the profile's energy that must leave within a pixel
 
 
+def format_rgb(v) -> str:
+    return "/".join(f"{x:.3g}" for x in v)
+
+
 @dataclass
 class AutoChoice:
     method: str  # a translucent method, "dielectric" or "opaque"
@@ -73,9 +77,10 @@ class AutoChoice:
     expected_error: float
 
 
-def opaque_reach(albedo, density: float, g: float, ior: float) -> float:
+def opaque_reach(albedo, density, g: float, ior: float) -> float:
     """How far from its entry point ``OPAQUE_QUANTILE`` of the light that enters leaves: the
-    widest channel's diffusion profile radius holding that much of its energy."""
+    widest channel's diffusion profile radius holding that much of its energy (``density``: σt,
+    one number or one per channel; each channel's radius from its own albedo and σt)."""
     _, d, _ = diffusion_parameters(albedo, density, g, ior)
     return max(float(burley_r_max(float(x), OPAQUE_QUANTILE)) for x in d)
 
@@ -93,15 +98,24 @@ def expected_floor(method: str, regimes: frozenset[str] | None) -> float:
     return max(REGIME_FLOOR[method][r] for r in {"solid", *regimes})
 
 
-def choose_method(albedo, density: float, size: float, target: float | None, *, g: float = 0.0,
+def choose_method(albedo, density, size: float, target: float | None, *, g: float = 0.0,
                   ior: float = 1.0, footprint: float = 0.0,
                   regimes: frozenset[str] | None = None) -> AutoChoice:
-    """The method ``auto`` renders a material with; ``size`` is the smallest half-extent of the
-    objects that use it (the radius of a sphere), ``footprint`` the width of a pixel at the
-    nearest of them (0: unknown, never opaque), ``regimes`` the scene's (``scene_regimes``;
-    None: unknown, every method's worst floor)."""
+    """The method ``auto`` renders a material with; ``density`` is σt, one number or one per
+    channel; ``size`` is the smallest half-extent of the objects that use it (the radius of a
+    sphere), ``footprint`` the width of a pixel at the nearest of them (0: unknown, never
+    opaque), ``regimes`` the scene's (``scene_regimes``; None: unknown, every method's worst
+    floor).
+
+    A chromatic medium (σt differs between channels) is judged by its worst channel: clear only
+    if the densest channel is, opaque only if the channel that reaches farthest is. Between those
+    it is rendered by ``volumetric``: the approximations' bias floors were measured on grey media
+    only (docs/speed-accuracy.md), and a material whose channels fall into different regimes
+    (nearly opaque in blue, deep in red) is the case where they are least to be trusted."""
     target = DEFAULT_TARGET if target is None else target
-    tau = density * size
+    sigma_t = np.broadcast_to(np.asarray(density, dtype=np.float64), (3,))
+    chromatic = len(set(sigma_t.tolist())) > 1
+    tau = float(sigma_t.max()) * size
     a = max(albedo)
     where = f"optical radius {tau:.3g}, albedo {a:.3g}"
     if a == 0.0:
@@ -111,12 +125,15 @@ def choose_method(albedo, density: float, size: float, target: float | None, *, 
         return AutoChoice("dielectric", f"{where}: effectively clear, scattered fraction "
                           f"{a * tau:.3g} <= target {target:g}", a * tau)
     if footprint > 0.0 and OPAQUE_ERROR <= target:
-        reach = opaque_reach(albedo, density, g, ior)
+        reach = opaque_reach(albedo, sigma_t, g, ior)
         if reach <= opaque_limit(footprint, size):
             return AutoChoice("opaque", f"{where}: effectively opaque, {OPAQUE_QUANTILE:.0%} of "
                               f"the light leaves within {reach:.3g} of where it entered, under a "
                               f"pixel ({footprint:.3g}); measured error {OPAQUE_ERROR:g} <= target "
                               f"{target:g}", OPAQUE_ERROR)
+    if chromatic:
+        return AutoChoice("volumetric", f"{where}, chromatic (σt {format_rgb(sigma_t)}): the "
+                          "approximations' bias floors are measured on grey media only", 0.0)
     floors = {method: expected_floor(method, regimes) for method in BIAS_FLOOR}
     kind = "" if regimes is None else f" ({', '.join(sorted({'solid', *regimes}))})"
     for method, floor in floors.items():
@@ -201,7 +218,7 @@ def auto_choice(scene, name: str):
     m = scene.materials[name]
     objects = [o for o in scene.objects if o.material == name]
     sizes = [_object_half_extent(o) for o in objects]
-    return choose_method(m.albedo, m.density, min(sizes) if sizes else 0.0,
+    return choose_method(m.albedo_rgb, m.sigma_t, min(sizes) if sizes else 0.0,
                          scene.render.target_error, g=m.g, ior=m.ior,
                          footprint=pixel_footprint(scene, objects),
                          regimes=scene_regimes(scene, objects))

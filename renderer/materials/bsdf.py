@@ -32,7 +32,7 @@ BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo (sl
 # the integrator's transmitted direct light (integrators/subsurface/backlight.py), which falls
 # with thickness at the per-channel rate in the SIGMA_EFF slots
 
-N_PARAMS = 20
+N_PARAMS = 23  # the widest row: translucent's SIGMA_T slots end at 22
 
 
 @kernel

@@ -54,8 +54,9 @@ def dipole_diffuse_reflectance(reduced_albedo: np.ndarray, eta: float) -> np.nda
     return 0.5 * reduced_albedo * (1 + np.exp(-4 / 3 * a_f * root)) * np.exp(-root)
 
 
-def diffusion_parameters(albedo, density: float, g: float, ior: float):
-    """(A per channel, d per channel, c): what the kernels need, from the material's parameters."""
+def diffusion_parameters(albedo, density, g: float, ior: float):
+    """(A per channel, d per channel, c): what the kernels need, from the material's parameters
+    (``density``: σt, one number or one per channel)."""
     albedo = np.asarray(albedo, dtype=np.float64)
     sigma_s_reduced = density * albedo * (1 - g)
     sigma_t_reduced = density * (1 - albedo) + sigma_s_reduced
@@ -72,7 +73,8 @@ def diffusion_parameters(albedo, density: float, g: float, ior: float):
 def pack_diffusion(p, m) -> None:
     """Write a ``diffusion`` material's row into ``p``."""
     pack_translucent(p, m)
-    big_a, d, c = diffusion_parameters(m.albedo, m.density, m.g, m.ior)
+    # Per channel: each channel's albedo and mean free path give its own A and profile radius d
+    big_a, d, c = diffusion_parameters(m.albedo_rgb, np.asarray(m.sigma_t), m.g, m.ior)
     p[C_NORM] = c
     p[MS_ALBEDO:MS_ALBEDO + 3] = big_a
     p[PROFILE_D:PROFILE_D + 3] = d
@@ -83,4 +85,4 @@ def pack_opaque(p, m) -> None:
     limit (renderer/materials/opaque.py): A is the semi-infinite medium's albedo from a walk, not
     the dipole's."""
     p[OPAQUE] = 1.0
-    p[MS_ALBEDO:MS_ALBEDO + 3] = [opaque_albedo(a, m.g, m.ior) for a in m.albedo]
+    p[MS_ALBEDO:MS_ALBEDO + 3] = [opaque_albedo(a, m.g, m.ior) for a in m.albedo_rgb]

@@ -11,8 +11,10 @@ Slot                 Index  Meaning
 ===================  =====  =========================================================
 ``IOR``              0      index of refraction of the boundary (1: index-matched)
 ``ALBEDO``           1–3    single-scattering albedo σs/σt (RGB)
-``DENSITY``          4      extinction σt (per unit length, grey)
+``DENSITY``          4      extinction σt (per unit length) of a grey medium
 ``G``                5      Henyey–Greenstein asymmetry
+``CHROMATIC``        6      1 when σt differs between channels (the walk samples by channel)
+``SIGMA_T``          20–22  extinction σt per channel (all three equal DENSITY when grey)
 ``SURFACE_FRACTION`` 7      single_scatter: the share of hits that reflect at the surface
 ``DIRECT_LIGHT``     7      diffuse_entry: 1 when the entry point is lit apart
 ``SPECULAR_EXP``     8      diffuse_entry: the glossy coat's Phong exponent (0: none)
@@ -30,12 +32,14 @@ import numpy as np
 
 from renderer.materials.dielectric import IOR
 
-__all__ = ["IOR", "ALBEDO", "DENSITY", "G", "SURFACE_FRACTION", "DIRECT_LIGHT", "SPECULAR_EXP",
-           "DISTORTION", "POWER", "SCALE", "REFLECTED", "SIGMA_EFF"]
+__all__ = ["IOR", "ALBEDO", "DENSITY", "G", "CHROMATIC", "SIGMA_T", "SURFACE_FRACTION",
+           "DIRECT_LIGHT", "SPECULAR_EXP", "DISTORTION", "POWER", "SCALE", "REFLECTED", "SIGMA_EFF"]
 
 ALBEDO = 1
 DENSITY = 4
 G = 5
+CHROMATIC = 6
+SIGMA_T = 20
 SURFACE_FRACTION = 7
 DIRECT_LIGHT = 7
 SPECULAR_EXP = 8
@@ -47,10 +51,13 @@ SIGMA_EFF = 16
 
 
 def pack_translucent(p, m) -> None:
-    """Write the slots every method shares (and that ``volumetric`` needs alone) into ``p``."""
+    """Write the slots every method shares (and that ``volumetric`` needs alone) into ``p``:
+    the coefficients in whichever form the material gives them (``albedo_rgb``, ``sigma_t``)."""
     p[IOR] = m.ior
-    p[ALBEDO:ALBEDO + 3] = m.albedo
-    p[DENSITY] = m.density
+    p[ALBEDO:ALBEDO + 3] = m.albedo_rgb
+    p[SIGMA_T:SIGMA_T + 3] = m.sigma_t
+    p[DENSITY] = max(m.sigma_t)  # the grey σt; a chromatic walk reads SIGMA_T
+    p[CHROMATIC] = 1.0 if m.chromatic else 0.0
     p[G] = m.g
 
 
@@ -73,11 +80,13 @@ def pack_backlight(p, m) -> None:
     p[DISTORTION] = 0.2 if m.distortion is None else m.distortion
     p[POWER] = 4.0 if m.power is None else m.power
     p[SCALE] = min(1.0, 0.5 if m.scale is None else m.scale)  # the transmitted share
-    p[REFLECTED:REFLECTED + 3] = (1.0 - p[SCALE]) * np.asarray(m.albedo)
+    p[REFLECTED:REFLECTED + 3] = (1.0 - p[SCALE]) * np.asarray(m.albedo_rgb)
     # Diffuse light decays through a slab as e^{−σ_eff·d}, σ_eff = √(3σa(σa + σs')) with
     # σs' = σs(1 − g) (diffusion theory, e.g. Jensen et al. 2001): not e^{−σt·d}, which is the
     # unscattered part only and would make any dense material black from behind.
-    albedo = np.asarray(m.albedo)
-    sigma_a = m.density * (1.0 - albedo)
-    sigma_s_reduced = m.density * albedo * (1.0 - m.g)
+    # Each channel at its own σt (a chromatic medium's red decays slower than its blue)
+    albedo = np.asarray(m.albedo_rgb)
+    sigma_t = np.asarray(m.sigma_t)
+    sigma_a = sigma_t * (1.0 - albedo)
+    sigma_s_reduced = sigma_t * albedo * (1.0 - m.g)
     p[SIGMA_EFF:SIGMA_EFF + 3] = np.sqrt(3.0 * sigma_a * (sigma_a + sigma_s_reduced))

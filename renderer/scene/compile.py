@@ -116,7 +116,8 @@ def _resolve_auto(scene, name: str, m):
     """The material ``auto`` stands for, and the choice with its reason."""
     choice = auto_choice(scene, name)
     if choice.method == "dielectric":
-        absorption = tuple(float(m.density * (1.0 - a)) for a in m.albedo)
+        absorption = tuple(float(t * (1.0 - a))
+                           for t, a in zip(m.sigma_t, m.albedo_rgb, strict=True))
         return DielectricMaterial(ior=m.ior, absorption=absorption), choice
     if choice.method == "opaque":
         return m.model_copy(update={"method": "diffusion"}), choice

@@ -41,7 +41,7 @@ from pydantic import (
     model_serializer,
     model_validator,
 )
-from pydantic_core import PydanticCustomError
+from pydantic_core import PydanticCustomError, ValidationError
 
 # Numbers are strict: a JSON string ("1.5") or a boolean is not a number, and an integer field
 # refuses 2.5 and 2.0 alike. Integers are accepted where a float is expected.
@@ -52,6 +52,7 @@ Vec3 = tuple[Float, Float, Float]
 """A point or a direction, in scene units."""
 
 NonNegative = Annotated[float, Strict(), Field(ge=0)]
+PositiveFloat = Annotated[float, Strict(), Field(gt=0)]
 UnitInterval = Annotated[float, Strict(), Field(ge=0, le=1)]
 
 Colour = tuple[NonNegative, NonNegative, NonNegative]
@@ -248,10 +249,21 @@ class TranslucentMaterial(SceneModel):
     type: Literal["translucent"] = "translucent"
     method: TranslucentMethod = "volumetric"
     ior: Float = Field(default=1.3, ge=1.0)
-    albedo: Albedo = (0.8, 0.8, 0.8)
-    """Single-scattering albedo per channel."""
-    density: Float = Field(default=1.0, gt=0)
-    """Extinction coefficient sigma_t per unit length (mean free path 1 / density)."""
+    albedo: Albedo | None = None
+    """Single-scattering albedo per channel (default [0.8, 0.8, 0.8])."""
+    density: PositiveFloat | tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = None
+    """Extinction coefficient sigma_t per unit length (mean free path 1 / density), one number or
+    one per channel (default 1)."""
+    sigma_s: Colour | None = None
+    """Scattering coefficient per channel, per unit length: with sigma_a, instead of albedo and
+    density (albedo = sigma_s / (sigma_s + sigma_a), density = sigma_s + sigma_a)."""
+    sigma_a: Colour | None = None
+    """Absorption coefficient per channel, per unit length (with sigma_s)."""
+    preset: str | None = None
+    """A measured medium by name (Jensen et al. 2001, renderer/materials/presets.py) instead of
+    the coefficients."""
+    preset_scale: Float | None = Field(default=None, gt=0)
+    """preset: millimetres per scene unit (10 when a unit is a centimetre; default 1)."""
     g: Float = Field(default=0.0, gt=-1, lt=1)
     """Henyey-Greenstein anisotropy: > 0 forward, < 0 backward."""
 
@@ -268,6 +280,83 @@ class TranslucentMaterial(SceneModel):
     """backlight: exponent of the view-dependent transmission lobe (default 4)."""
     scale: Float | None = Field(default=None, ge=0)
     """backlight: share of light transmitted instead of reflected, clamped to 1 (default 0.5)."""
+
+    _medium: tuple[tuple[float, float, float], tuple[float, float, float]] = PrivateAttr(
+        default=((0.8, 0.8, 0.8), (1.0, 1.0, 1.0)))
+
+    @field_validator("density", mode="wrap")
+    @classmethod
+    def _density(cls, value, handler):
+        # One message for the union (pydantic would report each branch: the float's and the
+        # triple's), naming what the field takes
+        try:
+            return handler(value)
+        except ValidationError:
+            raise scene_error("must be a number > 0, or a list of 3 numbers > 0 (σt of each "
+                              "channel)") from None
+
+    @field_validator("preset")
+    @classmethod
+    def _known_preset(cls, name: str | None) -> str | None:
+        from renderer.materials.presets import PRESETS
+
+        if name is not None and name not in PRESETS:
+            raise scene_error(f"unknown preset {name!r}; known: {', '.join(sorted(PRESETS))}")
+        return name
+
+    @model_validator(mode="after")
+    def _coefficients(self) -> TranslucentMaterial:
+        """One form of the medium's coefficients: albedo and density, sigma_s and sigma_a, or a
+        preset; kept as (albedo, sigma_t) per channel (``albedo_rgb``, ``sigma_t``)."""
+        given = [f for f in ("albedo", "density", "sigma_s", "sigma_a", "preset")
+                 if getattr(self, f) is not None]
+        if self.preset is not None and len(given) > 1:
+            raise scene_error(f"preset replaces albedo, density, sigma_s and sigma_a; give one "
+                              f"form (also given: {', '.join(f for f in given if f != 'preset')})")
+        if self.preset_scale is not None and self.preset is None:
+            raise scene_error("preset_scale applies to a preset only")
+        sigma = [f for f in ("sigma_s", "sigma_a") if getattr(self, f) is not None]
+        if sigma and ({"albedo", "density"} & set(given)):
+            raise scene_error(f"sigma_s and sigma_a replace albedo and density; give one form "
+                              f"(given: {', '.join(given)})")
+        if len(sigma) == 1:
+            missing = "sigma_a" if sigma == ["sigma_s"] else "sigma_s"
+            raise scene_error(f"{sigma[0]} needs {missing} too (or give albedo and density)")
+        if self.preset is not None:
+            from renderer.materials.presets import preset_coefficients
+
+            s, a = preset_coefficients(self.preset, self.g, self.preset_scale or 1.0)
+        elif sigma:
+            s, a = self.sigma_s, self.sigma_a  # type: ignore[assignment]
+        else:
+            albedo = self.albedo if self.albedo is not None else (0.8, 0.8, 0.8)
+            density = 1.0 if self.density is None else self.density
+            sigma_t = (density,) * 3 if isinstance(density, (int, float)) else density
+            self._medium = (tuple(float(x) for x in albedo),  # type: ignore[assignment]
+                            tuple(float(x) for x in sigma_t))
+            return self
+        for c in range(3):
+            if not s[c] + a[c] > 0.0:
+                raise scene_error(f"sigma_s + sigma_a must be > 0 in every channel ({CHANNELS[c]}: "
+                                  f"{s[c]:g} + {a[c]:g})")
+        self._medium = (tuple(float(s[c] / (s[c] + a[c])) for c in range(3)),  # type: ignore
+                        tuple(float(s[c] + a[c]) for c in range(3)))
+        return self
+
+    @property
+    def albedo_rgb(self) -> tuple[float, float, float]:
+        """Single-scattering albedo σs/σt per channel, whichever form the material gives."""
+        return self._medium[0]
+
+    @property
+    def sigma_t(self) -> tuple[float, float, float]:
+        """Extinction σt per channel, per unit length, whichever form the material gives."""
+        return self._medium[1]
+
+    @property
+    def chromatic(self) -> bool:
+        """Whether the channels travel different mean free paths."""
+        return len(set(self.sigma_t)) > 1
 
     @model_validator(mode="after")
     def _check_knobs(self) -> TranslucentMaterial:

@@ -56,7 +56,7 @@ def backlight_transmission(S, mp, p, n, wo, wi, t_max, stack):
     if prim < 0:
         return 0.0, 0.0, 0.0
     q, nq = surface_point(S.prim_kind[prim], S.prim_geo[prim], inside, wi, t, u, v)
-    if surface_shadow(S, q, nq, wi, t_max - t, S.prim_scale[prim], -1, False, stack) == 0.0:
+    if surface_shadow(S, q, nq, wi, t_max - t, S.prim_scale[prim], -1, False, stack)[0] == 0.0:
         return 0.0, 0.0, 0.0
     k = mp[SCALE] * lobe
     return (k * math.exp(-mp[SIGMA_EFF] * t), k * math.exp(-mp[SIGMA_EFF + 1] * t),

@@ -35,12 +35,13 @@ def entry_direct(S, mp, p, n, cos_o, scale, null_media, br, bg, bb, key, dim, si
     if not (pdf_l > 0.0 and cos_l > 0.0):
         return 0.0, 0.0, 0.0
     tr = surface_shadow_call(S, p, n, wi, t_max, scale, -1, null_media, stack)
-    if not tr > 0.0:
+    if not (tr[0] > 0.0 or tr[1] > 0.0 or tr[2] > 0.0):
         return 0.0, 0.0, 0.0
     f_in, _ = fresnel_dielectric(cos_o, mp[IOR])
-    w = tr * (1.0 - f_in) * cos_l / (math.pi * pdf_l)
-    return (br * mp[ALBEDO] * li_rgb[0] * w, bg * mp[ALBEDO + 1] * li_rgb[1] * w,
-            bb * mp[ALBEDO + 2] * li_rgb[2] * w)
+    q = math.pi * pdf_l
+    return (br * mp[ALBEDO] * li_rgb[0] * (tr[0] * (1.0 - f_in) * cos_l / q),
+            bg * mp[ALBEDO + 1] * li_rgb[1] * (tr[1] * (1.0 - f_in) * cos_l / q),
+            bb * mp[ALBEDO + 2] * li_rgb[2] * (tr[2] * (1.0 - f_in) * cos_l / q))
 
 
 @block

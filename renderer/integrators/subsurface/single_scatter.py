@@ -15,7 +15,7 @@ import math
 
 from renderer.integrators.sampler import draw
 from renderer.jit import block
-from renderer.materials.translucent import DENSITY, SURFACE_FRACTION
+from renderer.materials.translucent import SIGMA_T, SURFACE_FRACTION
 
 
 @block
@@ -28,7 +28,7 @@ def passes_straight(S, mp, cos_o, key, dim, sidx, sob):
 @block
 def after_the_event(S, medium, t, br, bg, bb):
     """β over a segment of length t inside ``medium`` after its one scattering event: light only
-    attenuates on its way out, by exp(−σt·t)."""
-    return (br * math.exp(-S.mat_param[medium, DENSITY] * t),
-            bg * math.exp(-S.mat_param[medium, DENSITY] * t),
-            bb * math.exp(-S.mat_param[medium, DENSITY] * t))
+    attenuates on its way out, by exp(−σt·t), σt per channel."""
+    return (br * math.exp(-S.mat_param[medium, SIGMA_T] * t),
+            bg * math.exp(-S.mat_param[medium, SIGMA_T + 1] * t),
+            bb * math.exp(-S.mat_param[medium, SIGMA_T + 2] * t))

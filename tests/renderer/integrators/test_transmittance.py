@@ -25,7 +25,7 @@ EXAMPLES = Path(__file__).resolve().parents[3] / "examples"
 SF = 0.3  # surface_fraction: the share of light the surface reflects; 1 − SF goes in
 
 
-def two_boxes(density: float, method: str = "single_scatter", shape: str = "box") -> dict:
+def two_boxes(density, method: str = "single_scatter", shape: str = "box") -> dict:
     """Unit boxes at x ∈ [0, 1] and [2, 3.5] (y, z ∈ [0, 1]) and a distant floor; with ``shape``
     "sphere", the spheres those boxes' x extents are diameters of, centred on y = z = 0.5 (a ray
     along x at y = z = 0.5 crosses the same lengths of medium)."""
@@ -65,37 +65,41 @@ def compiled(data: dict, flat: bool, monkeypatch):
 @pytest.mark.parametrize("shape", ["box", "sphere"])
 @pytest.mark.parametrize("flat", [True, False])
 @pytest.mark.parametrize("method", ["single_scatter", "volumetric"])
-def test_beer_lambert_through_two_boxes(flat, method, shape, monkeypatch):
+@pytest.mark.parametrize("sigma", [0.7, (0.7, 2.0, 0.1)], ids=["grey", "chromatic"])
+def test_beer_lambert_through_two_boxes(flat, method, shape, sigma, monkeypatch):
     # A ray along +x at y = z = 0.5 crosses 1 + 1.5 of medium: exp(−σ·2.5), times (1 − SF) for
     # each single-scatter surface it enters; from inside the first box only the rest counts.
-    # Spheres of those diameters give the same lengths (flat: both roots from one pass).
-    sigma = 0.7
-    cs = compiled(two_boxes(sigma, method, shape), flat, monkeypatch)
+    # Spheres of those diameters give the same lengths (flat: both roots from one pass). A
+    # chromatic medium: each channel at its own σt.
+    cs = compiled(two_boxes(sigma if isinstance(sigma, float) else list(sigma), method, shape),
+                  flat, monkeypatch)
+    sigma = np.broadcast_to(np.asarray(sigma), (3,))
     S = cs.arrays
     entry = (1.0 - SF) if method == "single_scatter" else 1.0
     stack = traversal_stack(cs.stack_size)
     d = (1.0, 0.0, 0.0)
     cases = [
-        ((-1.0, 0.5, 0.5), 5.0, -1, entry**2 * math.exp(-sigma * 2.5)),
-        ((-1.0, 0.5, 0.5), 3.75, -1, entry**2 * math.exp(-sigma * 1.75)),  # ends in box 2
-        ((-1.0, 0.5, 0.5), 2.5, -1, entry * math.exp(-sigma * 1.0)),  # between the boxes
-        ((-1.0, 0.5, 0.5), 1.5, -1, entry * math.exp(-sigma * 0.5)),  # ends in box 1
-        ((0.25, 0.5, 0.5), 5.0, 0, entry * math.exp(-sigma * (0.75 + 1.5))),  # from inside
-        ((0.25, 0.5, 0.5), 0.5, 0, math.exp(-sigma * 0.5)),  # all inside
+        ((-1.0, 0.5, 0.5), 5.0, -1, entry**2 * np.exp(-sigma * 2.5)),
+        ((-1.0, 0.5, 0.5), 3.75, -1, entry**2 * np.exp(-sigma * 1.75)),  # ends in box 2
+        ((-1.0, 0.5, 0.5), 2.5, -1, entry * np.exp(-sigma * 1.0)),  # between the boxes
+        ((-1.0, 0.5, 0.5), 1.5, -1, entry * np.exp(-sigma * 0.5)),  # ends in box 1
+        ((0.25, 0.5, 0.5), 5.0, 0, entry * np.exp(-sigma * (0.75 + 1.5))),  # from inside
+        ((0.25, 0.5, 0.5), 0.5, 0, np.exp(-sigma * 0.5)),  # all inside
         # to a light at infinity (a directional light, the background)
-        ((-1.0, 0.5, 0.5), math.inf, -1, entry**2 * math.exp(-sigma * 2.5)),
-        ((0.25, 0.5, 0.5), math.inf, 0, entry * math.exp(-sigma * 2.25)),
-        ((2.5, 0.5, 0.5), math.inf, 0, math.exp(-sigma * 1.0)),
+        ((-1.0, 0.5, 0.5), math.inf, -1, entry**2 * np.exp(-sigma * 2.5)),
+        ((0.25, 0.5, 0.5), math.inf, 0, entry * np.exp(-sigma * 2.25)),
+        ((2.5, 0.5, 0.5), math.inf, 0, np.exp(-sigma * 1.0)),
     ]
     for o, t_max, medium, expected in cases:
         # 1e-8: the crossing loop goes on 1e-9 (SPAWN_EPSILON) past each surface
-        assert transmittance(S, o, d, t_max, medium, stack) == pytest.approx(expected, rel=1e-8)
+        assert transmittance(S, o, d, t_max, medium, stack) == pytest.approx(tuple(expected),
+                                                                            rel=1e-8)
     # The floor blocks; a ray past the boxes' side sees nothing
-    assert transmittance(S, (0.5, 0.5, 0.5), (0.0, -1.0, 0.0), 20.0, 0, stack) == 0.0
-    assert transmittance(S, (-1.0, 2.0, 0.5), d, 5.0, -1, stack) == 1.0
+    assert transmittance(S, (0.5, 0.5, 0.5), (0.0, -1.0, 0.0), 20.0, 0, stack) == (0.0,) * 3
+    assert transmittance(S, (-1.0, 2.0, 0.5), d, 5.0, -1, stack) == (1.0,) * 3
     # A ray that starts and ends inside one object crosses nothing
     assert transmittance(S, (2.5, 0.5, 0.5), d, 0.5, 0, stack) == pytest.approx(
-        math.exp(-sigma * 0.5), rel=1e-12)
+        tuple(np.exp(-sigma * 0.5)), rel=1e-12)
 
 
 def seed_boxes_with_spheres() -> dict:

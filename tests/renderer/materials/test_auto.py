@@ -107,3 +107,30 @@ def test_an_absorbing_only_material_is_rendered_as_absorbing_glass():
     ref["render"]["spp"] = 64
     a, b = render(cs), render(ref)
     np.testing.assert_allclose(a.mean(axis=(0, 1)), b.mean(axis=(0, 1)), rtol=0.02)
+
+
+def test_chromatic_media_are_judged_by_their_worst_channel():
+    """Clear only if the densest channel is; opaque only if the farthest-reaching channel is;
+    in between volumetric, whatever the target: the approximations' floors are grey-measured."""
+    # Clear in red and green, not in blue: not clear
+    assert choose_method((0.9,) * 3, (0.001, 0.001, 8.0), 0.5, 0.5).method == "volumetric"
+    assert choose_method((0.9,) * 3, (0.001, 0.001, 0.002), 0.5, 0.5).method == "dielectric"
+    # At a target the grey wax meets with backlight, the chromatic one still gets the reference
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.5).method == "backlight"
+    c = choose_method((0.9,) * 3, (4.0, 8.0, 16.0), 0.5, 0.5)
+    assert c.method == "volumetric" and "chromatic" in c.reason
+    # Nearly opaque in blue, deep in red: the red channel's reach decides, not opaque
+    footprint = 0.05
+    assert choose_method((0.95,) * 3, (3000.0,) * 3, 0.5, None, footprint=footprint,
+                         ior=1.4).method == "opaque"
+    assert choose_method((0.95,) * 3, (3.0, 300.0, 3000.0), 0.5, None, footprint=footprint,
+                         ior=1.4).method == "volumetric"
+    assert choose_method((0.95,) * 3, (2000.0, 3000.0, 4000.0), 0.5, None, footprint=footprint,
+                         ior=1.4).method == "opaque"
+
+
+def test_auto_on_a_chromatic_scene_renders_what_it_chose():
+    scene = load_scene(wax_scene("auto", target=0.5, density=[4.0, 8.0, 16.0]))
+    choice = auto_choice(scene, "wax")
+    assert choice.method == "volumetric"
+    assert compile_scene(scene).info["auto"]["wax"]["method"] == "volumetric"

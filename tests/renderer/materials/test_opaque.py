@@ -17,24 +17,10 @@ from renderer.materials.opaque import opaque_albedo, semi_infinite_albedo
 from renderer.render import render_buffer
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
+from tests.conftest import h_function
 
 ROOT = Path(__file__).resolve().parents[3]
 CSV = ROOT / "docs" / "images" / "accuracy" / "opaque.csv"
-
-
-def h_function(albedo: float, n: int = 128):
-    """Chandrasekhar's H-function of isotropic scattering (Radiative Transfer, 1950, ch. V) on
-    Gauss–Legendre nodes of [0, 1], by iterating 1/H(μ) = √(1−ϖ) + (ϖ/2)∫₀¹ μ'H(μ')/(μ+μ') dμ'."""
-    x, w = np.polynomial.legendre.leggauss(n)
-    mu, w = (x + 1) / 2, w / 2
-    h = np.ones(n)
-    for _ in range(10_000):
-        new = 1 / (math.sqrt(1 - albedo)
-                   + albedo / 2 * (w * mu * h / (mu[:, None] + mu[None, :])).sum(axis=1))
-        if np.max(np.abs(new - h)) < 1e-13:
-            return mu, w, new
-        h = new
-    raise AssertionError("H-function iteration did not converge")
 
 
 def test_h_function_solver_meets_its_closed_form():

@@ -130,9 +130,10 @@ def test_defaults():
     )
     assert scene.materials["mi"].reflectance == (1, 1, 1)
     assert scene.materials["d"] == DielectricMaterial(ior=1.5, absorption=(0, 0, 0))
-    assert scene.materials["t"] == TranslucentMaterial(
-        method="volumetric", ior=1.3, albedo=(0.8, 0.8, 0.8), density=1.0, g=0.0
-    )
+    t = scene.materials["t"]
+    assert (t.method, t.ior, t.g) == ("volumetric", 1.3, 0.0)
+    assert t.albedo_rgb == (0.8, 0.8, 0.8) and t.sigma_t == (1.0, 1.0, 1.0) and not t.chromatic
+    assert t == TranslucentMaterial()
     assert isinstance(scene.objects[0], Sphere) and scene.objects[0].emission is None
 
 
@@ -188,6 +189,7 @@ def _delete(path):
     return apply
 
 
+DENSITY_MESSAGE = "must be a number > 0, or a list of 3 numbers > 0 (σt of each channel)"
 STRUCTURAL_CASES = [
     (_set(("objects", 0, "radius"), 0), "objects[0].radius", "must be > 0"),
     (_set(("objects", 0, "radius"), -1), "objects[0].radius", "must be > 0"),
@@ -285,8 +287,31 @@ STRUCTURAL_CASES = [
     (_set(("materials", "wax", "g"), 1), "materials.wax.g", "must be < 1"),
     (_set(("materials", "wax", "g"), -1), "materials.wax.g", "must be > -1"),
     (_set(("materials", "wax", "ior"), 0.9), "materials.wax.ior", "must be >= 1"),
-    (_set(("materials", "wax", "density"), 0), "materials.wax.density", "must be > 0"),
-    (_set(("materials", "wax", "sigma_s"), 1), "materials.wax.sigma_s", "unknown field"),
+    (_set(("materials", "wax", "density"), 0), "materials.wax.density", DENSITY_MESSAGE),
+    (_set(("materials", "wax", "density"), [1, 0, 1]), "materials.wax.density", DENSITY_MESSAGE),
+    (_set(("materials", "wax", "density"), [1, 2]), "materials.wax.density", DENSITY_MESSAGE),
+    (_set(("materials", "wax", "sigma_z"), 1), "materials.wax.sigma_z", "unknown field"),
+    (_set(("materials", "wax", "sigma_s"), [1, -1, 1]), "materials.wax.sigma_s[1]",
+     "must be >= 0"),
+    (_set(("materials", "wax"), {"type": "translucent", "sigma_s": [1, 1, 1]}), "materials.wax",
+     "sigma_s needs sigma_a too (or give albedo and density)"),
+    (_set(("materials", "wax"), {"type": "translucent", "sigma_s": [1, 1, 1],
+                                 "sigma_a": [0, 0, 0], "albedo": [1, 1, 1]}), "materials.wax",
+     "sigma_s and sigma_a replace albedo and density; give one form (given: albedo, sigma_s, "
+     "sigma_a)"),
+    (_set(("materials", "wax"), {"type": "translucent", "sigma_s": [1, 0, 1],
+                                 "sigma_a": [0, 0, 1]}), "materials.wax",
+     "sigma_s + sigma_a must be > 0 in every channel (green: 0 + 0)"),
+    (_set(("materials", "wax"), {"type": "translucent", "preset": "jade"}),
+     "materials.wax.preset", "unknown preset 'jade'; known: apple, chicken1, chicken2, cream, "
+     "ketchup, marble, potato, skimmilk, skin1, skin2, wholemilk"),
+    (_set(("materials", "wax"), {"type": "translucent", "preset": "skin1", "density": 2}),
+     "materials.wax", "preset replaces albedo, density, sigma_s and sigma_a; give one form (also "
+     "given: density)"),
+    (_set(("materials", "wax"), {"type": "translucent", "preset_scale": 10}), "materials.wax",
+     "preset_scale applies to a preset only"),
+    (_set(("materials", "wax"), {"type": "translucent", "preset": "skin1", "preset_scale": 0}),
+     "materials.wax.preset_scale", "must be > 0"),
     (_set(("materials", "glass", "ior"), 0), "materials.glass.ior", "must be > 0"),
     (
         _set(("materials", "glass", "absorption"), [0, -1, 0]),
