@@ -41,6 +41,11 @@ reach the target, read off the measured curves (``time_to_target``); the claim t
 auto is never the slower. ``--from-csv`` renders nothing and rewrites the charts and the tables
 from ``OUT/results.csv`` (after a change to auto's rule).
 
+``--chromatic`` runs the chromatic suite instead (the wax sphere with σt 3/8/16 per channel, the
+jade slab with 12/25/50, a sphere of the ``skin1`` preset; references split by channel, three
+Mitsuba renders with the medium grey at each channel's σt, ``tests/data`` for the first two) and
+writes to ``docs/images/accuracy/chromatic``; auto's floors are not derived from it.
+
 ``--quick`` (< 60 s; references at 1024 spp) renders spp 4, 16, 64 once each, only the sphere,
 the slab and albedo 0.99, and writes to ``$LUCENT_CACHE/quick`` unless ``--out`` says otherwise.
 """
@@ -84,8 +89,14 @@ def _example(name: str) -> dict:
     return scene
 
 
-def suite(quick: bool = False) -> dict[str, tuple[dict, str]]:
-    """Scene name → (scene dict at 64×48, name of its translucent material)."""
+CHROMATIC_SUITE = {"chromatic_wax": "wax", "chromatic_slab": "jade", "skin_preset": "skin"}
+
+
+def suite(quick: bool = False, chromatic: bool = False) -> dict[str, tuple[dict, str]]:
+    """Scene name → (scene dict at 64×48, name of its translucent material); ``chromatic``: the
+    chromatic suite (the wax sphere at σt 3/8/16, the jade slab at 12/25/50, a skin1 sphere)."""
+    if chromatic:
+        return {name: (_example(name), material) for name, material in CHROMATIC_SUITE.items()}
     scenes = {
         "translucent_sphere": (_example("translucent_sphere"), "wax"),
         "backlit_slab": (_example("backlit_slab"), "jade"),
@@ -124,9 +135,15 @@ def reference(name: str, scene: dict, material: str, spp: int) -> tuple[np.ndarr
     try:
         import mitsuba  # noqa: F401  (fail here, not half-way through a render)
 
-        from renderer.mitsuba_bridge import render_mitsuba
+        from renderer.mitsuba_bridge import is_chromatic, render_mitsuba, render_mitsuba_split
 
-        source, render_ref = f"mitsuba volpath {spp} spp", lambda: render_mitsuba(scene, spp, 0)
+        if is_chromatic(scene):
+            # RGB volpath is no reference for a chromatic medium: split by channel
+            source = f"mitsuba volpath {spp} spp split by channel"
+            render_ref = lambda: render_mitsuba_split(scene, spp, 0)  # noqa: E731
+        else:
+            source = f"mitsuba volpath {spp} spp"
+            render_ref = lambda: render_mitsuba(scene, spp, 0)  # noqa: E731
     except ImportError:
         from renderer.render import render
 
@@ -479,13 +496,18 @@ def main(argv: list[str] | None = None) -> int:
                         help="reference spp (16384; 1024 quick)")
     parser.add_argument("--out", type=Path, default=None,
                         help="docs/images/accuracy (quick: $LUCENT_CACHE/quick)")
+    parser.add_argument("--chromatic", action="store_true",
+                        help="the chromatic suite, to docs/images/accuracy/chromatic")
     parser.add_argument("--from-csv", action="store_true",
                         help="render nothing: redo the charts and tables from OUT/results.csv")
     args = parser.parse_args(argv)
     if args.out is None:
         args.out = CACHE / "quick" if args.quick else ROOT / "docs" / "images" / "accuracy"
+        if args.chromatic:
+            args.out = args.out / "chromatic"
     if args.from_csv:
-        write_tables(read_rows(args.out / "results.csv"), suite(args.quick), args.out)
+        write_tables(read_rows(args.out / "results.csv"), suite(args.quick, args.chromatic),
+                     args.out)
         return 0
     spps = (4, 16, 64) if args.quick else (4, 16, 64, 256, 1024)
     repeats = 1 if args.quick else 2
@@ -501,7 +523,7 @@ def main(argv: list[str] | None = None) -> int:
     rows: list[dict] = []
     print(f"{'scene':<20} {'method':<15} {'spp':>5} {'seconds':>8} {'relMSE':>9} "
           f"{'obj relMSE':>9} {'1-SSIM':>8} {'mean/ref':>8}")
-    scenes = suite(args.quick)
+    scenes = suite(args.quick, args.chromatic)
     for name, (scene, material) in scenes.items():
         ref, source = reference(name, scene, material, ref_spp)
         source = source.removesuffix(" (cached)")
