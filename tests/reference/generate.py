@@ -27,11 +27,11 @@ glass_sphere    26.2 s / 33.7 s  0.35 s                volpath
 
 The chromatic scenes (``chromatic_wax``, ``chromatic_slab``) are split by channel, three
 renders each (``renderer.mitsuba_bridge.render_mitsuba_split``): their 16384-spp references took
-112 s and 61 s on the same machine. The rest of the script takes 40–52 s. The glass sphere
-needs ``volpath`` for its Beer–Lambert interior, hence slower. The scalar_rgb variant works too but is several times slower; the script
-prints its own timings either way. The 64-spp images are bitwise reproducible; the references are
-reproducible only to float rounding (several passes accumulate into the film with parallel atomic
-adds, whose order varies).
+112 s and 61 s on the same machine. The rest of the script takes 40–52 s. The glass sphere needs
+``volpath`` for its Beer–Lambert interior, hence slower. The scalar_rgb variant works too but is
+several times slower; the script prints its own timings either way. The 64-spp images are bitwise
+reproducible; the references are reproducible only to float rounding (several passes accumulate
+into the film with parallel atomic adds, whose order varies).
 """
 
 from __future__ import annotations
