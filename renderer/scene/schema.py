@@ -37,11 +37,14 @@ from pydantic import (
     SerializerFunctionWrapHandler,
     Strict,
     ValidationInfo,
+    WithJsonSchema,
     field_validator,
     model_serializer,
     model_validator,
 )
 from pydantic_core import PydanticCustomError, ValidationError
+
+from renderer.materials.presets import PRESETS
 
 # Numbers are strict: a JSON string ("1.5") or a boolean is not a number, and an integer field
 # refuses 2.5 and 2.0 alike. Integers are accepted where a float is expected.
@@ -243,6 +246,11 @@ TranslucentMethod = Literal[
 ]
 
 
+# A preset's name: checked against the table (the error lists the known ones); in the JSON
+# schema an enum, a name never a path
+PresetName = Annotated[str, WithJsonSchema({"type": "string", "enum": sorted(PRESETS)})]
+
+
 class TranslucentMaterial(SceneModel):
     """Subsurface scattering in a homogeneous medium behind a dielectric boundary."""
 
@@ -259,7 +267,7 @@ class TranslucentMaterial(SceneModel):
     density (albedo = sigma_s / (sigma_s + sigma_a), density = sigma_s + sigma_a)."""
     sigma_a: Colour | None = None
     """Absorption coefficient per channel, per unit length (with sigma_s)."""
-    preset: str | None = None
+    preset: PresetName | None = None
     """A measured medium by name (Jensen et al. 2001, renderer/materials/presets.py) instead of
     the coefficients."""
     preset_scale: Float | None = Field(default=None, gt=0)
@@ -298,8 +306,6 @@ class TranslucentMaterial(SceneModel):
     @field_validator("preset")
     @classmethod
     def _known_preset(cls, name: str | None) -> str | None:
-        from renderer.materials.presets import PRESETS
-
         if name is not None and name not in PRESETS:
             raise scene_error(f"unknown preset {name!r}; known: {', '.join(sorted(PRESETS))}")
         return name
