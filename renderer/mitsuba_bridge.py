@@ -62,12 +62,13 @@ Mapping (Lucent → Mitsuba 3)
  * - box {min, max, rotate, translate}
    - six ``rectangle`` with outward normals; corners rotated about the world origin (Rodrigues,
      right-handed, degrees), then translated.
- * - mesh {vertices, triangles} / {path}
+ * - mesh {vertices, triangles} / {path}, scale, rotate, translate
    - ``mi.Mesh`` filled through ``mi.traverse`` (no vertex normals ⇒ flat face normals
      cross(v1 − v0, v2 − v0), as Lucent); a ``path`` loads ``obj`` / ``ply`` with
      ``face_normals=True``, relative to ``base_dir`` (the scene file's folder). A medium lies
      behind the faces in both renderers, so a hollow mesh whose inner sheet faces the cavity is a
-     shell (``examples/translucent_shell.json``).
+     shell (``examples/translucent_shell.json``). Placement: the vertices of an inline mesh are
+     scaled, rotated and translated here, a file's through ``to_world`` (the same M·x + t).
  * - object emission
    - ``area`` emitter, ``radiance`` rgb. Mitsuba's area emitter is one-sided (front = normal side)
      like Lucent's: quads emit on their normal side, spheres/boxes/meshes outward.
@@ -360,14 +361,33 @@ def _area(emission: Any, path: str) -> dict | None:
     return {"type": "area", "radiance": _rgb(radiance, path)}
 
 
+def _mesh_placement(obj: dict, path: str) -> tuple[np.ndarray | None, np.ndarray]:
+    """A mesh's ``scale`` (a number or per axis), ``rotate``, ``translate`` as x ↦ M·x + t
+    (scaled first, then rotated about the origin, then moved); (None, 0) when it has none."""
+    if not any(k in obj for k in ("scale", "rotate", "translate")):
+        return None, np.zeros(3)
+    scale = obj.get("scale", 1.0)
+    m = np.diag(np.broadcast_to(np.asarray(scale, dtype=np.float64), (3,)))
+    if obj.get("rotate") is not None:
+        rotate = obj["rotate"]
+        m = _rotation_matrix(_vec3(rotate["axis"], f"{path}.rotate.axis"),
+                             float(rotate["angle"])) @ m
+    t = _vec3(obj.get("translate", [0.0, 0.0, 0.0]), f"{path}.translate")
+    return m, t
+
+
 def _inline_mesh(
     mi: Any, obj: dict, path: str, key: str, bsdf: dict, medium: dict | None, emitter: dict | None
 ) -> Any:
     """A ``mi.Mesh`` with flat face normals from inline vertices/triangles."""
-    vertices = np.asarray(obj["vertices"], dtype=np.float32)
+    vertices = np.asarray(obj["vertices"], dtype=np.float64)
     triangles = np.asarray(obj["triangles"], dtype=np.int64)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
         raise ValueError(f"{path}.vertices: expected a non-empty list of [x, y, z]")
+    m, t = _mesh_placement(obj, path)
+    if m is not None:
+        vertices = vertices @ m.T + t
+    vertices = vertices.astype(np.float32)
     if triangles.ndim != 2 or triangles.shape[1] != 3 or len(triangles) == 0:
         raise ValueError(f"{path}.triangles: expected a non-empty list of [i, j, k]")
     if triangles.min() < 0 or triangles.max() >= len(vertices):
@@ -437,7 +457,13 @@ def _shapes(mi: Any, scene: dict, base_dir: str | os.PathLike | None) -> tuple[d
                 # Relative to the scene file, as Lucent's loader reads it (Mitsuba would
                 # resolve it against the working directory)
                 filename = os.path.join(base_dir or os.getcwd(), os.path.expanduser(obj["path"]))
-                shapes[key] = dress({"type": ext, "filename": filename, "face_normals": True})
+                shape = {"type": ext, "filename": filename, "face_normals": True}
+                m, t = _mesh_placement(obj, path)
+                if m is not None:
+                    world = np.eye(4)
+                    world[:3, :3], world[:3, 3] = m, t
+                    shape["to_world"] = mi.ScalarTransform4f(world)
+                shapes[key] = dress(shape)
             else:
                 shapes[key] = _inline_mesh(mi, obj, path, key, bsdf, medium, emitter)
         else:

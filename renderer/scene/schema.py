@@ -84,6 +84,19 @@ def scene_error(message: str) -> PydanticCustomError:
     return PydanticCustomError("scene", "{message}", {"message": message})
 
 
+def union_error(message: str):
+    """A wrap validator that gives a union field (a number or a triple) one error, ``message``,
+    where pydantic would report each branch's under its own tag."""
+
+    def check(value, handler):
+        try:
+            return handler(value)
+        except ValidationError:
+            raise scene_error(message) from None
+
+    return check
+
+
 def format_vec(v: tuple[float, ...] | list[float]) -> str:
     """``[0, 1, 0.5]``: compact, for error messages."""
     return "[" + ", ".join(f"{x:g}" for x in v) + "]"
@@ -292,16 +305,8 @@ class TranslucentMaterial(SceneModel):
     _medium: tuple[tuple[float, float, float], tuple[float, float, float]] = PrivateAttr(
         default=((0.8, 0.8, 0.8), (1.0, 1.0, 1.0)))
 
-    @field_validator("density", mode="wrap")
-    @classmethod
-    def _density(cls, value, handler):
-        # One message for the union (pydantic would report each branch: the float's and the
-        # triple's), naming what the field takes
-        try:
-            return handler(value)
-        except ValidationError:
-            raise scene_error("must be a number > 0, or a list of 3 numbers > 0 (σt of each "
-                              "channel)") from None
+    _density = field_validator("density", mode="wrap")(union_error(
+        "must be a number > 0, or a list of 3 numbers > 0 (σt of each channel)"))
 
     @field_validator("preset")
     @classmethod
@@ -478,11 +483,21 @@ class Mesh(ObjectBase):
         default=None, min_length=1
     )
     path: str | None = None
+    scale: PositiveFloat | tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = None
+    """Placement (optional): scale (one number, or one per axis), then ``rotate``, then
+    ``translate``, about the world origin, as a box is placed; the file or the inline vertices
+    stay in the model's own coordinates."""
+    rotate: Rotation | None = None
+    translate: Vec3 | None = None
 
     _vertices_array: np.ndarray | None = PrivateAttr(default=None)
+    _world_vertices: np.ndarray | None = PrivateAttr(default=None)
     _triangles_array: np.ndarray | None = PrivateAttr(default=None)
     _dropped_degenerate: int = PrivateAttr(default=0)
     _source_path: Path | None = PrivateAttr(default=None)
+
+    _scale = field_validator("scale", mode="wrap")(union_error(
+        "must be a number > 0, or a list of 3 numbers > 0 (one per axis)"))
 
     @field_validator("path")
     @classmethod
@@ -523,7 +538,23 @@ class Mesh(ObjectBase):
         return data
 
     def arrays(self) -> tuple[np.ndarray, np.ndarray]:
-        """(vertices float64 (V, 3), triangles int64 (T, 3)), read-only and built once."""
+        """(vertices float64 (V, 3) in world coordinates, placed by ``scale``, ``rotate`` and
+        ``translate``; triangles int64 (T, 3)), read-only and built once."""
+        model, triangles = self.model_arrays()
+        if self.scale is None and self.rotate is None and self.translate is None:
+            return model, triangles
+        if self._world_vertices is None:
+            from renderer.geometry.transform import placement
+
+            m, t = placement(self.scale, self.rotate, self.translate)
+            with np.errstate(over="ignore", invalid="ignore"):  # load_scene names overflow
+                world = model @ m.T + t
+            world.flags.writeable = False
+            self._world_vertices = world
+        return self._world_vertices, triangles
+
+    def model_arrays(self) -> tuple[np.ndarray, np.ndarray]:
+        """``arrays()`` in the model's own coordinates, before placement."""
         if self._vertices_array is None:
             if self.vertices is None or self.triangles is None:
                 raise ValueError("mesh has no geometry: load the scene with load_scene")
@@ -552,6 +583,7 @@ class Mesh(ObjectBase):
         triangles.flags.writeable = False
         self._vertices_array = vertices
         self._triangles_array = triangles
+        self._world_vertices = None
         self._dropped_degenerate = dropped_degenerate
         if source_path is not None:
             self._source_path = source_path
