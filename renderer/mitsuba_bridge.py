@@ -306,6 +306,22 @@ def _material(materials: dict, name: str, path: str) -> tuple[dict, dict | None]
             "specular_reflectance": _rgb(reflectance, f"{mpath}.reflectance"),
         }
         return {"type": "twosided", "bsdf": inner}, None
+    if kind == "conductor":
+        from renderer.materials.conductor import CONDUCTOR_PRESETS
+
+        if mat.get("preset") is not None:
+            eta, k = CONDUCTOR_PRESETS[mat["preset"]]
+        else:
+            eta, k = mat["eta"], mat["k"]
+        inner = {
+            "type": "conductor",
+            # Mitsuba takes eta and k as unbounded spectra (values above 1 are fine)
+            "eta": _rgb(eta, f"{mpath}.eta"),
+            "k": _rgb(k, f"{mpath}.k"),
+            "specular_reflectance": _rgb(mat.get("specular", [1.0, 1.0, 1.0]),
+                                         f"{mpath}.specular"),
+        }
+        return {"type": "twosided", "bsdf": inner}, None
     if kind == "dielectric":
         ior = float(mat.get("ior", 1.5))
         absorption = _vec3(mat.get("absorption", [0.0, 0.0, 0.0]), f"{mpath}.absorption")

@@ -11,6 +11,7 @@ from __future__ import annotations
 import math
 
 from renderer.jit import inline_kernel, kernel
+from renderer.materials.conductor import conductor_sample
 from renderer.materials.dielectric import IOR, dielectric_sample
 from renderer.materials.diffuse import diffuse_eval, diffuse_pdf, diffuse_sample
 from renderer.materials.diffusion import C_NORM
@@ -28,6 +29,7 @@ SINGLE_SCATTER = 5  # the seed paper's method: Lambertian at the surface or one 
 DIFFUSE_ENTRY = 6  # the seed student project's method: a random walk that starts at the surface
 DIFFUSION = 8  # a BSSRDF: the integrator probes for the exit point (materials/diffusion.py)
 DIFFUSION_EXIT = 9  # the exit vertex of DIFFUSION: S_w(wi) = (1 − F(cos θi))/(cπ)
+CONDUCTOR = 10  # a smooth metal: the mirror direction weighted by the conductor Fresnel term
 BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo (slots REFLECTED), plus
 # the integrator's transmitted direct light (integrators/subsurface/backlight.py), which falls
 # with thickness at the per-channel rate in the SIGMA_EFF slots
@@ -39,7 +41,7 @@ N_PARAMS = 23  # the widest row: translucent's SIGMA_T slots end at 22
 def is_delta(kind):
     # A translucent material's boundary is a smooth dielectric (its volume is the integrator's)
     return (kind == MIRROR or kind == DIELECTRIC or kind == TRANSLUCENT or kind == DIFFUSE_ENTRY
-            or kind == DIFFUSION)
+            or kind == DIFFUSION or kind == CONDUCTOR)
 
 
 @kernel
@@ -94,6 +96,9 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
     ns = _facing(wo, n)
     if kind == MIRROR:
         wi, weight = mirror_sample(param, wo, ns)
+        return wi, weight, 0.0, True
+    if kind == CONDUCTOR:
+        wi, weight = conductor_sample(param, wo, ns)
         return wi, weight, 0.0, True
     if kind == PHONG:
         return phong_sample(param, wo, ns, uc, u1, u2)

@@ -22,6 +22,7 @@ from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
 from renderer.materials.auto import auto_choice
 from renderer.materials.bsdf import (
     BACKLIGHT,
+    CONDUCTOR,
     DIELECTRIC,
     DIFFUSE,
     DIFFUSE_ENTRY,
@@ -32,6 +33,7 @@ from renderer.materials.bsdf import (
     SINGLE_SCATTER,
     TRANSLUCENT,
 )
+from renderer.materials.conductor import pack_conductor
 from renderer.materials.dielectric import IOR, pack_dielectric
 from renderer.materials.diffuse import pack_diffuse
 from renderer.materials.diffusion import pack_diffusion, pack_opaque
@@ -126,7 +128,8 @@ def _resolve_auto(scene, name: str, m):
 
 # Each family's file packs its row (its slots are named there); the kind tag says which
 _PACKERS = {"diffuse": (DIFFUSE, pack_diffuse), "phong": (PHONG, pack_phong),
-            "mirror": (MIRROR, pack_mirror), "dielectric": (DIELECTRIC, pack_dielectric)}
+            "mirror": (MIRROR, pack_mirror), "dielectric": (DIELECTRIC, pack_dielectric),
+            "conductor": (CONDUCTOR, pack_conductor)}
 _METHODS = {"volumetric": (TRANSLUCENT, pack_translucent),
             "single_scatter": (SINGLE_SCATTER, pack_single_scatter),
             "diffuse_entry": (DIFFUSE_ENTRY, pack_diffuse_entry),

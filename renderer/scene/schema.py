@@ -245,6 +245,41 @@ class MirrorMaterial(SceneModel):
     reflectance: Albedo = (1.0, 1.0, 1.0)
 
 
+class ConductorMaterial(SceneModel):
+    """A smooth metal: mirror reflection weighted by the conductor Fresnel term of its complex
+    index of refraction η + ik per channel (``eta`` and ``k``, or a measured ``preset``)."""
+
+    type: Literal["conductor"] = "conductor"
+    eta: tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = None
+    """Real part of the complex index of refraction, per channel (with ``k``)."""
+    k: Colour | None = None
+    """Imaginary part (extinction coefficient), per channel (with ``eta``)."""
+    preset: Literal["Au", "Ag", "Cu", "Al"] | None = None
+    """A measured metal instead of eta and k (renderer/materials/conductor.py)."""
+    specular: Colour = (1.0, 1.0, 1.0)
+    """A scale on the reflectance, per channel (1: the physical metal)."""
+    roughness: Float = Field(default=0.0, ge=0)
+    """GGX α of the surface; 0 is the smooth metal (rough metals are not built yet)."""
+
+    @field_validator("roughness")
+    @classmethod
+    def _smooth_only(cls, alpha: float) -> float:
+        if alpha > 0.0:
+            raise scene_error("rough conductors (GGX) are not built in this version; only 0, "
+                              "the smooth metal")
+        return alpha
+
+    @model_validator(mode="after")
+    def _one_form(self) -> ConductorMaterial:
+        given = [f for f in ("eta", "k") if getattr(self, f) is not None]
+        if self.preset is not None and given:
+            raise scene_error(f"preset replaces eta and k; give one form (also given: "
+                              f"{', '.join(given)})")
+        if self.preset is None and len(given) != 2:
+            raise scene_error("a conductor needs eta and k, or a preset (Au, Ag, Cu, Al)")
+        return self
+
+
 class DielectricMaterial(SceneModel):
     """Smooth glass: Fresnel reflection and Snell refraction, Beer-Lambert absorption inside."""
 
@@ -393,11 +428,12 @@ METHOD_KNOBS = {
 
 
 Material = Annotated[
-    DiffuseMaterial | PhongMaterial | MirrorMaterial | DielectricMaterial | TranslucentMaterial,
+    DiffuseMaterial | PhongMaterial | MirrorMaterial | ConductorMaterial | DielectricMaterial
+    | TranslucentMaterial,
     Field(discriminator="type"),
 ]
 
-MATERIAL_TYPES = ("diffuse", "phong", "mirror", "dielectric", "translucent")
+MATERIAL_TYPES = ("diffuse", "phong", "mirror", "conductor", "dielectric", "translucent")
 
 # Materials with an inside: the objects that carry them must enclose a volume.
 VOLUME_MATERIAL_TYPES = ("dielectric", "translucent")
