@@ -300,8 +300,10 @@ def _material(materials: dict, name: str, path: str) -> tuple[dict, dict | None]
         return {"type": "twosided", "bsdf": inner}, None
     if kind == "mirror":
         reflectance = mat.get("reflectance", [1.0, 1.0, 1.0])
-        inner = {
-            "type": "conductor",
+        alpha = float(mat.get("roughness", 0.0))
+        rough = {"type": "roughconductor", "distribution": "ggx", "alpha": alpha,
+                 "sample_visible": True} if alpha > 0.0 else {"type": "conductor"}
+        inner = rough | {
             "material": "none",
             "specular_reflectance": _rgb(reflectance, f"{mpath}.reflectance"),
         }
@@ -313,8 +315,10 @@ def _material(materials: dict, name: str, path: str) -> tuple[dict, dict | None]
             eta, k = CONDUCTOR_PRESETS[mat["preset"]]
         else:
             eta, k = mat["eta"], mat["k"]
-        inner = {
-            "type": "conductor",
+        alpha = float(mat.get("roughness", 0.0))
+        rough = {"type": "roughconductor", "distribution": "ggx", "alpha": alpha,
+                 "sample_visible": True} if alpha > 0.0 else {"type": "conductor"}
+        inner = rough | {
             # Mitsuba takes eta and k as unbounded spectra (values above 1 are fine)
             "eta": _rgb(eta, f"{mpath}.eta"),
             "k": _rgb(k, f"{mpath}.k"),

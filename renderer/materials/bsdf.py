@@ -11,7 +11,12 @@ from __future__ import annotations
 import math
 
 from renderer.jit import inline_kernel, kernel
-from renderer.materials.conductor import conductor_sample
+from renderer.materials.conductor import (
+    conductor_sample,
+    rough_conductor_eval,
+    rough_conductor_pdf,
+    rough_conductor_sample,
+)
 from renderer.materials.dielectric import IOR, dielectric_sample
 from renderer.materials.diffuse import diffuse_eval, diffuse_pdf, diffuse_sample
 from renderer.materials.diffusion import C_NORM
@@ -30,6 +35,7 @@ DIFFUSE_ENTRY = 6  # the seed student project's method: a random walk that start
 DIFFUSION = 8  # a BSSRDF: the integrator probes for the exit point (materials/diffusion.py)
 DIFFUSION_EXIT = 9  # the exit vertex of DIFFUSION: S_w(wi) = (1 − F(cos θi))/(cπ)
 CONDUCTOR = 10  # a smooth metal: the mirror direction weighted by the conductor Fresnel term
+ROUGH_CONDUCTOR = 11  # a rough metal: GGX microfacets (renderer/materials/conductor.py)
 BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo (slots REFLECTED), plus
 # the integrator's transmitted direct light (integrators/subsurface/backlight.py), which falls
 # with thickness at the per-channel rate in the SIGMA_EFF slots
@@ -73,6 +79,8 @@ def bsdf_eval(kind, param, wo, wi, n):
         return (s, s, s)
     if kind == PHONG:
         return phong_eval(param, wo, wi, ns)
+    if kind == ROUGH_CONDUCTOR:
+        return rough_conductor_eval(param, wo, wi, ns)
     return (0.0, 0.0, 0.0)
 
 
@@ -83,6 +91,8 @@ def bsdf_pdf(kind, param, wo, wi, n):
         return diffuse_pdf(param, wo, wi, ns)
     if kind == PHONG:
         return phong_pdf(param, wo, wi, ns)
+    if kind == ROUGH_CONDUCTOR:
+        return rough_conductor_pdf(param, wo, wi, ns)
     return 0.0
 
 
@@ -100,6 +110,8 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
     if kind == CONDUCTOR:
         wi, weight = conductor_sample(param, wo, ns)
         return wi, weight, 0.0, True
+    if kind == ROUGH_CONDUCTOR:
+        return rough_conductor_sample(param, wo, ns, u1, u2)
     if kind == PHONG:
         return phong_sample(param, wo, ns, uc, u1, u2)
     if kind == SINGLE_SCATTER:

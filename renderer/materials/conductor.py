@@ -1,23 +1,33 @@
-"""Smooth conductor (metal): mirror reflection weighted by the exact conductor Fresnel term.
+"""Conductors (metals): smooth, or rough by the GGX microfacet model, with the exact Fresnel term.
 
 A metal reflects a share F(θ) of the light that depends on its complex index of refraction
 η + ik per channel: the unpolarized mean of the s- and p-polarized reflectances of the Fresnel
 equations with a complex refractive index (Born & Wolf, Principles of Optics, §14.2; pbrt-v4's
 FrComplex), times an optional ``specular`` scale. Row (``pack_conductor``): ``ETA`` and ``K``
-(three slots each) and ``SPECULAR`` (three). ``preset`` names measured metals: their η and k at
-650, 550 and 450 nm (``CONDUCTOR_PRESETS``).
+(three slots each), ``SPECULAR`` (three) and ``ALPHA``. ``preset`` names measured metals: their η
+and k at 650, 550 and 450 nm (``CONDUCTOR_PRESETS``).
+
+A rough metal (``roughness`` α > 0) is the GGX (Trowbridge–Reitz) microfacet BRDF
+f = F(wo·h) D(h) G(wo, wi) / (4 cos θo cos θi), with Smith's masking in its separable form
+G = G1(wo) G1(wi), as Mitsuba 3's ``roughconductor`` computes it (pbrt-v4 takes the
+height-correlated form), sampled by its visible normals (Heitz, "Sampling the GGX Distribution of
+Visible Normals", JCGT 2018): pdf(wi) = G1(wo) D(h) / (4 cos θo), so a sample weighs
+F·G1(wi).
 """
 
 from __future__ import annotations
 
 import cmath
+import math
 
 from renderer.jit import kernel
 from renderer.materials.fresnel import reflect
+from renderer.vecmath import onb
 
 ETA = 0
 K = 3
 SPECULAR = 6
+ALPHA = 9
 
 # η and k of measured metals at 650 nm (R), 550 nm (G) and 450 nm (B), from the data of
 # refractiveindex.info (gold, silver, copper: Johnson & Christy 1972; aluminium: Rakić 1995) as
@@ -36,6 +46,7 @@ def pack_conductor(p, m) -> None:
     p[ETA:ETA + 3] = eta
     p[K:K + 3] = k
     p[SPECULAR:SPECULAR + 3] = m.specular
+    p[ALPHA] = m.roughness
 
 
 @kernel
@@ -60,3 +71,119 @@ def conductor_sample(param, wo, n):
         param[SPECULAR + 1] * fresnel_conductor(cos_o, param[ETA + 1], param[K + 1]),
         param[SPECULAR + 2] * fresnel_conductor(cos_o, param[ETA + 2], param[K + 2]),
     )
+
+
+@kernel
+def ggx_d(cos_h, alpha):
+    """GGX normal distribution D(h) for cos θh = n·h (per unit solid angle of h)."""
+    if cos_h <= 0.0:
+        return 0.0
+    a2 = alpha * alpha
+    x = cos_h * cos_h * (a2 - 1.0) + 1.0
+    return a2 / (math.pi * x * x)
+
+
+@kernel
+def smith_g1(cos_v, alpha):
+    """Smith's masking of GGX for a direction at cos θv from the normal."""
+    if cos_v <= 0.0:
+        return 0.0
+    tan2 = max(1.0 - cos_v * cos_v, 0.0) / (cos_v * cos_v)
+    return 2.0 / (1.0 + math.sqrt(1.0 + alpha * alpha * tan2))
+
+
+@kernel
+def _local(v, t, b, n):
+    return (v[0] * t[0] + v[1] * t[1] + v[2] * t[2], v[0] * b[0] + v[1] * b[1] + v[2] * b[2],
+            v[0] * n[0] + v[1] * n[1] + v[2] * n[2])
+
+
+@kernel
+def ggx_visible_normal(wo, alpha, u1, u2):
+    """A microfacet normal (local frame, z the surface normal) from GGX's distribution of the
+    normals visible from wo (local, wo.z > 0): Heitz 2018, the hemisphere-stretch construction."""
+    vx, vy, vz = alpha * wo[0], alpha * wo[1], wo[2]
+    inv = 1.0 / math.sqrt(vx * vx + vy * vy + vz * vz)
+    vx, vy, vz = vx * inv, vy * inv, vz * inv
+    lensq = vx * vx + vy * vy
+    if lensq > 0.0:
+        il = 1.0 / math.sqrt(lensq)
+        t1 = (-vy * il, vx * il, 0.0)
+    else:
+        t1 = (1.0, 0.0, 0.0)
+    t2 = (vy * t1[2] - vz * t1[1], vz * t1[0] - vx * t1[2], vx * t1[1] - vy * t1[0])
+    r = math.sqrt(u1)
+    phi = 2.0 * math.pi * u2
+    p1 = r * math.cos(phi)
+    p2 = r * math.sin(phi)
+    s = 0.5 * (1.0 + vz)
+    p2 = (1.0 - s) * math.sqrt(max(0.0, 1.0 - p1 * p1)) + s * p2
+    p3 = math.sqrt(max(0.0, 1.0 - p1 * p1 - p2 * p2))
+    nx = p1 * t1[0] + p2 * t2[0] + p3 * vx
+    ny = p1 * t1[1] + p2 * t2[1] + p3 * vy
+    nz = p1 * t1[2] + p2 * t2[2] + p3 * vz
+    hx, hy, hz = alpha * nx, alpha * ny, max(0.0, nz)
+    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
+    return hx * inv, hy * inv, hz * inv
+
+
+@kernel
+def rough_conductor_eval(param, wo, wi, n):
+    """f(wo, wi)·cos θi of the rough metal (n faces wo; zero below the surface)."""
+    cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
+    cos_i = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
+    if cos_o <= 0.0 or cos_i <= 0.0:
+        return (0.0, 0.0, 0.0)
+    hx, hy, hz = wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2]
+    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
+    hx, hy, hz = hx * inv, hy * inv, hz * inv
+    alpha = param[ALPHA]
+    d = ggx_d(hx * n[0] + hy * n[1] + hz * n[2], alpha)
+    g = smith_g1(cos_o, alpha) * smith_g1(cos_i, alpha)
+    k = d * g / (4.0 * cos_o)
+    c = wo[0] * hx + wo[1] * hy + wo[2] * hz
+    return (param[SPECULAR] * fresnel_conductor(c, param[ETA], param[K]) * k,
+            param[SPECULAR + 1] * fresnel_conductor(c, param[ETA + 1], param[K + 1]) * k,
+            param[SPECULAR + 2] * fresnel_conductor(c, param[ETA + 2], param[K + 2]) * k)
+
+
+@kernel
+def rough_conductor_pdf(param, wo, wi, n):
+    """The density of ``rough_conductor_sample``'s wi: G1(wo) D(h) / (4 cos θo)."""
+    cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
+    cos_i = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
+    if cos_o <= 0.0 or cos_i <= 0.0:
+        return 0.0
+    hx, hy, hz = wo[0] + wi[0], wo[1] + wi[1], wo[2] + wi[2]
+    inv = 1.0 / math.sqrt(hx * hx + hy * hy + hz * hz)
+    alpha = param[ALPHA]
+    d = ggx_d((hx * n[0] + hy * n[1] + hz * n[2]) * inv, alpha)
+    return smith_g1(cos_o, alpha) * d / (4.0 * cos_o)
+
+
+@kernel
+def rough_conductor_sample(param, wo, n, u1, u2):
+    """(wi, f·cos/pdf, pdf, ok): a visible microfacet normal, wo reflected about it."""
+    cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
+    none = (0.0, 0.0, 0.0)
+    if cos_o <= 0.0:
+        return n, none, 0.0, False
+    t, b = onb(n)
+    h_local = ggx_visible_normal(_local(wo, t, b, n), param[ALPHA], u1, u2)
+    h = (h_local[0] * t[0] + h_local[1] * b[0] + h_local[2] * n[0],
+         h_local[0] * t[1] + h_local[1] * b[1] + h_local[2] * n[1],
+         h_local[0] * t[2] + h_local[1] * b[2] + h_local[2] * n[2])
+    wi = reflect(wo, h)
+    cos_i = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
+    if cos_i <= 0.0:
+        return wi, none, 0.0, False
+    pdf = rough_conductor_pdf(param, wo, wi, n)
+    if not pdf > 0.0:
+        return wi, none, 0.0, False
+    g1 = smith_g1(cos_i, param[ALPHA])
+    c = wo[0] * h[0] + wo[1] * h[1] + wo[2] * h[2]
+    weight = (param[SPECULAR] * fresnel_conductor(c, param[ETA], param[K]) * g1,
+              param[SPECULAR + 1] * fresnel_conductor(c, param[ETA + 1], param[K + 1]) * g1,
+              param[SPECULAR + 2] * fresnel_conductor(c, param[ETA + 2], param[K + 2]) * g1)
+    return wi, weight, pdf, True
+

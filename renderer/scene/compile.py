@@ -30,6 +30,7 @@ from renderer.materials.bsdf import (
     MIRROR,
     N_PARAMS,
     PHONG,
+    ROUGH_CONDUCTOR,
     SINGLE_SCATTER,
     TRANSLUCENT,
 )
@@ -148,6 +149,8 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         kind, pack = _METHODS[m.method]
     else:
         kind, pack = _PACKERS[m.type]
+    if kind == CONDUCTOR and m.roughness > 0.0:
+        kind = ROUGH_CONDUCTOR
     p = np.zeros(N_PARAMS)
     pack(p, m)
     return kind, p

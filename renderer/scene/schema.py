@@ -258,16 +258,9 @@ class ConductorMaterial(SceneModel):
     """A measured metal instead of eta and k (renderer/materials/conductor.py)."""
     specular: Colour = (1.0, 1.0, 1.0)
     """A scale on the reflectance, per channel (1: the physical metal)."""
-    roughness: Float = Field(default=0.0, ge=0)
-    """GGX α of the surface; 0 is the smooth metal (rough metals are not built yet)."""
-
-    @field_validator("roughness")
-    @classmethod
-    def _smooth_only(cls, alpha: float) -> float:
-        if alpha > 0.0:
-            raise scene_error("rough conductors (GGX) are not built in this version; only 0, "
-                              "the smooth metal")
-        return alpha
+    roughness: Float = Field(default=0.0, ge=0, le=1)
+    """GGX α of the surface, as Mitsuba writes it (not a perceptual roughness); 0 is the smooth
+    metal."""
 
     @model_validator(mode="after")
     def _one_form(self) -> ConductorMaterial:
