@@ -10,7 +10,8 @@ keyed by its sources, under the shared ``LUCENT_CACHE_DIR``). Every run renders 
 frame with ``render_tile`` (best of 3 after a warm-up) and reports paths/s; the sample buffers
 (sums, squares, counts) of the working tree are compared bit for bit with the base's (and where
 they differ, the share of pixels that do and the relative L1 distance of the sums are printed).
-Scenes are names of ``examples/*.json`` or paths of scene files (``/tmp/x.json``). Prints the
+Scenes are names of ``examples/*.json`` or paths of scene files (``bench/ab_scenes/*.json``: one
+for each method the examples leave out). Prints the
 median of each side and the ratio. An optimization that is only an optimization keeps
 "identical"; docs/performance.md records what was measured this way.
 """
