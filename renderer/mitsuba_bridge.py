@@ -329,7 +329,11 @@ def _material(materials: dict, name: str, path: str) -> tuple[dict, dict | None]
     if kind == "dielectric":
         ior = float(mat.get("ior", 1.5))
         absorption = _vec3(mat.get("absorption", [0.0, 0.0, 0.0]), f"{mpath}.absorption")
+        alpha = float(mat.get("roughness", 0.0))
         bsdf = {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0}
+        if alpha > 0.0:
+            bsdf = {"type": "roughdielectric", "distribution": "ggx", "alpha": alpha,
+                    "sample_visible": True, "int_ior": ior, "ext_ior": 1.0}
         medium = None
         if np.any(absorption > 0.0):
             # Beer–Lambert only: every extinction event absorbs (albedo 0).

@@ -337,3 +337,9 @@ def plane_albedo_normal(albedo: float) -> float:
     mu, w, h = h_function(albedo)
     h1 = 1 / (math.sqrt(1 - albedo) + albedo / 2 * (w * mu * h / (1 + mu)).sum())
     return 1 - h1 * math.sqrt(1 - albedo)
+
+
+def at_angle(theta_deg: float) -> tuple[float, float, float]:
+    """The unit direction θ degrees from +z in the xz-plane (a BSDF test's wo about n = +z)."""
+    t = math.radians(theta_deg)
+    return (math.sin(t), 0.0, math.cos(t))

@@ -44,6 +44,7 @@ from renderer.materials.bsdf import (
     DIELECTRIC,
     DIFFUSE_ENTRY,
     DIFFUSION,
+    ROUGH_DIELECTRIC,
     SINGLE_SCATTER,
     TRANSLUCENT,
     bsdf_sample,
@@ -134,7 +135,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
         cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
 
         # Beer–Lambert: a ray reaching a dielectric from inside crossed t of its medium
-        if mk == DIELECTRIC and cos_o < 0.0:
+        if (mk == DIELECTRIC or mk == ROUGH_DIELECTRIC) and cos_o < 0.0:
             br, bg, bb = absorbed(mp, t, br, bg, bb)
 
         # Emission from an area light's front side, MIS-weighted against its light sample
@@ -195,6 +196,9 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
             medium = mat if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0 else -1
         if (mk == DIELECTRIC or mk == TRANSLUCENT) and weight[0] != 1.0:
             eta_scale /= weight[0]  # a refraction: the weight was (η_i/η_t)²
+        elif mk == ROUGH_DIELECTRIC and (cos_o > 0.0) != (wi[0] * n[0] + wi[1] * n[1]
+                                                          + wi[2] * n[2] > 0.0):
+            eta_scale *= mp[IOR] * mp[IOR] if cos_o > 0.0 else 1.0 / (mp[IOR] * mp[IOR])
         unweighted, prev_pdf, prev_p, depth = delta, pdf, p, depth + 1
         o, d = spawn_offset(p, n, wi, scale), wi
 

@@ -23,6 +23,11 @@ from renderer.materials.diffusion import C_NORM
 from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.mirror import mirror_sample
 from renderer.materials.phong import phong_eval, phong_pdf, phong_sample
+from renderer.materials.rough_dielectric import (
+    rough_dielectric_eval,
+    rough_dielectric_pdf,
+    rough_dielectric_sample,
+)
 from renderer.materials.translucent import ALBEDO, REFLECTED
 
 DIFFUSE = 0
@@ -36,6 +41,7 @@ DIFFUSION = 8  # a BSSRDF: the integrator probes for the exit point (materials/d
 DIFFUSION_EXIT = 9  # the exit vertex of DIFFUSION: S_w(wi) = (1 − F(cos θi))/(cπ)
 CONDUCTOR = 10  # a smooth metal: the mirror direction weighted by the conductor Fresnel term
 ROUGH_CONDUCTOR = 11  # a rough metal: GGX microfacets (renderer/materials/conductor.py)
+ROUGH_DIELECTRIC = 12  # rough glass: GGX microfacets that reflect and refract
 BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo (slots REFLECTED), plus
 # the integrator's transmitted direct light (integrators/subsurface/backlight.py), which falls
 # with thickness at the per-channel rate in the SIGMA_EFF slots
@@ -63,6 +69,8 @@ def _facing(wo, n):
 @inline_kernel
 def bsdf_eval(kind, param, wo, wi, n):
     """f(wo, wi)·|cos θi| for the non-delta materials (zero for delta ones)."""
+    if kind == ROUGH_DIELECTRIC:  # two sides that differ: the outward normal as it is
+        return rough_dielectric_eval(param, wo, wi, n)
     ns = _facing(wo, n)
     if kind == DIFFUSE:
         return diffuse_eval(param, wo, wi, ns)
@@ -86,6 +94,8 @@ def bsdf_eval(kind, param, wo, wi, n):
 
 @inline_kernel
 def bsdf_pdf(kind, param, wo, wi, n):
+    if kind == ROUGH_DIELECTRIC:
+        return rough_dielectric_pdf(param, wo, wi, n)
     ns = _facing(wo, n)
     if kind == DIFFUSE or kind == SINGLE_SCATTER or kind == BACKLIGHT or kind == DIFFUSION_EXIT:
         return diffuse_pdf(param, wo, wi, ns)
@@ -103,6 +113,8 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
         # all keep the boundary's ior in dielectric's IOR slot
         wi, w = dielectric_sample(param, wo, n, uc)
         return wi, (w, w, w), 0.0, True
+    if kind == ROUGH_DIELECTRIC:
+        return rough_dielectric_sample(param, wo, n, uc, u1, u2)
     ns = _facing(wo, n)
     if kind == MIRROR:
         wi, weight = mirror_sample(param, wo, ns)

@@ -20,12 +20,14 @@ from renderer.materials.fresnel import fresnel_dielectric, reflect, refract
 
 IOR = 0
 ABSORPTION = 1
+ROUGHNESS = 4  # GGX α of the boundary (renderer/materials/rough_dielectric.py); 0: smooth
 
 
 def pack_dielectric(p, m) -> None:
     """Write a ``dielectric`` material's row into ``p``."""
     p[IOR] = m.ior
     p[ABSORPTION:ABSORPTION + 3] = m.absorption
+    p[ROUGHNESS] = m.roughness
 
 
 @block

@@ -31,6 +31,7 @@ from renderer.materials.bsdf import (
     N_PARAMS,
     PHONG,
     ROUGH_CONDUCTOR,
+    ROUGH_DIELECTRIC,
     SINGLE_SCATTER,
     TRANSLUCENT,
 )
@@ -151,6 +152,8 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         kind, pack = _PACKERS[m.type]
     if kind == CONDUCTOR and m.roughness > 0.0:
         kind = ROUGH_CONDUCTOR
+    if kind == DIELECTRIC and m.roughness > 0.0:
+        kind = ROUGH_DIELECTRIC
     p = np.zeros(N_PARAMS)
     pack(p, m)
     return kind, p

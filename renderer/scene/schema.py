@@ -274,12 +274,15 @@ class ConductorMaterial(SceneModel):
 
 
 class DielectricMaterial(SceneModel):
-    """Smooth glass: Fresnel reflection and Snell refraction, Beer-Lambert absorption inside."""
+    """Glass: Fresnel reflection and Snell refraction (smooth, or through GGX microfacets),
+    Beer-Lambert absorption inside."""
 
     type: Literal["dielectric"] = "dielectric"
     ior: Float = Field(default=1.5, gt=0)
     absorption: Colour = (0.0, 0.0, 0.0)
     """Absorption coefficient per unit length: transmittance exp(-absorption * distance)."""
+    roughness: Float = Field(default=0.0, ge=0, le=1)
+    """GGX α of the surface, as Mitsuba writes it; 0 is smooth glass."""
 
 
 TranslucentMethod = Literal[

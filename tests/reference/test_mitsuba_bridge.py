@@ -508,3 +508,31 @@ def test_a_conductor_renders_as_mitsubas(metal):
     ours = render(scene)[8:24, 8:24].mean(axis=(0, 1))
     theirs = render_mitsuba(scene, spp=spp, seed=1, variant=VARIANT)[8:24, 8:24].mean(axis=(0, 1))
     np.testing.assert_allclose(ours, theirs, rtol=0.01)
+
+
+@pytest.mark.parametrize("alpha", [0.1, 0.5])
+@pytest.mark.parametrize("background", [[0.6, 0.7, 0.8], [1, 1, 1]], ids=["lit", "furnace"])
+def test_rough_glass_renders_as_mitsubas(alpha, background):
+    """A rough glass sphere (GGX α) over a floor lit by a point light and the background, and
+    alone in a white furnace (where both lose the light the single-scattering microfacet model
+    drops: 0.66 of it remains at α 0.5): Lucent and Mitsuba 3 roughdielectric (ggx, visible
+    normals) agree on the sphere's pixels to 1 % per channel (measured 0.1-0.3 %)."""
+    from renderer.render import render
+
+    scene = {
+        "camera": {"position": [0, 0, 4], "look_at": [0, 0, 0], "fov": 30},
+        "film": {"width": 32, "height": 32},
+        "render": {"spp": 1024, "max_depth": -1, "seed": 1},
+        "background": background,
+        "materials": {"glass": {"type": "dielectric", "ior": 1.5, "roughness": alpha},
+                      "floor": {"type": "diffuse", "albedo": [0.6, 0.3, 0.2]}},
+        "lights": [{"type": "point", "position": [2, 3, 3], "intensity": [20, 20, 20]}],
+        "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 1.0, "material": "glass"},
+                    {"type": "quad", "origin": [-5, -1, 5], "edge1": [10, 0, 0],
+                     "edge2": [0, 0, -10], "material": "floor"}],
+    }
+    if background == [1, 1, 1]:  # the white furnace: the sphere alone
+        scene["objects"], scene["lights"] = scene["objects"][:1], []
+    ours = render(scene)[8:24, 8:24].mean(axis=(0, 1))
+    theirs = render_mitsuba(scene, spp=1024, seed=1, variant=VARIANT)[8:24, 8:24].mean(axis=(0, 1))
+    np.testing.assert_allclose(ours, theirs, rtol=0.01)

@@ -96,7 +96,7 @@ from renderer.materials.conductor import (  # noqa: E402
     rough_conductor_sample,
 )
 from renderer.scene.compile import _material_row  # noqa: E402
-from tests.conftest import chi2_directions  # noqa: E402
+from tests.conftest import at_angle, chi2_directions  # noqa: E402
 
 
 def _rough_row(alpha: float) -> np.ndarray:
@@ -110,17 +110,12 @@ def _rough_row(alpha: float) -> np.ndarray:
 N = (0.0, 0.0, 1.0)
 
 
-def _wo(theta_deg: float) -> tuple[float, float, float]:
-    t = math.radians(theta_deg)
-    return (math.sin(t), 0.0, math.cos(t))
-
-
 @pytest.mark.parametrize("alpha", [0.05, 0.3, 0.8])
 @pytest.mark.parametrize("theta", [0.0, 45.0, 80.0])
 def test_visible_normal_sampling_follows_its_pdf(rng, alpha, theta):
     """Chi² of the directions rough_conductor_sample draws against rough_conductor_pdf, which
     the BSDF's MIS weights use: G1(wo) D(h) / (4 cos θo) (Heitz 2018)."""
-    row, wo = _rough_row(alpha), _wo(theta)
+    row, wo = _rough_row(alpha), at_angle(theta)
 
     def sampler(n):
         u = rng.random((n, 2))
@@ -144,7 +139,7 @@ def test_visible_normal_sampling_follows_its_pdf(rng, alpha, theta):
 @pytest.mark.parametrize("alpha", [0.05, 0.3, 0.8])
 def test_a_sample_weighs_eval_over_pdf(rng, alpha):
     """The sampled weight is f·cos/pdf per channel (F·G1(wi) in closed form)."""
-    row, wo = _rough_row(alpha), _wo(30.0)
+    row, wo = _rough_row(alpha), at_angle(30.0)
     for u1, u2 in rng.random((200, 2)):
         wi, w, pdf, ok = rough_conductor_sample(row, wo, N, u1, u2)
         if not ok:
@@ -157,7 +152,7 @@ def test_a_sample_weighs_eval_over_pdf(rng, alpha):
 def test_the_rough_metal_reflects_no_more_than_the_smooth_one(rng):
     """∫ f cos dωi (the mean sampled weight) is at most F at normal incidence's scale: masking
     only loses light (with F ≤ 1 per channel), and tends to the smooth metal's F as α → 0."""
-    wo = _wo(20.0)
+    wo = at_angle(20.0)
     smooth = [fresnel_conductor(math.cos(math.radians(20.0)), e, k)
               for e, k in zip(*CONDUCTOR_PRESETS["Au"], strict=True)]
     for alpha in (1e-4, 0.2, 0.6, 1.0):

@@ -265,7 +265,8 @@ STRUCTURAL_CASES = [
     (
         _set(("materials", "wax", "type"), "glass"),
         "materials.wax",
-        "unknown type 'glass' (expected one of: diffuse, phong, mirror, dielectric, translucent)",
+        "unknown type 'glass' (expected one of: diffuse, phong, mirror, conductor, dielectric, "
+        "translucent)",
     ),
     (
         _set(("lights", 0, "type"), "spot"),
