@@ -4,6 +4,12 @@
 started so that it cannot outlive this process: on Linux the kernel sends it SIGTERM when its
 parent dies (``PR_SET_PDEATHSIG``), and ``LocalFarm.stop`` stops them in order (API, workers,
 Redis), escalating to SIGKILL after a grace period.
+
+What ``LocalFarm`` started it also keeps running: a ``Supervisor`` thread notices a child that
+exited (and reaps it: no defunct process stays behind), says so on stderr and starts it again
+after a delay that doubles with each exit in a row (``Backoff``). The embedded Redis restarts on
+the same port and folder with its append-only file, so the jobs, the queue and the images come
+back with it; a worker node restarts as it was started.
 """
 
 from __future__ import annotations
@@ -19,6 +25,8 @@ import sys
 import tempfile
 import threading
 import time
+from collections.abc import Callable
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -156,36 +164,164 @@ def terminate(proc: subprocess.Popen, grace: float) -> None:
             proc.wait()
 
 
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
+@dataclass
+class Backoff:
+    """Seconds to wait before starting again a child that exited: ``base``, doubling with every
+    exit in a row up to ``cap``. A child that ran ``healthy`` seconds before it exited was well:
+    the count starts again (a crash loop backs off; a crash once a day restarts at once)."""
+
+    base: float = 0.5
+    cap: float = 30.0
+    healthy: float = 60.0
+    failures: int = 0
+
+    def delay(self, ran_for: float) -> float:
+        if ran_for >= self.healthy:
+            self.failures = 0
+        seconds = min(self.base * 2 ** self.failures, self.cap)
+        self.failures += 1
+        return seconds
+
+
+def exit_description(code: int) -> str:
+    if code < 0:
+        with contextlib.suppress(ValueError):
+            return f"killed by {signal.Signals(-code).name}"
+        return f"killed by signal {-code}"
+    return f"exit status {code}"
+
+
+@dataclass
+class Child:
+    """A process the supervisor keeps running: ``start`` starts it (and waits until it serves,
+    where that can be told) and returns it."""
+
+    name: str
+    start: Callable[[], subprocess.Popen]
+    proc: subprocess.Popen | None = None
+    started_at: float = 0.0
+    restart_at: float | None = None  # when it exited: the time to start it again
+    restarts: int = 0
+    backoff: Backoff = field(default_factory=Backoff)
+
+    def run(self) -> None:
+        self.proc = self.start()
+        self.started_at = time.monotonic()
+        self.restart_at = None
+
+
+class Supervisor:
+    """Watches ``children`` every ``interval`` seconds in a thread; each that exited is reaped,
+    reported with ``say`` and started again after its backoff. A start that fails counts as an
+    exit (the next try waits longer)."""
+
+    def __init__(self, children: list[Child], say: Callable[[str], None] = _stderr,
+                 interval: float = 0.2):
+        self.children = children
+        self.say = say
+        self.interval = interval
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, name="lucent-supervisor", daemon=True)
+
+    def start(self) -> Supervisor:
+        self._thread.start()
+        return self
+
+    def stop(self) -> None:
+        """Stop watching (before the children are stopped, so that none is started again)."""
+        self._stop.set()
+        if self._thread.is_alive():
+            self._thread.join()
+
+    def _run(self) -> None:
+        while not self._stop.wait(self.interval):
+            for child in self.children:
+                self.check(child)
+
+    def check(self, child: Child, now: float | None = None) -> None:
+        now = time.monotonic() if now is None else now
+        if child.restart_at is None:
+            code = child.proc.poll() if child.proc is not None else None
+            if code is None:
+                return
+            delay = child.backoff.delay(now - child.started_at)
+            child.restart_at = now + delay
+            self.say(f"lucent up: {child.name} {exit_description(code)} after "
+                     f"{now - child.started_at:.0f} s; starting it again in {delay:g} s")
+        elif now >= child.restart_at and not self._stop.is_set():
+            try:
+                child.run()
+            except Exception as err:  # e.g. the port taken meanwhile: back off and try again
+                delay = child.backoff.delay(0.0)
+                child.restart_at = time.monotonic() + delay
+                self.say(f"lucent up: could not start {child.name}: {err}; trying again in "
+                         f"{delay:g} s")
+                return
+            child.restarts += 1
+            self.say(f"lucent up: {child.name} started again (pid {child.proc.pid}, "  # type: ignore[union-attr]
+                     f"restart {child.restarts})")
+
+
 class LocalFarm:
-    """Redis (embedded unless ``redis_url``), ``workers`` worker processes and the API server."""
+    """Redis (embedded unless ``redis_url``), ``workers`` worker processes and the API server;
+    the Redis and the worker node it started are supervised (restarted when they exit)."""
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8000, workers: int | None = None,
-                 redis_url: str | None = None, threads: int = 1, quiet: bool = False):
+                 redis_url: str | None = None, threads: int = 1, quiet: bool = False,
+                 say: Callable[[str], None] = _stderr):
         self.host, self.port = host, port
         self.workers = DEFAULT_WORKERS if workers is None else workers
         self.threads = threads
         self.redis_url = redis_url
         self.quiet = quiet
+        self.say = say
         self.redis: EmbeddedRedis | None = None
-        self.worker_proc: subprocess.Popen | None = None
+        self.redis_child: Child | None = None
+        self.worker_child: Child | None = None
+        self.supervisor: Supervisor | None = None
         self.server: uvicorn.Server | None = None
         self._thread: threading.Thread | None = None
+
+    @property
+    def worker_proc(self) -> subprocess.Popen | None:
+        """The worker node's main process now (a new one after each restart)."""
+        return self.worker_child.proc if self.worker_child else None
 
     @property
     def url(self) -> str:
         return f"http://{self.host}:{self.port}"
 
     def start(self, serve_in_thread: bool = True) -> LocalFarm:
+        children = []
         if self.redis_url is None:
-            self.redis = EmbeddedRedis().start()
+            # appendonly: a Redis that the supervisor starts again comes back with the farm's
+            # state (written to its temporary folder, which lives as long as this farm)
+            redis_server = self.redis = EmbeddedRedis(appendonly=True)
+
+            def start_redis() -> subprocess.Popen:
+                redis_server.start()
+                assert redis_server.proc is not None
+                return redis_server.proc
+
+            self.redis_child = Child("redis-server", start_redis)
+            self.redis_child.run()
+            children.append(self.redis_child)
             self.redis_url = self.redis.url
-        os.environ["REDIS_URL"] = self.redis_url
+        os.environ["REDIS_URL"] = redis_url = self.redis_url
         from services.farm.settings import get_settings
 
         get_settings.cache_clear()
         if self.workers > 0:
-            self.worker_proc = start_worker(self.redis_url, self.workers, self.threads,
-                                            log=subprocess.DEVNULL if self.quiet else None)
+            log = subprocess.DEVNULL if self.quiet else None
+            self.worker_child = Child("the worker node", lambda: start_worker(
+                redis_url, self.workers, self.threads, log=log))
+            self.worker_child.run()
+            children.append(self.worker_child)
+        self.supervisor = Supervisor(children, self.say).start()
         import uvicorn
 
         from services.api.main import create_app
@@ -217,13 +353,16 @@ class LocalFarm:
         self.server.run()
 
     def stop(self) -> None:
+        if self.supervisor is not None:
+            self.supervisor.stop()
+            self.supervisor = None
         if self.server is not None:
             self.server.should_exit = True
             if self._thread is not None:
                 self._thread.join(15)
-        if self.worker_proc is not None:
-            terminate(self.worker_proc, 30.0)
-            self.worker_proc = None
+        if self.worker_child is not None and self.worker_child.proc is not None:
+            terminate(self.worker_child.proc, 30.0)
+            self.worker_child = None
         if self.redis is not None:
             self.redis.stop()
             self.redis = None

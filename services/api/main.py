@@ -11,9 +11,10 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.staticfiles import StaticFiles
 
 from services.api.deps import require_token
-from services.api.guards import BodyLimit, validation_error
+from services.api.guards import BodyLimit, store_unavailable, validation_error
 from services.api.intake import Intake
 from services.api.routes import dashboard, health, jobs, workers
+from services.farm.availability import UNAVAILABLE
 from services.farm.merge import StallRule, Sweeper
 from services.farm.queue import celery_client
 from services.farm.settings import Settings, get_settings
@@ -48,6 +49,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_exception_handler(RequestValidationError, validation_error)
+    for unavailable in UNAVAILABLE:
+        app.add_exception_handler(unavailable, store_unavailable)
     if settings.cors_origins:
         # Off unless configured: without Access-Control-Allow-Origin a browser keeps other sites'
         # pages from reading the API. No cookies are used (the token is a header), so no

@@ -107,7 +107,11 @@ def test_production_needs_a_token():
 
 def test_health_ready_and_metrics(client):
     assert client.get("/healthz").json() == {"status": "ok"}
-    assert client.get("/readyz").json() == {"status": "ok"}
+    # Redis answers; no worker beats on this test's prefix: not ready, saying why.
+    ready = client.get("/readyz")
+    assert ready.status_code == 503
+    assert ready.json() == {"status": "unavailable", "reasons": [
+        "no live workers: no worker process has sent a heartbeat within its timeout"]}
     text = client.get("/metrics").text
     assert 'lucent_jobs{status="done"} 0' in text
     assert "# TYPE lucent_tasks_done_total counter" in text
