@@ -142,14 +142,35 @@ def worker_command(concurrency: int | None, name: str | None = None, loglevel: s
     return cmd
 
 
+# The niceness of the worker nodes a farm on one machine starts: rendering is batch work that
+# takes every core it gets, the API answers people. At nice 10 a busy core gives the API about
+# nine tenths of its time when both want it (Linux CFS weights 1024 : 110), and the workers all
+# of it otherwise (docs/performance.md, "Load").
+WORKER_NICE = 10
+
+
 def start_worker(redis_url: str, concurrency: int, threads: int = 1, name: str | None = None,
-                 extra_env: dict[str, str] | None = None, log=None) -> subprocess.Popen:
+                 extra_env: dict[str, str] | None = None, log=None,
+                 nice: int = WORKER_NICE) -> subprocess.Popen:
     root = str(Path(__file__).resolve().parents[1])
+
+    def preexec() -> None:
+        _die_with_parent()
+        os.nice(nice)
+
     return subprocess.Popen(
         worker_command(concurrency, name), cwd=root,
-        env=worker_env(redis_url, threads, extra_env), preexec_fn=_die_with_parent,
+        env=worker_env(redis_url, threads, extra_env), preexec_fn=preexec,
         stdout=log if log is not None else None, stderr=subprocess.STDOUT if log else None,
     )
+
+
+def api_command(host: str, port: int, processes: int) -> list[str]:
+    """``uvicorn services.api.main:app`` in ``processes`` processes (uvicorn's own supervisor
+    restarts one that dies), without access log."""
+    return [sys.executable, "-m", "uvicorn", "services.api.main:app", "--host", host,
+            "--port", str(port), "--workers", str(processes), "--log-level", "warning",
+            "--no-access-log"]
 
 
 def terminate(proc: subprocess.Popen, grace: float) -> None:
@@ -231,6 +252,10 @@ class Supervisor:
         self._thread.start()
         return self
 
+    def hold(self) -> None:
+        """Start nothing from now on (safe in a signal handler: it only sets an event)."""
+        self._stop.set()
+
     def stop(self) -> None:
         """Stop watching (before the children are stopped, so that none is started again)."""
         self._stop.set()
@@ -272,9 +297,13 @@ class LocalFarm:
 
     def __init__(self, host: str = "127.0.0.1", port: int = 8000, workers: int | None = None,
                  redis_url: str | None = None, threads: int = 1, quiet: bool = False,
-                 say: Callable[[str], None] = _stderr):
+                 say: Callable[[str], None] = _stderr, api_processes: int = 1):
         self.host, self.port = host, port
         self.workers = DEFAULT_WORKERS if workers is None else workers
+        # 1: the API serves in this process (a thread, or serve_forever); more: a uvicorn child
+        # with that many processes (supervised like the rest)
+        self.api_processes = api_processes
+        self.api_child: Child | None = None
         self.threads = threads
         self.redis_url = redis_url
         self.quiet = quiet
@@ -321,6 +350,12 @@ class LocalFarm:
                 redis_url, self.workers, self.threads, log=log))
             self.worker_child.run()
             children.append(self.worker_child)
+        if self.api_processes > 1:
+            self.api_child = Child("the API", self._start_api)
+            self.api_child.run()
+            children.append(self.api_child)
+            self.supervisor = Supervisor(children, self.say).start()
+            return self
         self.supervisor = Supervisor(children, self.say).start()
         import uvicorn
 
@@ -340,16 +375,44 @@ class LocalFarm:
                 time.sleep(0.05)
         return self
 
+    def _start_api(self, timeout: float = 60.0) -> subprocess.Popen:
+        import httpx
+
+        root = str(Path(__file__).resolve().parents[1])
+        proc = subprocess.Popen(api_command(self.host, self.port, self.api_processes), cwd=root,
+                                env=dict(os.environ), preexec_fn=_die_with_parent)
+        deadline = time.monotonic() + timeout
+        while True:
+            with contextlib.suppress(httpx.HTTPError):
+                if httpx.get(f"{self.url}/healthz", timeout=1).status_code == 200:
+                    return proc
+            if proc.poll() is not None or time.monotonic() > deadline:
+                terminate(proc, 5.0)
+                raise RuntimeError(f"the API did not start on {self.url}")
+            time.sleep(0.1)
+
     def serve_forever(self) -> None:
         """Serve in this thread until SIGINT or SIGTERM, then return (the caller stops the rest).
 
         uvicorn catches both signals to shut down gracefully, then raises the signal again for
         the handler that was there before it; the no-op handlers installed here make that a
         return instead of the process dying before it could stop its children."""
-        assert self.server is not None
         received: list[int] = []
+
+        def handler(signum: int, _frame: object) -> None:
+            received.append(signum)
+            # Ctrl-C reaches the whole process group: the children stop by themselves, and
+            # must not be started again meanwhile.
+            if self.supervisor is not None:
+                self.supervisor.hold()
+
         for sig in (signal.SIGINT, signal.SIGTERM):
-            signal.signal(sig, lambda signum, _frame: received.append(signum))
+            signal.signal(sig, handler)
+        if self.api_child is not None:  # the API is a child: wait for the signal
+            while not received:
+                time.sleep(0.2)
+            return
+        assert self.server is not None
         self.server.run()
 
     def stop(self) -> None:
@@ -360,6 +423,9 @@ class LocalFarm:
             self.server.should_exit = True
             if self._thread is not None:
                 self._thread.join(15)
+        if self.api_child is not None and self.api_child.proc is not None:
+            terminate(self.api_child.proc, 15.0)
+            self.api_child = None
         if self.worker_child is not None and self.worker_child.proc is not None:
             terminate(self.worker_child.proc, 30.0)
             self.worker_child = None

@@ -28,6 +28,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         store = JobStore.from_url(settings.redis_url, settings.key_prefix)
         app.state.store = store
+        app.state.status_views = jobs.StatusViews(store)
         app.state.celery = celery_client(settings)
         stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues)
         sweeper = Sweeper(store, settings.sweep_interval, stall)

@@ -336,6 +336,21 @@ class JobStore:
         return int(self._claim_stall(keys=[self.job_key(job_id)], args=[now, stall_timeout]))
 
     # --- tiles ----------------------------------------------------------------------------------
+    def job_view(self, job_id: str
+                 ) -> tuple[JobMeta, dict[int, str], dict[int, int], dict[int, str]] | None:
+        """The job and its tiles' states, samples and errors, as one snapshot in one round trip
+        (what a status answer shows); None for an unknown job."""
+        pipe = self.r.pipeline()
+        for part in ("tile_state", "tile_samples", "tile_error"):
+            pipe.hgetall(self.k("job", job_id, part))
+        pipe.hgetall(self.job_key(job_id))
+        states, samples, errors, h = pipe.execute()
+        if not h:
+            return None
+        return (JobMeta.from_hash(h), {int(k): v.decode() for k, v in states.items()},
+                {int(k): int(v) for k, v in samples.items()},
+                {int(k): v.decode() for k, v in errors.items()})
+
     def tile_states(self, job_id: str) -> dict[int, str]:
         h = self.r.hgetall(self.k("job", job_id, "tile_state"))
         return {int(k): v.decode() for k, v in h.items()}

@@ -45,6 +45,13 @@ def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_sce
         names = {c.name() for c in children}
         assert any("redis" in n for n in names), names  # embedded Redis
         assert len(children) >= 3  # redis-server, the worker node and its pool process
+        # The API in two uvicorn processes under a supervising one (lucent up's default), and the
+        # worker node below the API's priority (nice 10: rendering is batch work).
+        uvicorn = [c for c in children if "uvicorn" in " ".join(c.cmdline())]
+        assert len(uvicorn) == 1 and len(uvicorn[0].children()) >= 2, uvicorn
+        nodes = [c for c in children if "celery" in " ".join(c.cmdline())]
+        below = min(19, psutil.Process(up.pid).nice() + 10)
+        assert nodes and all(c.nice() == below for c in nodes), [(c, c.nice()) for c in nodes]
     finally:
         up.send_signal(signal.SIGTERM)
         try:
