@@ -91,15 +91,19 @@ class TwoNodes:
             terminate(proc, 10.0)
 
 
-def _until(predicate, timeout: float, what: str, interval: float = 0.02):
+def _watch(conditions: dict, timeout: float, interval: float = 0.02) -> dict[str, float]:
+    """Poll every condition until each has held once; the monotonic time each first held."""
+    seen: dict[str, float] = {}
     deadline = time.monotonic() + timeout
-    while True:
-        value = predicate()
-        if value:
-            return value
+    while len(seen) < len(conditions):
+        for name, condition in conditions.items():
+            if name not in seen and condition():
+                seen[name] = time.monotonic()
         if time.monotonic() > deadline:
-            raise TimeoutError(f"timed out after {timeout:g} s waiting for {what}")
+            missing = [name for name in conditions if name not in seen]
+            raise TimeoutError(f"timed out after {timeout:g} s waiting for {missing}")
         time.sleep(interval)
+    return seen
 
 
 def _live_processes(store) -> int:
@@ -109,37 +113,34 @@ def _live_processes(store) -> int:
 def lose_a_worker(api, store, nodes: TwoNodes, scene: dict, timeout: float = 120.0) -> Loss:
     """One run: submit the one-pass job, SIGKILL the node that begins it, time the recovery.
     ``api``: a TestClient of the app (its sweeper running) on the nodes' Redis and prefix."""
-    _until(lambda: _live_processes(store) >= 2, 240.0, "two warm worker processes", 0.1)
+    _watch({"two warm worker processes": lambda: _live_processes(store) >= 2}, 240.0, 0.1)
     r = api.post("/api/jobs", json={"scene": scene, "tile_size": 64,
                                     "spp_per_pass": scene["render"]["spp"]})
     assert r.status_code == 201, r.text
     job_id = r.json()["id"]
     assert r.json()["tasks_total"] == 1
+    holders: list[int] = []
 
-    def holder() -> int | None:
-        for w in store.workers():
-            if w.get("state") == "busy" and w.get("current_task", "").startswith(job_id):
-                return int(w["pid"])
-        return None
+    def begun() -> bool:
+        holders.extend(int(w["pid"]) for w in store.workers() if w.get("state") == "busy"
+                       and w.get("current_task", "").startswith(job_id))
+        return bool(holders)
 
-    pid = _until(holder, timeout, "a worker process to begin the pass")
-    victim = nodes.node_of(pid)
-    assert victim is not None, f"no node has the pool process {pid}"
+    _watch({"a worker process to begin the pass": begun}, timeout)
+    victim = nodes.node_of(holders[0])
+    assert victim is not None, f"no node has the pool process {holders[0]}"
     requeues = store.metrics().get("lost_requeues", 0.0)
     nodes.procs[victim].kill()  # SIGKILL; the pool process gets SIGKILL from PDEATHSIG
     t0 = time.monotonic()
     nodes.procs[victim].wait()
-    _until(lambda: store.metrics().get("lost_requeues", 0.0) > requeues, timeout,
-           "the sweeper to send the lost pass again")
-    requeued = time.monotonic() - t0
-    _until(lambda: store.attempts(job_id, 0, 0) >= 2, timeout, "another node to begin it")
-    begun = time.monotonic() - t0
-    _until(lambda: store.get_status(job_id) in ("done", "failed", "cancelled"), timeout,
-           "the job to end")
-    done = time.monotonic() - t0
+    seen = _watch({
+        "requeued": lambda: store.metrics().get("lost_requeues", 0.0) > requeues,
+        "begun": lambda: store.attempts(job_id, 0, 0) >= 2,
+        "done": lambda: store.get_status(job_id) in ("done", "failed", "cancelled"),
+    }, timeout)
     assert store.get_status(job_id) == "done", store.get_job(job_id)
     nodes.start(victim)  # for the next run
-    return Loss(requeued, begun, done, nodes.heartbeat)
+    return Loss(seen["requeued"] - t0, seen["begun"] - t0, seen["done"] - t0, nodes.heartbeat)
 
 
 def main(argv: list[str] | None = None) -> int:

@@ -17,6 +17,16 @@ import pytest
 from services.launcher import free_port
 
 
+def _stop(up: subprocess.Popen) -> None:
+    """SIGTERM ``lucent up`` as a service manager would; SIGKILL if it has not ended in 90 s."""
+    up.send_signal(signal.SIGTERM)
+    try:
+        up.wait(90)
+    except subprocess.TimeoutExpired:
+        up.kill()
+        raise
+
+
 def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_scene, wait_until):
     psutil = pytest.importorskip("psutil")
     port = free_port()
@@ -53,12 +63,7 @@ def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_sce
         below = min(19, psutil.Process(up.pid).nice() + 10)
         assert nodes and all(c.nice() == below for c in nodes), [(c, c.nice()) for c in nodes]
     finally:
-        up.send_signal(signal.SIGTERM)
-        try:
-            up.wait(90)
-        except subprocess.TimeoutExpired:
-            up.kill()
-            raise
+        _stop(up)
     assert up.returncode == 0, up.stderr.read()[-3000:] if up.stderr else ""
     deadline = time.monotonic() + 10
     while any(c.is_running() and c.status() != psutil.STATUS_ZOMBIE for c in children):
@@ -156,10 +161,5 @@ def test_up_restarts_redis_and_its_worker_node_and_submit_waits_through(tmp_path
         assert "lucent up: the worker node killed by SIGKILL" in log, log
         assert log.count("started again") == 2, log
     finally:
-        up.send_signal(signal.SIGTERM)
-        try:
-            up.wait(90)
-        except subprocess.TimeoutExpired:
-            up.kill()
-            raise
+        _stop(up)
     assert up.returncode == 0, up_log.read_text()[-3000:]
