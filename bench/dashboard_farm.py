@@ -23,8 +23,9 @@ CHROMIUM_ARGS = ["--headless", "--no-sandbox", "--disable-gpu", "--disable-backg
 
 
 class DashboardFarm:
-    def __init__(self, workers: int = 2, heartbeat: float = 0.5):
+    def __init__(self, workers: int = 2, heartbeat: float = 0.5, api_workers: int = 1):
         self.workers = workers
+        self.api_workers = api_workers
         self.heartbeat = heartbeat
         self.prefix = f"lucent-bench-{uuid.uuid4().hex[:8]}"
         self.port = free_port()
@@ -42,13 +43,15 @@ class DashboardFarm:
                                        log=subprocess.DEVNULL)
         self.server = subprocess.Popen(
             [sys.executable, "-m", "uvicorn", "services.api.main:app", "--host", "127.0.0.1",
-             "--port", str(self.port), "--log-level", "warning", "--no-access-log"],
+             "--port", str(self.port), "--log-level", "warning", "--no-access-log",
+             "--workers", str(self.api_workers)],
             cwd=ROOT, env={**os.environ, **env, "REDIS_URL": self.redis.url})
         store = self.store()
         deadline = time.monotonic() + 240
         while True:
             try:
-                httpx.get(f"{self.url}/readyz", timeout=1).raise_for_status()
+                # /healthz: /readyz would wait for a worker, and this farm may have none
+                httpx.get(f"{self.url}/healthz", timeout=1).raise_for_status()
                 idle = sum(w.get("state") == "idle" for w in store.workers())
                 if idle >= self.workers:
                     break

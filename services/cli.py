@@ -23,6 +23,9 @@ from pathlib import Path
 
 # Where `lucent up` serves the API by default (its --host and --port).
 DEFAULT_SERVER = "http://127.0.0.1:8000"
+# Processes serving the API in `lucent up` (uvicorn --workers): one process's event loop and GIL
+# bound the status polls it answers (docs/performance.md, "Load").
+API_PROCESSES = 2
 # What a cold compile of the kernels takes on a 2-core machine (docs/performance.md, "Start-up":
 # `python -m bench.startup`).
 COLD_COMPILE = "a minute on 2 cores"
@@ -132,11 +135,12 @@ def cmd_up(args: argparse.Namespace) -> int:
     from services.launcher import LocalFarm
 
     farm = LocalFarm(args.host, args.port, args.workers, os.environ.get("REDIS_URL") or None,
-                     threads=args.threads)
+                     threads=args.threads, api_processes=args.api_processes)
     try:
         farm.start(serve_in_thread=False)
         print(f"Lucent farm at {farm.url} (API docs {farm.url}/docs); Redis {farm.redis_url}"
-              f"{' (embedded)' if farm.redis else ''}; {farm.workers} worker processes. "
+              f"{' (embedded)' if farm.redis else ''}; {farm.workers} worker processes, "
+              f"{farm.api_processes} API process(es). "
               "Ctrl-C stops everything.", file=sys.stderr, flush=True)
         farm.serve_forever()  # returns on SIGINT or SIGTERM
     finally:
@@ -218,6 +222,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes (default: one per core, measured fastest)")
     p.add_argument("--threads", type=int, default=1, help="numba threads per worker process")
+    p.add_argument("--api-processes", type=int, default=API_PROCESSES,
+                   help=f"processes serving the API (default {API_PROCESSES}; 1 serves it in "
+                        "this process): the status polls one process answers are bounded by "
+                        "its event loop (docs/performance.md, Load)")
     p.set_defaults(func=cmd_up)
 
     p = sub.add_parser("worker", help="join a farm as a Celery worker node")

@@ -1,10 +1,19 @@
-"""A small client of the API: what ``lucent submit`` does (httpx)."""
+"""A small client of the API: what ``lucent submit`` does (httpx).
+
+The farm can be unavailable for a while without anything being lost: its Redis restarting
+(``lucent up`` restarts it; the API answers 503 meanwhile), the API process restarting (the
+connection is refused). The client then asks again with growing delays (``RETRY_DELAYS``, at least
+the server's ``Retry-After``), saying each time why, for up to ``patience`` seconds of
+unavailability in a row; only then does it give up (``Unavailable``). Other errors end at once:
+a 500 is a bug, and a 4xx will not change by asking again.
+"""
 
 from __future__ import annotations
 
 import json
 import sys
 import time
+from collections.abc import Callable
 from pathlib import Path
 from typing import Any
 
@@ -36,13 +45,62 @@ class JobLost(RuntimeError):
     persistence, or flushed). Nothing of the job survives; submit it again."""
 
 
+class Unavailable(RuntimeError):
+    """The server stayed unavailable (503, 502, 504, or no connection) for longer than the
+    client's patience; the message says the last reason."""
+
+
+# Seconds between tries while the server is unavailable: doubling from half a second, then every
+# 10 s (a restarted Redis is back within seconds; an API being redeployed within a minute).
+RETRY_DELAYS = (0.5, 1.0, 2.0, 4.0, 8.0, 10.0)
+UNAVAILABLE_STATUSES = (502, 503, 504)
+
+
+def _stderr(line: str) -> None:
+    print(line, file=sys.stderr, flush=True)
+
+
 class Client:
-    def __init__(self, server: str, token: str | None = None, timeout: float = 60.0):
+    """``say``: where the client tells why it waits (stderr); ``patience``: seconds of
+    unavailability in a row before it gives up."""
+
+    def __init__(self, server: str, token: str | None = None, timeout: float = 60.0,
+                 say: Callable[[str], None] = _stderr, patience: float = 600.0):
         headers = {"Authorization": f"Bearer {token}"} if token else {}
         self.http = httpx.Client(base_url=server.rstrip("/"), headers=headers, timeout=timeout)
+        self.say = say
+        self.patience = patience
+
+    def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
+        """The response, once the server is available; tries again with backoff meanwhile.
+
+        A submission is sent again too: a 503 means it was refused before the job was stored
+        (the store call failed), and a refused connection means it never arrived."""
+        tries = 0
+        since = time.monotonic()
+        while True:
+            try:
+                r = self.http.request(method, path, **kwargs)
+            except (httpx.ConnectError, httpx.RemoteProtocolError, httpx.ReadError) as err:
+                # Not sent, or a connection the server closed as it went away (not a timeout:
+                # a slow answer to a submission may still have created the job).
+                why = f"cannot reach the server ({type(err).__name__}: {err})"
+                retry_after = 0.0
+            else:
+                if r.status_code not in UNAVAILABLE_STATUSES:
+                    return r
+                why = f"{r.status_code} {_detail(r)}"
+                retry_after = _seconds(r.headers.get("retry-after"))
+            if time.monotonic() - since > self.patience:
+                raise Unavailable(f"{method} {path}: the server was unavailable for more than "
+                                  f"{self.patience:g} s; last: {why}")
+            delay = max(RETRY_DELAYS[min(tries, len(RETRY_DELAYS) - 1)], retry_after)
+            self.say(f"{method} {path}: {why}; retrying in {delay:g} s")
+            time.sleep(delay)
+            tries += 1
 
     def submit(self, scene: dict, **options: Any) -> dict:
-        r = self.http.post("/api/jobs", json={"scene": scene, **options})
+        r = self._request("POST", "/api/jobs", json={"scene": scene, **options})
         if r.status_code == 422:
             raise ValueError("\n".join(
                 f"{'.'.join(map(str, d['loc'][2:])) or d['loc']}: {d['msg']}"
@@ -51,7 +109,7 @@ class Client:
         return r.json()
 
     def job(self, job_id: str) -> dict:
-        r = self.http.get(f"/api/jobs/{job_id}")
+        r = self._request("GET", f"/api/jobs/{job_id}")
         if r.status_code == 404:
             raise JobLost(f"job {job_id} is gone from the server (was its Redis restarted "
                           "without persistence?)")
@@ -59,7 +117,7 @@ class Client:
         return r.json()
 
     def image(self, job_id: str, fmt: str) -> bytes:
-        r = self.http.get(f"/api/jobs/{job_id}/image.{fmt}")
+        r = self._request("GET", f"/api/jobs/{job_id}/image.{fmt}")
         r.raise_for_status()
         return r.content
 
@@ -73,12 +131,34 @@ class Client:
         with tqdm(total=job["samples_planned"], unit="samples", unit_scale=True,
                   disable=not progress, file=sys.stderr, smoothing=0.3,
                   mininterval=0.1 if sys.stderr.isatty() else 10.0) as bar:
-            while True:
-                bar.update(job["samples_merged"] - bar.n)
-                if job["status"] in ("done", "failed", "cancelled"):
-                    return job
-                time.sleep(interval)
-                job = self.job(job_id)
+            say = self.say
+            if say is _stderr:  # above the bar, not through it
+                self.say = lambda line: bar.write(line, file=sys.stderr)
+            try:
+                while True:
+                    bar.update(job["samples_merged"] - bar.n)
+                    if job["status"] in ("done", "failed", "cancelled"):
+                        return job
+                    time.sleep(interval)
+                    job = self.job(job_id)
+            finally:
+                self.say = say
+
+
+def _detail(r: httpx.Response) -> str:
+    try:
+        detail = r.json().get("detail")
+    except (ValueError, AttributeError):
+        detail = None
+    return detail if isinstance(detail, str) else r.reason_phrase
+
+
+def _seconds(retry_after: str | None) -> float:
+    """``Retry-After`` in seconds (its HTTP-date form is not used by the farm: 0)."""
+    try:
+        return min(max(float(retry_after or 0), 0.0), 60.0)
+    except ValueError:
+        return 0.0
 
 
 def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, wait: bool = False,
@@ -96,7 +176,7 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
     except ValueError as err:
         print(f"{scene_path}: the server refused it:\n{err}", file=sys.stderr)
         return 1
-    except httpx.HTTPError as err:
+    except (Unavailable, httpx.HTTPError) as err:
         print(f"{server}: {err}", file=sys.stderr)
         return 1
     print(f"job {job['id']}: {job['tiles']} tiles x {job['tasks_total'] // job['tiles']} passes "
@@ -107,7 +187,7 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
     t0 = time.perf_counter()
     try:
         job = client.wait(job["id"], progress=not quiet)
-    except (JobLost, httpx.HTTPError) as err:
+    except (JobLost, Unavailable, httpx.HTTPError) as err:
         print(f"{server}: {err}", file=sys.stderr)
         return 1
     if job["status"] != "done":

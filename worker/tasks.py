@@ -9,6 +9,7 @@ once however often the task runs). Running it twice costs a render, never a doub
 
 from __future__ import annotations
 
+import contextlib
 import logging
 import time
 
@@ -17,7 +18,7 @@ from celery import signals
 from celery.exceptions import Reject, SoftTimeLimitExceeded
 
 from renderer.film.buffer import SampleBuffer
-from services.farm.passes import begin_pass, converged, deliver, pass_failed
+from services.farm.passes import begin_pass, converged, deliver, end_pass, pass_failed
 from services.farm.planner import celery_priority
 from services.farm.settings import get_settings
 from worker import runtime
@@ -79,15 +80,16 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
     store = state.store
     settings = state.settings
 
-    delivery = begin_pass(store, settings, job_id, tile, pass_index)
-    if isinstance(delivery, str):
-        return delivery
-    state.set_task(f"{job_id}/{tile}/{pass_index}")
+    delivery = begin_pass(store, settings, job_id, tile, pass_index, holder=state.worker_id)
     try:
+        if isinstance(delivery, str):
+            return delivery
+        state.set_task(f"{job_id}/{tile}/{pass_index}")
         return _render_and_merge(state, delivery.meta, tile, pass_index, t_task)
     except REDIS_DOWN:
         raise  # not the pass's fault: no try is spent on recording it
     except Exception as err:  # every other failure is recorded on the tile
+        assert not isinstance(delivery, str)
         reason = ("timed out" if isinstance(err, SoftTimeLimitExceeded)
                   else f"{type(err).__name__}: {err}")
         if not pass_failed(store, settings, delivery, tile, pass_index, reason):
@@ -97,6 +99,9 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
         return "retrying"
     finally:
         state.set_task("")
+        # Redis down: the holding stays, and the next pass this process begins replaces it
+        with contextlib.suppress(*REDIS_DOWN):
+            end_pass(store, state.worker_id)
 
 
 def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: int,

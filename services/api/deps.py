@@ -12,15 +12,17 @@ from services.farm.settings import Settings
 from services.farm.store import JobStore
 
 
-def get_settings_dep(request: Request) -> Settings:
+# The dependencies are ``async``: they do no I/O, and FastAPI runs a plain ``def`` dependency in
+# its thread pool, a hand-off that cost more than the rest of a status request together.
+async def get_settings_dep(request: Request) -> Settings:
     return request.app.state.settings
 
 
-def get_store(request: Request) -> JobStore:
+async def get_store(request: Request) -> JobStore:
     return request.app.state.store
 
 
-def get_celery(request: Request) -> Celery:
+async def get_celery(request: Request) -> Celery:
     return request.app.state.celery
 
 
@@ -29,7 +31,7 @@ StoreDep = Annotated[JobStore, Depends(get_store)]
 CeleryDep = Annotated[Celery, Depends(get_celery)]
 
 
-def require_token(request: Request, settings: SettingsDep) -> None:
+async def require_token(request: Request, settings: SettingsDep) -> None:
     """With ``LUCENT_API_TOKEN`` set, ``Authorization: Bearer <token>`` (compared in constant
     time); without it, the API is open (development on one machine)."""
     if not settings.api_token:

@@ -12,6 +12,8 @@
   ``-Infinity`` (and reads ``1e400`` as infinity), echoed as those literals' names, and lone UTF-16
   surrogates (``"\\ud800"``), which no UTF-8 reply can hold, echoed as their escape. Every text of
   an error (``loc`` parts, ``msg``, ``input``, ``ctx``) goes through the same rules.
+- ``store_unavailable``: Redis down, restarting or cut off is 503 with ``Retry-After`` and the
+  kind of failure (``services.farm.availability``), not a bare 500 whose log names its address.
 """
 
 from __future__ import annotations
@@ -25,6 +27,8 @@ from fastapi import HTTPException, Request, status
 from fastapi.exceptions import RequestValidationError
 from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
+
+from services.farm.availability import RETRY_AFTER, unavailable_detail
 
 
 def _too_large(size: str, limit: int) -> str:
@@ -156,3 +160,10 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
     return JSONResponse(status_code=status.HTTP_422_UNPROCESSABLE_CONTENT,
                         content=error_content(exc.errors()))
+
+
+async def store_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """503 for a route whose Redis call failed because Redis cannot be reached now."""
+    return JSONResponse(status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
+                        headers={"Retry-After": str(RETRY_AFTER)},
+                        content={"detail": unavailable_detail(exc)})

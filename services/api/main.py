@@ -11,9 +11,10 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.staticfiles import StaticFiles
 
 from services.api.deps import require_token
-from services.api.guards import BodyLimit, validation_error
+from services.api.guards import BodyLimit, store_unavailable, validation_error
 from services.api.intake import Intake
 from services.api.routes import dashboard, health, jobs, workers
+from services.farm.availability import UNAVAILABLE
 from services.farm.merge import StallRule, Sweeper
 from services.farm.queue import celery_client
 from services.farm.settings import Settings, get_settings
@@ -27,6 +28,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     async def lifespan(app: FastAPI) -> AsyncIterator[None]:
         store = JobStore.from_url(settings.redis_url, settings.key_prefix)
         app.state.store = store
+        app.state.status_views = jobs.StatusViews(store)
         app.state.celery = celery_client(settings)
         stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues)
         sweeper = Sweeper(store, settings.sweep_interval, stall)
@@ -48,6 +50,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_exception_handler(RequestValidationError, validation_error)
+    for unavailable in UNAVAILABLE:
+        app.add_exception_handler(unavailable, store_unavailable)
     if settings.cors_origins:
         # Off unless configured: without Access-Control-Allow-Origin a browser keeps other sites'
         # pages from reading the API. No cookies are used (the token is a header), so no

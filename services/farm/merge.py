@@ -37,6 +37,7 @@ import redis
 from celery import Celery
 
 from renderer.film.buffer import SampleBuffer
+from services.farm.lost_workers import requeue_lost
 from services.farm.queue import enqueue, waiting_ahead
 from services.farm.store import JobStore
 
@@ -115,6 +116,8 @@ def sweep(store: JobStore, stall: StallRule | None = None) -> int:
             merged += merge_pass(store, parts[1], int(parts[3]), int(parts[4]))
         except Exception:  # a corrupt buffer must not stop the sweeper
             log.exception("cannot merge %s", key)
+    if stall is not None:
+        requeue_lost(store, stall.celery)  # passes of workers whose heartbeat expired
     for job_id in store.active_job_ids():
         if not store.finish_if_complete(job_id) and stall is not None:
             requeue_stalled(store, stall, job_id)

@@ -31,9 +31,11 @@ class Delivery:
 
 
 def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
-               pass_index: int) -> Delivery | str:
+               pass_index: int, holder: str = "") -> Delivery | str:
     """A ``Delivery`` to render, or what happened instead (``skipped: …``, ``duplicate``,
-    ``failed``), for the logs."""
+    ``failed``), for the logs. ``holder``: the worker process, recorded as holding the pass
+    from the moment its delivery is counted until ``end_pass`` (a holder whose heartbeat expires
+    meanwhile has its pass sent again: ``services.farm.lost_workers``)."""
     meta = store.get_job(job_id)
     if meta is None or meta.status in FINAL:
         return f"skipped: {meta.status if meta else 'no such job'}"
@@ -47,7 +49,7 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
     # Count every delivery, so that a pass that keeps killing its worker stops being retried. Only
     # deliveries that run are counted (one lost by the broker, then re-queued by the sweeper, is
     # not), and counting one marks the job alive for the sweeper's stall rule.
-    attempt = store.add_attempt(job_id, tile, pass_index)
+    attempt = store.add_attempt(job_id, tile, pass_index, holder)
     if attempt > settings.max_attempts:
         store.fail_tile(job_id, tile, f"pass {pass_index} gave up after {attempt - 1} tries "
                         "(its worker was lost or timed out each time)")
@@ -56,6 +58,11 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
         store.mark_started(job_id)
     store.set_tile_running(job_id, tile)
     return Delivery(meta, attempt)
+
+
+def end_pass(store: JobStore, holder: str) -> None:
+    """The holder's pass ended (merged, failed, retried or skipped): it holds nothing."""
+    store.release_pass(holder)
 
 
 def pass_failed(store: JobStore, settings: Settings, delivery: Delivery, tile: int,

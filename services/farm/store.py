@@ -17,6 +17,7 @@ Key                                Type    What
 ``{p}:pending``                    set     pass keys written and not merged (the sweeper's)
 ``{p}:workers``                    zset    worker id -> last heartbeat time
 ``{p}:worker:{id}``                hash    the last heartbeat (expires after 3 intervals)
+``{p}:holding``                    hash    worker id -> ``job tile pass attempt`` it renders
 ``{p}:metrics``                    hash    farm-wide counters for ``/metrics``
 =================================  ======  =================================================
 
@@ -81,10 +82,22 @@ return stalls
 
 # Count a delivery of a pass (KEYS[1] attempts hash, ARGV[1] tile:pass) and note the job alive
 # (KEYS[2] job hash, ARGV[2] now) unless its hash is gone: a deleted job is not brought back.
+# With a holder (ARGV[3], a worker id), record in the same step that it holds the pass (KEYS[3]
+# the holding hash, value ``ARGV[4] attempt``), so that no worker can die holding a pass unseen.
 _ADD_ATTEMPT = """
 local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
 if redis.call('EXISTS', KEYS[2]) == 1 then redis.call('HSET', KEYS[2], 'active_at', ARGV[2]) end
+if ARGV[3] ~= '' then redis.call('HSET', KEYS[3], ARGV[3], ARGV[4] .. ' ' .. n) end
 return n
+"""
+
+# Take a lost worker's holding (KEYS[1] the holding hash, ARGV[1] worker id, ARGV[2] the value
+# read) if it is still that one: of several sweepers, one re-queues the pass.
+_CLAIM_HOLDING = """
+if redis.call('HGET', KEYS[1], ARGV[1]) == ARGV[2] then
+  return redis.call('HDEL', KEYS[1], ARGV[1])
+end
+return 0
 """
 
 
@@ -166,6 +179,7 @@ class JobStore:
         self._transition = client.register_script(_TRANSITION)
         self._claim_stall = client.register_script(_CLAIM_STALL)
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
+        self._claim_holding = client.register_script(_CLAIM_HOLDING)
 
     @classmethod
     def from_url(cls, url: str, prefix: str = "lucent") -> JobStore:
@@ -322,6 +336,21 @@ class JobStore:
         return int(self._claim_stall(keys=[self.job_key(job_id)], args=[now, stall_timeout]))
 
     # --- tiles ----------------------------------------------------------------------------------
+    def job_view(self, job_id: str
+                 ) -> tuple[JobMeta, dict[int, str], dict[int, int], dict[int, str]] | None:
+        """The job and its tiles' states, samples and errors, as one snapshot in one round trip
+        (what a status answer shows); None for an unknown job."""
+        pipe = self.r.pipeline()
+        for part in ("tile_state", "tile_samples", "tile_error"):
+            pipe.hgetall(self.k("job", job_id, part))
+        pipe.hgetall(self.job_key(job_id))
+        states, samples, errors, h = pipe.execute()
+        if not h:
+            return None
+        return (JobMeta.from_hash(h), {int(k): v.decode() for k, v in states.items()},
+                {int(k): int(v) for k, v in samples.items()},
+                {int(k): v.decode() for k, v in errors.items()})
+
     def tile_states(self, job_id: str) -> dict[int, str]:
         h = self.r.hgetall(self.k("job", job_id, "tile_state"))
         return {int(k): v.decode() for k, v in h.items()}
@@ -353,12 +382,18 @@ class JobStore:
     def note_tile_error(self, job_id: str, tile: int, reason: str) -> None:
         self.r.hset(self.k("job", job_id, "tile_error"), str(tile), reason)
 
-    def add_attempt(self, job_id: str, tile: int, pass_index: int) -> int:
+    def add_attempt(self, job_id: str, tile: int, pass_index: int, holder: str = "") -> int:
         """Count a delivery of the pass that is about to run; it is also a sign of life of the
-        job (``active_at``: the sweeper's stall clock starts again)."""
+        job (``active_at``: the sweeper's stall clock starts again). ``holder``: the worker
+        process that runs it, recorded as holding the pass until ``release_pass``."""
         return int(self._add_attempt(
-            keys=[self.k("job", job_id, "attempts"), self.job_key(job_id)],
-            args=[pass_member(tile, pass_index), time.time()]))
+            keys=[self.k("job", job_id, "attempts"), self.job_key(job_id), self.k("holding")],
+            args=[pass_member(tile, pass_index), time.time(), holder,
+                  f"{job_id} {tile} {pass_index}"]))
+
+    def attempts(self, job_id: str, tile: int, pass_index: int) -> int:
+        return int(self.r.hget(self.k("job", job_id, "attempts"),
+                               pass_member(tile, pass_index)) or 0)
 
     def is_merged(self, job_id: str, tile: int, pass_index: int) -> bool:
         return bool(self.r.sismember(self.k("job", job_id, "merged"),
@@ -497,6 +532,25 @@ class JobStore:
     def remove_worker(self, worker_id: str) -> None:
         self.r.delete(self.k("worker", worker_id))
         self.r.zrem(self.k("workers"), worker_id)
+        self.release_pass(worker_id)
+
+    def release_pass(self, worker_id: str) -> None:
+        """The worker process holds no pass any more (it ended, whichever way)."""
+        self.r.hdel(self.k("holding"), worker_id)
+
+    def lost_holdings(self) -> dict[str, str]:
+        """worker id -> ``job tile pass attempt`` of each pass held by a worker process whose
+        heartbeat has expired (its hash is gone: the process died, or cannot reach Redis)."""
+        held = {k.decode(): v.decode() for k, v in self.r.hgetall(self.k("holding")).items()}
+        pipe = self.r.pipeline()
+        for worker_id in held:
+            pipe.exists(self.k("worker", worker_id))
+        return {w: v for (w, v), alive in zip(held.items(), pipe.execute(), strict=True)
+                if not alive}
+
+    def claim_holding(self, worker_id: str, value: str) -> bool:
+        """Take the lost worker's holding if it is still ``value``; True for one caller only."""
+        return bool(self._claim_holding(keys=[self.k("holding")], args=[worker_id, value]))
 
     def workers(self, forget_after: float = 300.0) -> list[dict[str, str]]:
         """Workers seen in the last ``forget_after`` seconds; those whose heartbeat expired come

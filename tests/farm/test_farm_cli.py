@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import contextlib
 import json
 import os
 import signal
@@ -14,6 +15,16 @@ import numpy as np
 import pytest
 
 from services.launcher import free_port
+
+
+def _stop(up: subprocess.Popen) -> None:
+    """SIGTERM ``lucent up`` as a service manager would; SIGKILL if it has not ended in 90 s."""
+    up.send_signal(signal.SIGTERM)
+    try:
+        up.wait(90)
+    except subprocess.TimeoutExpired:
+        up.kill()
+        raise
 
 
 def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_scene, wait_until):
@@ -44,13 +55,15 @@ def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_sce
         names = {c.name() for c in children}
         assert any("redis" in n for n in names), names  # embedded Redis
         assert len(children) >= 3  # redis-server, the worker node and its pool process
+        # The API in two uvicorn processes under a supervising one (lucent up's default), and the
+        # worker node below the API's priority (nice 10: rendering is batch work).
+        uvicorn = [c for c in children if "uvicorn" in " ".join(c.cmdline())]
+        assert len(uvicorn) == 1 and len(uvicorn[0].children()) >= 2, uvicorn
+        nodes = [c for c in children if "celery" in " ".join(c.cmdline())]
+        below = min(19, psutil.Process(up.pid).nice() + 10)
+        assert nodes and all(c.nice() == below for c in nodes), [(c, c.nice()) for c in nodes]
     finally:
-        up.send_signal(signal.SIGTERM)
-        try:
-            up.wait(90)
-        except subprocess.TimeoutExpired:
-            up.kill()
-            raise
+        _stop(up)
     assert up.returncode == 0, up.stderr.read()[-3000:] if up.stderr else ""
     deadline = time.monotonic() + 10
     while any(c.is_running() and c.status() != psutil.STATUS_ZOMBIE for c in children):
@@ -67,3 +80,86 @@ def test_submit_reports_the_field_of_an_invalid_scene(tmp_path, client, tiny_sce
     c.http = client  # the TestClient speaks httpx's API
     with pytest.raises(ValueError, match="film.width"):
         c.submit(tiny_scene)
+
+
+@pytest.mark.slow
+def test_up_restarts_redis_and_its_worker_node_and_submit_waits_through(tmp_path, tiny_scene,
+                                                                         wait_until):
+    """``lucent up`` as a user runs it, then its children SIGKILLed: the embedded redis-server
+    mid-job (while ``lucent submit --wait`` polls) and later the worker node's main process (its
+    pool dies with it). Each is reaped (no defunct child left), reported and started again; the
+    job survives the Redis restart (append-only file) and the client, answered 503 meanwhile,
+    waits, says why, and ends with the image; the farm is ready again with the new node."""
+    psutil = pytest.importorskip("psutil")
+    port = free_port()
+    env = {k: v for k, v in os.environ.items() if k not in ("REDIS_URL", "LUCENT_API_TOKEN")}
+    env["LUCENT_HEARTBEAT_INTERVAL"] = "0.5"
+    up_log = tmp_path / "up.log"
+    up = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--port", str(port),
+                           "--workers", "1"], env=env, stderr=up_log.open("w"), text=True)
+    url = f"http://127.0.0.1:{port}"
+
+    def child(name: str) -> psutil.Process | None:
+        """The child of ``lucent up`` running ``name``, not counting one dead and not reaped."""
+        found = []
+        for c in psutil.Process(up.pid).children():
+            with contextlib.suppress(psutil.ZombieProcess, psutil.NoSuchProcess):
+                if name in " ".join(c.cmdline()):
+                    found.append(c)
+        assert len(found) <= 1, found
+        return found[0] if found else None
+
+    def replaced(name: str, before: psutil.Process) -> bool:
+        now = child(name)
+        return now is not None and now.pid != before.pid
+
+    def ready() -> bool:
+        assert up.poll() is None, up_log.read_text()
+        try:
+            return httpx.get(f"{url}/readyz", timeout=2).status_code == 200
+        except httpx.HTTPError:
+            return False
+
+    try:
+        wait_until(ready, 120, "lucent up to be ready", interval=0.2)
+        redis_before, node_before = child("redis-server"), child("celery")
+        assert redis_before is not None and node_before is not None
+        # A job of a few seconds: 96x72 at 512 spp, 16-px tiles, growing passes.
+        scene = dict(tiny_scene, film={"width": 96, "height": 72})
+        scene["render"] = dict(scene["render"], spp=512)
+        scene_path = tmp_path / "box.json"
+        scene_path.write_text(json.dumps(scene))
+        out = tmp_path / "box.npy"
+        submit = subprocess.Popen(
+            [sys.executable, "-m", "services.cli", "submit", str(scene_path), "--server", url,
+             "--wait", "-o", str(out), "--quiet", "--tile-size", "16"], env=env,
+            stderr=subprocess.PIPE, stdout=subprocess.PIPE, text=True)
+
+        def running() -> bool:
+            jobs = httpx.get(f"{url}/api/jobs", timeout=2).json()["data"]
+            return bool(jobs) and jobs[0]["status"] == "running" and jobs[0]["progress"] < 0.5
+
+        wait_until(running, 120, "the job to run")
+        redis_before.kill()
+        wait_until(lambda: replaced("redis-server", redis_before), 30, "a new redis-server",
+                   interval=0.1)
+        stdout, stderr = submit.communicate(timeout=240)
+        assert submit.returncode == 0, stderr
+        assert "the farm's store is unavailable" in stderr and "retrying in" in stderr, stderr
+        image = np.load(out)
+        assert image.shape == (72, 96, 3) and np.isfinite(image).all() and image.any()
+        assert not redis_before.is_running() or redis_before.status() != psutil.STATUS_ZOMBIE
+
+        # The worker node's main process: SIGKILLed, its pool goes with it (PDEATHSIG).
+        node_before.kill()
+        wait_until(lambda: replaced("celery", node_before), 30, "a new worker node",
+                   interval=0.1)
+        wait_until(ready, 120, "lucent up to be ready with the new node", interval=0.2)
+        assert not node_before.is_running() or node_before.status() != psutil.STATUS_ZOMBIE
+        log = up_log.read_text()
+        assert "lucent up: redis-server killed by SIGKILL" in log, log
+        assert "lucent up: the worker node killed by SIGKILL" in log, log
+        assert log.count("started again") == 2, log
+    finally:
+        _stop(up)
+    assert up.returncode == 0, up_log.read_text()[-3000:]

@@ -429,6 +429,7 @@ class Partition:
         self.open = threading.Event()
         self.open.set()
         self.cut_done = threading.Event()
+        self.trigger_delivered = threading.Event()  # the held write reached Redis after a heal
         self.listener = socket.create_server(("127.0.0.1", 0))
         self.port = self.listener.getsockname()[1]
         self._sockets: list[socket.socket] = []
@@ -476,6 +477,8 @@ class Partition:
                             self.cut_done.set()
                 self.open.wait()
                 dst.sendall(data)
+                if from_client and data is self.trigger:
+                    self.trigger_delivered.set()
         except OSError:
             pass
         finally:
@@ -492,11 +495,12 @@ PUT_PASS = re.compile(
 @pytest.mark.slow
 def test_worker_cut_off_mid_task(own_redis, nodes, prefix, cornell):
     """Node A reaches Redis through a ``Partition`` that is cut just as A sends its second
-    rendered pass. A's task blocks, hits the soft then the hard time limit and is killed; the
-    message, unacknowledged, comes back after the visibility timeout to node B (on Redis directly),
-    which renders and merges it, and the job completes. Then the partition heals and A's pass,
-    held in flight all along, reaches Redis late: it is stored and listed as pending like any pass,
-    and the sweeper drops it (already merged) instead of counting it a second time."""
+    rendered pass. A's heartbeats are cut off too: once its heartbeat has expired the sweeper
+    sends the pass again (``lost_requeues``; before, the pass waited for the visibility timeout),
+    node B (on Redis directly) renders and merges it, and the job completes while A's task is
+    still blocked. Then the partition heals and A's pass, held in flight all along, reaches Redis
+    late; it is dropped as merged already (by A's own merge when its task goes on, or by the
+    sweeper) instead of being counted a second time, and no pass buffer is left behind."""
     proxy = Partition(own_redis.port, PUT_PASS, n=2)
     store = JobStore.from_url(own_redis.url, prefix)
     try:
@@ -513,13 +517,15 @@ def test_worker_cut_off_mid_task(own_redis, nodes, prefix, cornell):
             tile, pass_index = int(match[1]), int(match[2])
             assert _finished(store, job_id) == "done", nodes.logs()
             assert _attempts(store, job_id)[f"{tile}:{pass_index}"] == 2  # A's try, then B's
-        # No service (no sweeper) while the partition heals, to see the late pass land.
+            assert store.metrics()["lost_requeues"] == 1  # not the visibility timeout
         late_key = store.pass_key(job_id, tile, pass_index)
         proxy.heal()
-        _until(lambda: store.r.sismember(store.k("pending"), late_key), 30, "A's late pass")
-        assert store.get_job(job_id).tasks_merged == n_tasks
-        with _api(own_redis.url, prefix) as api:  # its sweeper: merged already, dropped
-            _until(lambda: not store.r.exists(late_key), 10, "the late pass dropped")
+        assert proxy.trigger_delivered.wait(30), "A's late pass never reached Redis"
+        with _api(own_redis.url, prefix) as api:
+            _until(lambda: not store.r.exists(late_key)
+                   and not store.r.sismember(store.k("pending"), late_key), 30,
+                   "the late pass dropped")
+            assert store.get_job(job_id).tasks_merged == n_tasks
             _assert_nothing_lost(api, store, job_id, scene)
         assert store.get_job(job_id).samples_merged == 32 * 32 * 256
     finally:
@@ -720,3 +726,38 @@ def test_a_crashing_pass_fails_its_job_after_max_attempts(own_redis, nodes, pref
         assert node.poll() is None
         again = _submit(api, scene, 32, 16)  # tile 0 only: the fault is in tile 1
         assert _finished(store, again) == "done"
+
+
+# --- 7. a worker node SIGKILLed mid-pass: its pass comes back once its heartbeat expires --------
+@pytest.mark.slow
+def test_a_lost_nodes_pass_is_requeued_once_its_heartbeat_expires(own_redis, prefix, tmp_path):
+    """Chaos, with real Celery worker nodes (``bench.worker_loss``, which times it): two nodes of
+    one process each, heartbeats every 0.5 s (timeout 1.5 s); the node that begins a job's only
+    pass (1 s or more of rendering) has its main process SIGKILLed, and its pool process dies with
+    it. The stall time (300 s) and the visibility timeout (900 s) are far away, so only the
+    lost-worker rule can bring the pass back: the sweeper sends it again, the other node renders
+    it, and the job completes with nothing lost. The pass was tried twice, and the dead process
+    holds nothing any more."""
+    from bench.worker_loss import TIMINGS, TwoNodes, long_pass_scene, lose_a_worker
+
+    heartbeat = 0.5
+    nodes = TwoNodes(own_redis.url, prefix, heartbeat, tmp_path)
+    store = JobStore.from_url(own_redis.url, prefix)
+    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None,
+                        heartbeat_interval=heartbeat, sweep_interval=0.2, **TIMINGS)
+    scene = long_pass_scene(1024)
+    try:
+        nodes.start("a")
+        nodes.start("b")
+        with TestClient(create_app(settings)) as api:
+            loss = lose_a_worker(api, store, nodes, scene, timeout=90.0)
+            # Well before the other mechanisms (300 s, 900 s); bench.worker_loss has the figures
+            assert loss.requeued < 60.0, loss
+            job_id = api.get("/api/jobs").json()["data"][0]["id"]
+            assert _attempts(store, job_id) == {"0:0": 2}
+            assert store.metrics()["lost_requeues"] == 1
+            assert store.lost_holdings() == {}
+            _assert_nothing_lost(api, store, job_id, scene)
+    finally:
+        store.close()
+        nodes.stop()

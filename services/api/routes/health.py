@@ -1,17 +1,20 @@
-"""``/healthz`` (the process is up), ``/readyz`` (Redis answers), ``/metrics`` (Prometheus).
+"""``/healthz`` (the process is up), ``/readyz`` (Redis answers and a worker is alive),
+``/metrics`` (Prometheus).
 
-The probes are open; ``/metrics`` tells how busy the farm is and sits behind the API token when
-one is set (Prometheus sends it with ``authorization: {credentials_file: ...}``)."""
+The probes are open, so they say what is wrong in general words only (no host, port or farm
+data: ``services.farm.availability``); ``/metrics`` tells how busy the farm is and sits behind
+the API token when one is set (Prometheus sends it with ``authorization: {credentials_file:
+...}``)."""
 
 from __future__ import annotations
 
 from collections import Counter
 
-import redis
 from fastapi import APIRouter, Response, status
 from fastapi.responses import PlainTextResponse
 
 from services.api.deps import StoreDep
+from services.farm.availability import readiness
 from services.farm.store import STATUSES
 
 router = APIRouter(tags=["health"])
@@ -23,13 +26,13 @@ def healthz() -> dict[str, str]:
     return {"status": "ok"}
 
 
-@router.get("/readyz")
-def readyz(store: StoreDep, response: Response) -> dict[str, str]:
-    try:
-        store.ping()
-    except redis.RedisError as err:
+@router.get("/readyz", responses={503: {"description": "Redis does not answer, or no worker "
+                                                     "process is alive; `reasons` says which"}})
+def readyz(store: StoreDep, response: Response) -> dict[str, str | list[str]]:
+    reasons = readiness(store)
+    if reasons:
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
-        return {"status": "unavailable", "redis": str(err)}
+        return {"status": "unavailable", "reasons": reasons}
     return {"status": "ok"}
 
 

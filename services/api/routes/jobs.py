@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import hashlib
+import threading
 import time
+from collections import OrderedDict
+from dataclasses import dataclass
 from typing import Annotated, Literal
 
 from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Response, status
@@ -48,7 +52,7 @@ def to_public(meta: JobMeta) -> JobPublic:
     )
 
 
-def valid_job_id(job_id: Annotated[str, Path(description="the id POST /api/jobs answered "
+async def valid_job_id(job_id: Annotated[str, Path(description="the id POST /api/jobs answered "
                                                        "(32 hexadecimal digits)")]) -> str:
     """The path's job id, or 404 when it has not the form of one: checked before the id becomes
     part of a Redis key, where ``<id>:scene`` would name another of the job's keys."""
@@ -106,13 +110,8 @@ def list_jobs(store: StoreDep,
     return JobsPublic(data=[to_public(m) for m in metas], count=total, offset=offset, limit=limit)
 
 
-@router.get("/{job_id}", response_model=JobDetail)
-def get_job(job_id: JobId, store: StoreDep):
-    """Status, progress, per-tile state and samples: answered from Redis, no image touched."""
-    meta = _get_or_404(store, job_id)
-    states = store.tile_states(job_id)
-    samples = store.tile_samples(job_id)
-    errors = store.tile_errors(job_id)
+def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
+               errors: dict[int, str]) -> JobDetail:
     tiles = []
     for t in range(meta.plan.n_tiles):
         x0, y0, w, h = meta.plan.tile_rect(t)
@@ -124,6 +123,67 @@ def get_job(job_id: JobId, store: StoreDep):
     all_errors = ([meta.error] if meta.error and meta.error not in tile_errors else []) + \
         tile_errors
     return JobDetail(**to_public(meta).model_dump(), tile_states=tiles, errors=all_errors)
+
+
+@dataclass(frozen=True)
+class StatusView:
+    """A job's status answer, encoded, with what it was made from and its ETag."""
+
+    state: tuple
+    body: bytes
+    etag: str
+
+
+class StatusViews:
+    """``GET /api/jobs/{id}`` is what every open dashboard page polls. Each answer reads the job
+    in one round trip (``JobStore.job_view``); when what it read is what the last answer of that
+    job was made from, that answer's bytes are served again instead of being rebuilt (the models,
+    the tile list, the JSON), and a client that sends its ``ETag`` gets 304 without a body. A
+    running job's answer is rebuilt every time: its samples per second and ETA depend on the
+    clock. At most ``size`` jobs' answers are kept (least recently asked for dropped first)."""
+
+    def __init__(self, store: JobStore, size: int = 1024):
+        self.store = store
+        self.size = size
+        self._views: OrderedDict[str, StatusView] = OrderedDict()
+        self._lock = threading.Lock()
+
+    def get(self, job_id: str) -> StatusView | None:
+        read = self.store.job_view(job_id)
+        if read is None:
+            return None
+        with self._lock:
+            view = self._views.get(job_id)
+            if view is not None and view.state == read:
+                self._views.move_to_end(job_id)
+                return view
+        body = job_detail(*read).model_dump_json().encode()
+        view = StatusView(read, body, f'"{hashlib.blake2b(body, digest_size=12).hexdigest()}"')
+        if read[0].status != "running":
+            with self._lock:
+                self._views[job_id] = view
+                self._views.move_to_end(job_id)
+                while len(self._views) > self.size:
+                    self._views.popitem(last=False)
+        return view
+
+
+def etag_matches(request: Request, etag: str) -> bool:
+    return etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]
+
+
+@router.get("/{job_id}", response_model=JobDetail, responses={
+    304: {"description": "not modified: the answer whose ETag was sent still holds"}})
+def get_job(job_id: JobId, request: Request):
+    """Status, progress, per-tile state and samples: answered from Redis, no image touched.
+    ``ETag`` changes whenever the answer does; send it back in ``If-None-Match`` to get 304."""
+    view = request.app.state.status_views.get(job_id)
+    if view is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
+    headers = {"ETag": view.etag, "Cache-Control": "no-cache"}
+    if etag_matches(request, view.etag):
+        return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
+    return Response(content=view.body, media_type="application/json", headers=headers)
 
 
 _MEDIA = {"png": "image/png", "exr": "image/x-exr", "npy": "application/octet-stream"}
@@ -145,7 +205,7 @@ def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request
     meta = _get_or_404(store, job_id)
     etag = f'"{job_id}-{meta.version}-{fmt}-{exposure:g}-{tonemap}"'
     headers = {"ETag": etag, "Cache-Control": "no-cache"}
-    if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
+    if etag_matches(request, etag):
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
     # The buffers are read after the version: the image is never older than its ETag says.
     assembled = assemble(store, job_id)
