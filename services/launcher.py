@@ -40,7 +40,9 @@ DEFAULT_WORKERS = os.cpu_count() or 1
 
 
 def _die_with_parent() -> None:
-    """preexec_fn: SIGTERM this child when the process that started it dies (Linux)."""
+    """preexec_fn: SIGTERM this child when the process that started it dies (Linux). The kernel
+    ties this to the *thread* that forked the child: a child started from a short-lived thread is
+    sent SIGTERM when that thread ends, so restarts come from the supervisor's own thread."""
     with contextlib.suppress(Exception):
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 

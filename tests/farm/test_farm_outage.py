@@ -123,18 +123,27 @@ def test_client_waits_through_an_outage_with_backoff_and_says_why(persistent_red
         job_id = client.submit(tiny_scene)["id"]
         _kill(persistent_redis)
 
+        # The restarted server gets PR_SET_PDEATHSIG from the thread that starts it (Linux ties it
+        # to the thread, not the process): that thread must live until the server is killed, or
+        # the server is sent SIGTERM as soon as the thread returns (as `lucent up`'s long-lived
+        # supervisor thread does)
+        done = threading.Event()
+
         def restart_later() -> None:
             time.sleep(2.0)
             restarted = EmbeddedRedis(port=persistent_redis.port,
                                       data_dir=persistent_redis.data_dir, appendonly=True).start()
             persistent_redis.proc = restarted.proc
+            done.wait(120.0)
 
         restarter = threading.Thread(target=restart_later)
         restarter.start()
         try:
             job = client.job(job_id)
-        finally:
+        except BaseException:
+            done.set()
             restarter.join()
+            raise
         assert job["id"] == job_id and job["status"] == "queued"
         assert len(said) >= 2
         assert all("Redis refused the connection" in line and "retrying in" in line
@@ -144,6 +153,8 @@ def test_client_waits_through_an_outage_with_backoff_and_says_why(persistent_red
         assert delays == [max(d, 1.0) for d in RETRY_DELAYS[:len(delays)]], delays
 
         _kill(persistent_redis)
+        done.set()
+        restarter.join()
         impatient = Client("http://testserver", say=said.append, patience=1.0)
         impatient.http = api
         with pytest.raises(Unavailable, match="Redis refused the connection"):
