@@ -14,6 +14,8 @@ from services.api.deps import require_token
 from services.api.guards import BodyLimit, validation_error
 from services.api.intake import Intake
 from services.api.routes import dashboard, health, jobs, workers
+from services.farm.archive import chores
+from services.farm.blobs import FileBlobStore
 from services.farm.merge import StallRule, Sweeper
 from services.farm.queue import celery_client
 from services.farm.settings import Settings, get_settings
@@ -29,7 +31,9 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.store = store
         app.state.celery = celery_client(settings)
         stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues)
-        sweeper = Sweeper(store, settings.sweep_interval, stall)
+        app.state.blobs = FileBlobStore(settings.blob_path)
+        sweeper = Sweeper(store, settings.sweep_interval, stall,
+                          chores(store, app.state.blobs, settings.keep_days))
         sweeper.start()  # merges what a previous run or a lost worker left behind
         try:
             yield
