@@ -33,7 +33,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues)
         app.state.blobs = FileBlobStore(settings.blob_path)
         sweeper = Sweeper(store, settings.sweep_interval, stall,
-                          chores(store, app.state.blobs, settings.keep_days))
+                          chores(store, app.state.blobs, settings.archive_done,
+                                 settings.keep_days))
         sweeper.start()  # merges what a previous run or a lost worker left behind
         try:
             yield

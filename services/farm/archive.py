@@ -128,11 +128,11 @@ def expire_finished(store: JobStore, blobs: BlobStore, keep_days: float,
                for job_id in store.finished_before(now - keep_days * 86400.0, EXPIRE_BATCH))
 
 
-def chores(store: JobStore, blobs: BlobStore,
+def chores(store: JobStore, blobs: BlobStore, archive: bool,
            keep_days: float | None) -> list[Callable[[], object]]:
-    """What the sweeper does for finished jobs after each sweep: archive the done ones, and with
-    ``keep_days`` delete those finished longer ago."""
-    out: list[Callable[[], object]] = [lambda: archive_done(store, blobs)]
+    """What the sweeper does for finished jobs after each sweep: with ``archive``, the done
+    ones' images to the blob store; with ``keep_days``, delete those finished longer ago."""
+    out: list[Callable[[], object]] = [lambda: archive_done(store, blobs)] if archive else []
     if keep_days is not None:
         out.append(lambda: expire_finished(store, blobs, keep_days))
     return out

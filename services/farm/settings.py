@@ -148,6 +148,11 @@ class Settings(BaseSettings):
     """The blob store's folder, where done jobs' images are kept; default ``blobs`` in
     ``data_dir``. Every API process of one farm must see the same folder (a shared volume)."""
 
+    archive_done: bool = True
+    """Write each done job's image to the blob store and drop its accumulations from Redis;
+    off (``LUCENT_ARCHIVE_DONE=0``), a done job's per-tile sample buffers stay in Redis, as
+    before the blob store (to inspect every pixel's sample count)."""
+
     keep_days: float | None = Field(default=None, gt=0)
     """Days a finished (done, failed, cancelled) job is kept before the sweeper deletes it, keys
     and image; unset (the default): kept until ``DELETE /api/jobs/{id}``."""

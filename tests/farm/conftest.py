@@ -107,7 +107,9 @@ def farm(redis_base_url: str, tmp_path_factory) -> Iterator[Farm]:
 
 @pytest.fixture
 def farm_client(farm: Farm) -> Iterator[TestClient]:
-    with TestClient(create_app(farm.settings)) as c:
+    """The API of the farm; done jobs keep their accumulations in Redis (``archive_done`` off):
+    the tests read every pixel's sample count from them (test_farm_retention archives)."""
+    with TestClient(create_app(farm.settings.model_copy(update={"archive_done": False}))) as c:
         yield c
 
 
