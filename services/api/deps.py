@@ -8,6 +8,7 @@ from typing import Annotated
 from celery import Celery
 from fastapi import Depends, HTTPException, Request, status
 
+from services.farm.blobs import BlobStore
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 
@@ -29,6 +30,13 @@ async def get_celery(request: Request) -> Celery:
 SettingsDep = Annotated[Settings, Depends(get_settings_dep)]
 StoreDep = Annotated[JobStore, Depends(get_store)]
 CeleryDep = Annotated[Celery, Depends(get_celery)]
+
+
+async def get_blobs(request: Request) -> BlobStore:
+    return request.app.state.blobs
+
+
+BlobsDep = Annotated[BlobStore, Depends(get_blobs)]
 
 
 async def require_token(request: Request, settings: SettingsDep) -> None:

@@ -14,7 +14,9 @@ from services.api.deps import require_token
 from services.api.guards import BodyLimit, store_unavailable, validation_error
 from services.api.intake import Intake
 from services.api.routes import dashboard, health, jobs, workers
+from services.farm.archive import chores
 from services.farm.availability import UNAVAILABLE
+from services.farm.blobs import FileBlobStore
 from services.farm.merge import StallRule, Sweeper
 from services.farm.queue import celery_client
 from services.farm.settings import Settings, get_settings
@@ -31,7 +33,10 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.status_views = jobs.StatusViews(store)
         app.state.celery = celery_client(settings)
         stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues)
-        sweeper = Sweeper(store, settings.sweep_interval, stall)
+        app.state.blobs = FileBlobStore(settings.blob_path)
+        sweeper = Sweeper(store, settings.sweep_interval, stall,
+                          chores(store, app.state.blobs, settings.archive_done,
+                                 settings.keep_days))
         sweeper.start()  # merges what a previous run or a lost worker left behind
         try:
             yield

@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 
 import redis
@@ -125,24 +126,36 @@ def sweep(store: JobStore, stall: StallRule | None = None) -> int:
 
 
 class Sweeper:
-    """The service's background merger: ``sweep`` at start and every ``interval`` seconds."""
+    """The service's background merger: ``sweep`` at start and every ``interval`` seconds, each
+    time followed by the ``chores`` (finished jobs to the blob store, retention:
+    ``services.farm.archive.chores``)."""
 
-    def __init__(self, store: JobStore, interval: float, stall: StallRule | None = None):
+    def __init__(self, store: JobStore, interval: float, stall: StallRule | None = None,
+                 chores: Sequence[Callable[[], object]] = ()):
         self.store = store
         self.interval = interval
         self.stall = stall
+        self.chores = list(chores)
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
-        sweep(self.store, self.stall)  # carry on from Redis before serving
+        self._sweep()  # carry on from Redis before serving
         self._thread = threading.Thread(target=self._run, name="lucent-sweeper", daemon=True)
         self._thread.start()
+
+    def _sweep(self) -> None:
+        sweep(self.store, self.stall)
+        for chore in self.chores:
+            try:
+                chore()
+            except Exception:  # one failing chore must not stop the merging
+                log.exception("sweeper chore %r failed", chore)
 
     def _run(self) -> None:
         while not self._stop.wait(self.interval):
             try:
-                sweep(self.store, self.stall)
+                self._sweep()
             except redis.RedisError as err:
                 log.warning("sweep failed: %s", err)
 

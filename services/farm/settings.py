@@ -23,7 +23,9 @@ node that died as a whole.
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
+from pathlib import Path
 from typing import Annotated
 
 from pydantic import AliasChoices, Field, field_validator, model_validator
@@ -134,7 +136,30 @@ class Settings(BaseSettings):
     """Compiled scenes each worker process keeps (LRU by job id)."""
 
     sweep_interval: float = 1.0
-    """Seconds between the service's sweeps: pass buffers left unmerged, jobs left unfinished."""
+    """Seconds between the service's sweeps: pass buffers left unmerged, jobs left unfinished,
+    done jobs' images to the blob store, retention."""
+
+    # --- Finished jobs (``services.farm.archive``) ----------------------------------------------
+    data_dir: Path = Field(default_factory=lambda: Path(
+        os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share") / "lucent")
+    """The farm's data folder (the service's; workers write nothing there)."""
+
+    blob_dir: Path | None = None
+    """The blob store's folder, where done jobs' images are kept; default ``blobs`` in
+    ``data_dir``. Every API process of one farm must see the same folder (a shared volume)."""
+
+    archive_done: bool = True
+    """Write each done job's image to the blob store and drop its accumulations from Redis;
+    off (``LUCENT_ARCHIVE_DONE=0``), a done job's per-tile sample buffers stay in Redis, as
+    before the blob store (to inspect every pixel's sample count)."""
+
+    keep_days: float | None = Field(default=None, gt=0)
+    """Days a finished (done, failed, cancelled) job is kept before the sweeper deletes it, keys
+    and image; unset (the default): kept until ``DELETE /api/jobs/{id}``."""
+
+    @property
+    def blob_path(self) -> Path:
+        return self.blob_dir if self.blob_dir is not None else self.data_dir / "blobs"
 
     @field_validator("cors_origins", mode="before")
     @classmethod

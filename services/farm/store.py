@@ -5,7 +5,9 @@ Key                                Type    What
 =================================  ======  =================================================
 ``{p}:jobs``                       zset    job id -> submission time (the job list)
 ``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``,
-                                           ``active_at``, ``stalls`` (the stall re-queues)
+                                           ``active_at``, ``stalls`` (the stall re-queues);
+                                           once archived ``images`` (blob keys) and
+                                           ``tiles_final`` (per-tile samples and errors)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
 ``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass renders) / done / failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
@@ -15,14 +17,21 @@ Key                                Type    What
 ``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (``to_bytes``)
 ``{p}:job:{id}:pass:{tile}:{pass}`` string a rendered pass, deleted once merged
 ``{p}:pending``                    set     pass keys written and not merged (the sweeper's)
+``{p}:finished``                   zset    job id -> finished time, for done/failed/cancelled
+``{p}:to_archive``                 set     done jobs whose image is not in the blob store yet
+``{p}:blob_refs``                  hash    blob key -> jobs whose image it is
 ``{p}:workers``                    zset    worker id -> last heartbeat time
 ``{p}:worker:{id}``                hash    the last heartbeat (expires after 3 intervals)
 ``{p}:holding``                    hash    worker id -> ``job tile pass attempt`` it renders
 ``{p}:metrics``                    hash    farm-wide counters for ``/metrics``
 =================================  ======  =================================================
 
-Memory is bounded by the frame: one accumulation per tile, plus at most one pass buffer per task in
-flight. ``version`` counts merges and is the preview image's ETag.
+Memory is bounded by what is in flight: one accumulation per tile of each job not archived, plus
+at most one pass buffer per task in flight. Once a job is done, the sweeper writes its image to the
+blob store (``services.farm.archive``) and ``archive_job`` deletes its tile keys (``tile_state``,
+``tile_samples``, ``tile_error``, ``attempts``, ``merged``, ``acc:*``): the hash and the scene stay,
+so the job still lists. Failed and cancelled jobs keep theirs (a retry goes on from them) until
+they are deleted (``delete_job``). ``version`` counts merges and is the preview image's ETag.
 """
 
 from __future__ import annotations
@@ -42,21 +51,75 @@ STATUSES = ("queued", "running", "done", "failed", "cancelled")
 ACTIVE = ("queued", "running")
 FINAL = ("done", "failed", "cancelled")
 
-# Move a job to a new status only from one of the listed ones (atomically, in Redis).
-# KEYS[1] job hash; ARGV[1] new status, ARGV[2] time, ARGV[3] time field or "", ARGV[4..] from.
+# Move a job to a new status only from one of the listed ones (atomically, in Redis); a final
+# status lists the job in ``finished`` (retention's clock), a done one in ``to_archive`` too.
+# KEYS[1] job hash, KEYS[2] finished zset, KEYS[3] to_archive set; ARGV[1] new status, ARGV[2]
+# time, ARGV[3] time field or "", ARGV[4] error or "", ARGV[5] job id, ARGV[6..] from.
 _TRANSITION = """
 local status = redis.call('HGET', KEYS[1], 'status')
 if not status then return 0 end
-for i = 5, #ARGV do
+for i = 6, #ARGV do
   if status == ARGV[i] then
     redis.call('HSET', KEYS[1], 'status', ARGV[1])
     if ARGV[3] ~= '' then redis.call('HSET', KEYS[1], ARGV[3], ARGV[2]) end
     if ARGV[4] ~= '' then redis.call('HSET', KEYS[1], 'error', ARGV[4]) end
     redis.call('HINCRBY', KEYS[1], 'status_version', 1)
+    if ARGV[1] == 'done' or ARGV[1] == 'failed' or ARGV[1] == 'cancelled' then
+      redis.call('ZADD', KEYS[2], ARGV[2], ARGV[5])
+    else
+      redis.call('ZREM', KEYS[2], ARGV[5])
+    end
+    if ARGV[1] == 'done' then redis.call('SADD', KEYS[3], ARGV[5]) end
     return 1
   end
 end
 return 0
+"""
+
+# A done job's image is in the blob store: keep its hash and scene, drop its tile keys.
+# KEYS[1] job hash, KEYS[2] to_archive, KEYS[3] blob_refs, KEYS[4] pending, KEYS[5..] the keys
+# to delete; ARGV[1] job id, ARGV[2] images (JSON), ARGV[3] tiles (JSON), ARGV[4..] blob keys.
+# Returns 1, or 0 (no reference taken) when the job is gone, not done or archived already.
+_ARCHIVE = """
+redis.call('SREM', KEYS[2], ARGV[1])
+local h = redis.call('HMGET', KEYS[1], 'status', 'images')
+if h[1] ~= 'done' or (h[2] and h[2] ~= '') then return 0 end
+redis.call('HSET', KEYS[1], 'images', ARGV[2], 'tiles_final', ARGV[3])
+for i = 4, #ARGV do redis.call('HINCRBY', KEYS[3], ARGV[i], 1) end
+for i = 5, #KEYS do
+  redis.call('DEL', KEYS[i])
+  redis.call('SREM', KEYS[4], KEYS[i])
+end
+return 1
+"""
+
+# Delete a finished job. KEYS[1] job hash, KEYS[2] jobs, KEYS[3] finished, KEYS[4] to_archive,
+# KEYS[5] blob_refs, KEYS[6] pending, KEYS[7..] the job's other keys; ARGV[1] job id, ARGV[2..]
+# final statuses. Returns false when the job is gone or not final, else {blob keys no job uses
+# any more} (the caller deletes those blobs).
+_DELETE = """
+local h = redis.call('HMGET', KEYS[1], 'status', 'images')
+local final = false
+for i = 2, #ARGV do if h[1] == ARGV[i] then final = true end end
+if not final then return false end
+local unused = {}
+if h[2] and h[2] ~= '' then
+  for _, blob in pairs(cjson.decode(h[2])) do
+    if redis.call('HINCRBY', KEYS[5], blob, -1) <= 0 then
+      redis.call('HDEL', KEYS[5], blob)
+      table.insert(unused, blob)
+    end
+  end
+end
+redis.call('DEL', KEYS[1])
+redis.call('ZREM', KEYS[2], ARGV[1])
+redis.call('ZREM', KEYS[3], ARGV[1])
+redis.call('SREM', KEYS[4], ARGV[1])
+for i = 7, #KEYS do
+  redis.call('DEL', KEYS[i])
+  redis.call('SREM', KEYS[6], KEYS[i])
+end
+return unused
 """
 
 # Claim a stall re-queue of a job (atomic, so that two sweepers never re-queue it twice).
@@ -81,12 +144,14 @@ return stalls
 
 
 # Count a delivery of a pass (KEYS[1] attempts hash, ARGV[1] tile:pass) and note the job alive
-# (KEYS[2] job hash, ARGV[2] now) unless its hash is gone: a deleted job is not brought back.
-# With a holder (ARGV[3], a worker id), record in the same step that it holds the pass (KEYS[3]
-# the holding hash, value ``ARGV[4] attempt``), so that no worker can die holding a pass unseen.
+# (KEYS[2] job hash, ARGV[2] now) unless its hash is gone: a deleted job is not brought back
+# (0: the pass renders, and its merge drops it). With a holder (ARGV[3], a worker id), record in
+# the same step that it holds the pass (KEYS[3] the holding hash, value ``ARGV[4] attempt``), so
+# that no worker can die holding a pass unseen.
 _ADD_ATTEMPT = """
+if redis.call('EXISTS', KEYS[2]) == 0 then return 0 end
 local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
-if redis.call('EXISTS', KEYS[2]) == 1 then redis.call('HSET', KEYS[2], 'active_at', ARGV[2]) end
+redis.call('HSET', KEYS[2], 'active_at', ARGV[2])
 if ARGV[3] ~= '' then redis.call('HSET', KEYS[3], ARGV[3], ARGV[4] .. ' ' .. n) end
 return n
 """
@@ -136,6 +201,8 @@ class JobMeta:
     finished_at: float | None
     error: str | None
     methods: dict[str, str]
+    images: dict[str, str]  # format -> blob key, once the image is in the blob store
+    tiles_final: dict[str, Any]  # {"samples": [per tile], "errors": {tile: error}}, archived
 
     @property
     def samples_planned(self) -> int:
@@ -165,6 +232,8 @@ class JobMeta:
             finished_at=opt_float("finished_at"),
             error=d.get("error") or None,
             methods=json.loads(d.get("methods") or "{}"),
+            images=json.loads(d.get("images") or "{}"),
+            tiles_final=json.loads(d.get("tiles_final") or "{}"),
         )
 
 
@@ -180,6 +249,8 @@ class JobStore:
         self._claim_stall = client.register_script(_CLAIM_STALL)
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
+        self._archive = client.register_script(_ARCHIVE)
+        self._delete = client.register_script(_DELETE)
 
     @classmethod
     def from_url(cls, url: str, prefix: str = "lucent") -> JobStore:
@@ -197,6 +268,17 @@ class JobStore:
 
     def pass_key(self, job_id: str, tile: int, pass_index: int) -> str:
         return self.k("job", job_id, "pass", tile, pass_index)
+
+    def tile_keys(self, job_id: str, n_tiles: int) -> list[str]:
+        """The job's keys that hold its tiles: what archiving deletes."""
+        return [self.k("job", job_id, name)
+                for name in ("tile_state", "tile_samples", "tile_error", "attempts", "merged")] + \
+            [self.acc_key(job_id, t) for t in range(n_tiles)]
+
+    def pending_passes_of(self, job_id: str) -> list[str]:
+        """Pass buffers of the job written and not merged (a late duplicate, a cancelled job's)."""
+        head = self.k("job", job_id, "pass") + ":"
+        return [k for k in self.pending_passes() if k.startswith(head)]
 
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
@@ -265,8 +347,9 @@ class JobStore:
         """Set the status to ``to`` if it is one of ``from_`` (atomic, with the time field and
         the error when given, so no reader sees the new status without them); True if it
         changed."""
-        return bool(self._transition(keys=[self.job_key(job_id)],
-                                     args=[to, time.time(), time_field, error, *from_]))
+        return bool(self._transition(
+            keys=[self.job_key(job_id), self.k("finished"), self.k("to_archive")],
+            args=[to, time.time(), time_field, error, job_id, *from_]))
 
     def mark_started(self, job_id: str) -> None:
         self.transition(job_id, "running", ("queued",), "started_at")
@@ -334,6 +417,59 @@ class JobStore:
         the same stall, one claims it."""
         now = time.time() if now is None else now
         return int(self._claim_stall(keys=[self.job_key(job_id)], args=[now, stall_timeout]))
+
+    # --- finished jobs --------------------------------------------------------------------------
+    def jobs_to_archive(self) -> list[str]:
+        """Done jobs whose image is not in the blob store yet."""
+        return [i.decode() for i in self.r.smembers(self.k("to_archive"))]
+
+    def archive_job(self, job_id: str, images: dict[str, str]) -> bool:
+        """Once the job's image is in the blob store under ``images`` (format -> blob key):
+        record the keys, count a use of each blob, keep the tiles' samples and errors in the hash
+        and delete the tile keys and any pass buffer left, atomically. True if this call
+        archived it; False (no use counted) if the job is gone, not done or archived already."""
+        meta = self.get_job(job_id)
+        if meta is None:
+            self.r.srem(self.k("to_archive"), job_id)
+            return False
+        samples = self.tile_samples(job_id)
+        tiles = {"samples": [samples.get(t, 0) for t in range(meta.plan.n_tiles)],
+                 "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
+        keys = self.tile_keys(job_id, meta.plan.n_tiles) + self.pending_passes_of(job_id)
+        return bool(self._archive(
+            keys=[self.job_key(job_id), self.k("to_archive"), self.k("blob_refs"),
+                  self.k("pending"), *keys],
+            args=[job_id, json.dumps(images), json.dumps(tiles), *images.values()]))
+
+    def delete_job(self, job_id: str) -> list[str] | None:
+        """Delete a finished (done, failed, cancelled) job: every key of it, atomically. Returns
+        the blob keys that no job uses any more (the caller deletes those blobs), or None when
+        the job is gone or still queued or running (nothing deleted)."""
+        meta = self.get_job(job_id)
+        if meta is None:
+            return None
+        keys = [self.k("job", job_id, "scene"), *self.tile_keys(job_id, meta.plan.n_tiles),
+                *self.pending_passes_of(job_id)]
+        unused = self._delete(
+            keys=[self.job_key(job_id), self.k("jobs"), self.k("finished"),
+                  self.k("to_archive"), self.k("blob_refs"), self.k("pending"), *keys],
+            args=[job_id, *FINAL])
+        return None if unused is None else [b.decode() for b in unused]
+
+    def blob_in_use(self, key: str) -> bool:
+        return bool(self.r.hexists(self.k("blob_refs"), key))
+
+    def finished_before(self, when: float, limit: int = 100) -> list[str]:
+        """Up to ``limit`` finished jobs, oldest first, that finished before ``when``."""
+        return [i.decode() for i in self.r.zrangebyscore(self.k("finished"), "-inf", f"({when}",
+                                                          start=0, num=limit)]
+
+    def set_finished_at(self, job_id: str, when: float) -> None:
+        """Move a finished job's finishing time (an import, or a test of retention)."""
+        pipe = self.r.pipeline()
+        pipe.hset(self.job_key(job_id), "finished_at", when)
+        pipe.zadd(self.k("finished"), {job_id: when}, xx=True)
+        pipe.execute()
 
     # --- tiles ----------------------------------------------------------------------------------
     def job_view(self, job_id: str
@@ -437,7 +573,9 @@ class JobStore:
                         pipe.unwatch()
                         r.srem(self.k("pending"), pass_key)
                         return False
-                    if not pipe.exists(job_key):  # the job was deleted
+                    # The job was deleted, or is done: every pass of a done job was merged
+                    # (this is a late duplicate) and its tile keys may be archived already.
+                    if _s(pipe.hget(job_key, "status")) in (None, "done"):
                         pipe.unwatch()
                         r.delete(pass_key)
                         r.srem(self.k("pending"), pass_key)

@@ -14,6 +14,8 @@ from __future__ import annotations
 
 import copy
 import json
+import os
+import tempfile
 import uuid
 from collections.abc import Iterator
 from dataclasses import dataclass
@@ -31,6 +33,9 @@ from tests.conftest import embedded_or_given_redis, wait_until
 
 ROOT = Path(__file__).resolve().parents[2]
 
+# Settings made by a test itself keep done jobs' images here, not in the user's data folder.
+os.environ.setdefault("LUCENT_DATA_DIR", tempfile.mkdtemp(prefix="lucent-test-data-"))
+
 # Generous: a cold numba cache compiles the kernels in each worker process (~15 s each on 2 cores).
 WORKER_START_TIMEOUT = 240.0
 JOB_TIMEOUT = 180.0
@@ -46,8 +51,8 @@ def _prefix() -> str:
 
 
 @pytest.fixture
-def settings(redis_base_url: str) -> Settings:
-    return Settings(redis_url=redis_base_url, key_prefix=_prefix())
+def settings(redis_base_url: str, tmp_path: Path) -> Settings:
+    return Settings(redis_url=redis_base_url, key_prefix=_prefix(), data_dir=tmp_path / "data")
 
 
 @pytest.fixture
@@ -78,7 +83,8 @@ class Farm:
 def farm(redis_base_url: str, tmp_path_factory) -> Iterator[Farm]:
     prefix = _prefix()
     log_path = tmp_path_factory.mktemp("farm") / "worker.log"
-    settings = Settings(redis_url=redis_base_url, key_prefix=prefix, heartbeat_interval=0.5)
+    settings = Settings(redis_url=redis_base_url, key_prefix=prefix, heartbeat_interval=0.5,
+                        data_dir=log_path.parent / "data")
     with open(log_path, "w") as log:
         proc = start_worker(
             redis_base_url, concurrency=2, threads=1, name=f"{prefix}@%h", log=log,
@@ -101,7 +107,9 @@ def farm(redis_base_url: str, tmp_path_factory) -> Iterator[Farm]:
 
 @pytest.fixture
 def farm_client(farm: Farm) -> Iterator[TestClient]:
-    with TestClient(create_app(farm.settings)) as c:
+    """The API of the farm; done jobs keep their accumulations in Redis (``archive_done`` off):
+    the tests read every pixel's sample count from them (test_farm_retention archives)."""
+    with TestClient(create_app(farm.settings.model_copy(update={"archive_done": False}))) as c:
         yield c
 
 

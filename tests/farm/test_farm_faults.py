@@ -149,9 +149,11 @@ def nodes(own_redis: EmbeddedRedis, prefix: str, tmp_path: Path) -> Iterator[Nod
 
 def _api(redis_url: str, prefix: str) -> TestClient:
     """The API on that Redis: its sweeper merges leftovers, finishes jobs and re-queues the
-    passes of jobs stalled for ``STALL_TIMEOUT`` every 0.2 s."""
+    passes of jobs stalled for ``STALL_TIMEOUT`` every 0.2 s. Done jobs keep their accumulations
+    in Redis (``archive_done`` off): ``_assert_nothing_lost`` counts every pixel's samples."""
     return TestClient(create_app(Settings(redis_url=redis_url, key_prefix=prefix,
-                                          sweep_interval=0.2, api_token=None, **TIMINGS)))
+                                          sweep_interval=0.2, api_token=None,
+                                          archive_done=False, **TIMINGS)))
 
 
 def _scene(cornell: dict, width: int, height: int, spp: int) -> dict:

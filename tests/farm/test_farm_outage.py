@@ -128,12 +128,14 @@ def test_client_waits_through_an_outage_with_backoff_and_says_why(persistent_red
         # the server is sent SIGTERM as soon as the thread returns (as `lucent up`'s long-lived
         # supervisor thread does)
         done = threading.Event()
+        back = threading.Event()  # the restarted server is persistent_redis.proc (kill that one)
 
         def restart_later() -> None:
             time.sleep(2.0)
             restarted = EmbeddedRedis(port=persistent_redis.port,
                                       data_dir=persistent_redis.data_dir, appendonly=True).start()
             persistent_redis.proc = restarted.proc
+            back.set()
             done.wait(120.0)
 
         restarter = threading.Thread(target=restart_later)
@@ -152,6 +154,8 @@ def test_client_waits_through_an_outage_with_backoff_and_says_why(persistent_red
         delays = [float(line.split("retrying in ")[1].split(" s")[0]) for line in said]
         assert delays == [max(d, 1.0) for d in RETRY_DELAYS[:len(delays)]], delays
 
+        # The client may see the server answer before the thread has recorded its process
+        assert back.wait(30.0)
         _kill(persistent_redis)
         done.set()
         restarter.join()

@@ -1,4 +1,4 @@
-"""``/api/jobs``: submit, list, inspect, fetch the image, cancel and retry jobs."""
+"""``/api/jobs``: submit, list, inspect, fetch the image, cancel or delete, and retry jobs."""
 
 from __future__ import annotations
 
@@ -13,10 +13,11 @@ from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Res
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from services.api.deps import CeleryDep, SettingsDep, StoreDep
+from services.api.deps import BlobsDep, CeleryDep, SettingsDep, StoreDep
 from services.api.guards import echo_text, error_content
 from services.api.intake import Rejection
 from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
+from services.farm.archive import delete_finished, encode_image, final_image
 from services.farm.jobs import Refusal, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
@@ -112,6 +113,10 @@ def list_jobs(store: StoreDep,
 
 def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
                errors: dict[int, str]) -> JobDetail:
+    if meta.images:  # archived: its tile keys are gone, their summary is in the job's hash
+        states = dict.fromkeys(range(meta.plan.n_tiles), "done")
+        samples = dict(enumerate(meta.tiles_final.get("samples", [])))
+        errors = {int(t): e for t, e in meta.tiles_final.get("errors", {}).items()}
     tiles = []
     for t in range(meta.plan.n_tiles):
         x0, y0, w, h = meta.plan.tile_rect(t)
@@ -198,50 +203,40 @@ Exposure = Annotated[float, Query(ge=-MAX_EXPOSURE, le=MAX_EXPOSURE, allow_inf_n
 @router.get("/{job_id}/image.{fmt}", responses={
     200: {"content": {m: {} for m in _MEDIA.values()}}, 304: {"description": "not modified"}})
 def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request,
-              store: StoreDep, exposure: Exposure = 0.0,
+              store: StoreDep, blobs: BlobsDep, exposure: Exposure = 0.0,
               tonemap: Literal["clamp", "reinhard", "aces"] = "clamp"):
-    """The merged image as it stands (progressive while running). ``ETag`` changes with every
-    merge; send it back in ``If-None-Match`` to get 304 when nothing changed."""
+    """The merged image as it stands (progressive while running; a done job's from the blob
+    store, the same bytes). ``ETag`` changes with every merge; send it back in
+    ``If-None-Match`` to get 304 when nothing changed."""
     meta = _get_or_404(store, job_id)
     etag = f'"{job_id}-{meta.version}-{fmt}-{exposure:g}-{tonemap}"'
     headers = {"ETag": etag, "Cache-Control": "no-cache"}
     if etag_matches(request, etag):
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
-    # The buffers are read after the version: the image is never older than its ETag says.
-    assembled = assemble(store, job_id)
-    if assembled is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
-    image = assembled[0].mean()
-    return Response(content=_encode(image, fmt, exposure, tonemap), media_type=_MEDIA[fmt],
-                    headers=headers)
+    content = final_image(blobs, meta, fmt, exposure, tonemap)
+    if content is None:
+        if meta.images:  # the blob store lost it: say so rather than serve a black frame
+            raise HTTPException(status.HTTP_404_NOT_FOUND,
+                                detail=f"the image of job {job_id!r} is missing from the blob "
+                                       "store")
+        # The buffers are read after the version: the image is never older than its ETag says.
+        assembled = assemble(store, job_id)
+        if assembled is None:
+            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
+        content = encode_image(assembled[0].mean(), fmt, exposure, tonemap)
+    return Response(content=content, media_type=_MEDIA[fmt], headers=headers)
 
 
-def _encode(image, fmt: str, exposure: float, tonemap: str) -> bytes:
-    import io
-
-    import numpy as np
-
-    if fmt == "npy":
-        out = io.BytesIO()
-        np.save(out, image, allow_pickle=False)
-        return out.getvalue()
-    if fmt == "exr":
-        from renderer.film.image_io import encode_exr
-
-        return encode_exr(image)
-    from PIL import Image
-
-    from renderer.film.tonemap import to_srgb8
-
-    out = io.BytesIO()
-    Image.fromarray(to_srgb8(image, exposure=exposure, tonemap=tonemap)).save(out, format="PNG")
-    return out.getvalue()
-
-
-@router.delete("/{job_id}", response_model=JobPublic)
-def cancel_job(job_id: JobId, store: StoreDep):
-    """Cancel: queued tasks do nothing when they come up; running ones finish their pass."""
-    _get_or_404(store, job_id)
+@router.delete("/{job_id}", response_model=JobPublic, responses={
+    204: {"description": "the job was finished (done, failed or cancelled): it is deleted, its "
+                         "image too"}})
+def cancel_job(job_id: JobId, store: StoreDep, blobs: BlobsDep):
+    """Cancel a queued or running job (200 and the job): queued tasks do nothing when they come
+    up, running ones finish their pass. Delete a finished one (204): every key of it and its
+    image; it is gone from the list."""
+    meta = _get_or_404(store, job_id)
+    if meta.status not in ACTIVE and delete_finished(store, blobs, job_id):
+        return Response(status_code=status.HTTP_204_NO_CONTENT)
     store.cancel_job(job_id)
     return to_public(_get_or_404(store, job_id))
 

@@ -1,0 +1,90 @@
+"""The blob store: bytes by key, for what is too large or too final for Redis (a finished job's
+image, the EXR and the PNG at default exposure).
+
+``BlobStore`` is the interface (``put``, ``get``, ``delete``, ``exists`` by key); ``FileBlobStore``
+is the one implementation, a folder (``LUCENT_BLOB_DIR``, by default ``blobs/`` in the farm's data
+folder ``LUCENT_DATA_DIR``), shared by every API process that serves images. An S3-compatible
+backend is not built: there is no S3 server here to test one against; it would implement the same
+four methods.
+
+Keys are content addresses, ``sha256:<64 hex digits>`` of the bytes (``put_content``): the same
+image written twice is stored once, a key never names a path, and a blob never changes under its
+key. Who still uses a blob is counted in the job store (``JobStore.release_blobs``): two jobs of the
+same scene and seed make the same image.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import os
+import re
+import tempfile
+from pathlib import Path
+from typing import Protocol
+
+KEY = re.compile(r"sha256:([0-9a-f]{64})")
+
+
+def content_key(data: bytes) -> str:
+    return "sha256:" + hashlib.sha256(data).hexdigest()
+
+
+class BlobStore(Protocol):
+    def put(self, key: str, data: bytes) -> None:
+        """Store ``data`` under ``key`` (atomic: a reader sees all of it or nothing)."""
+
+    def get(self, key: str) -> bytes | None:
+        """The bytes under ``key``; None when there are none."""
+
+    def delete(self, key: str) -> None:
+        """Remove ``key``; nothing happens when it is absent."""
+
+    def exists(self, key: str) -> bool: ...
+
+
+def put_content(blobs: BlobStore, data: bytes) -> str:
+    """Store ``data`` under its content address, once; returns the key."""
+    key = content_key(data)
+    if not blobs.exists(key):
+        blobs.put(key, data)
+    return key
+
+
+class FileBlobStore:
+    """Blobs as files: ``sha256:abcd…`` is ``{root}/sha256/ab/abcd…`` (256 folders, so that no
+    folder grows past a few thousand files before the store holds a million)."""
+
+    def __init__(self, root: str | os.PathLike):
+        self.root = Path(root)
+
+    def path(self, key: str) -> Path:
+        m = KEY.fullmatch(key)
+        if m is None:  # never a path from outside: only content addresses are keys
+            raise ValueError(f"not a blob key: {key!r} (sha256:<64 hexadecimal digits>)")
+        digest = m.group(1)
+        return self.root / "sha256" / digest[:2] / digest
+
+    def put(self, key: str, data: bytes) -> None:
+        path = self.path(key)
+        path.parent.mkdir(parents=True, exist_ok=True)
+        # Written beside its place, then renamed over it: a reader never sees half a blob
+        fd, tmp = tempfile.mkstemp(dir=path.parent, prefix=".put-")
+        try:
+            with os.fdopen(fd, "wb") as f:
+                f.write(data)
+            os.replace(tmp, path)
+        except BaseException:
+            Path(tmp).unlink(missing_ok=True)
+            raise
+
+    def get(self, key: str) -> bytes | None:
+        try:
+            return self.path(key).read_bytes()
+        except FileNotFoundError:
+            return None
+
+    def delete(self, key: str) -> None:
+        self.path(key).unlink(missing_ok=True)
+
+    def exists(self, key: str) -> bool:
+        return self.path(key).is_file()

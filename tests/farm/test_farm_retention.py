@@ -1,0 +1,159 @@
+"""Finished jobs: the image to the blob store and Redis bounded by what is in flight, deletion
+and retention (``services/farm/archive.py``), with the real farm (embedded Redis, Celery
+workers)."""
+
+from __future__ import annotations
+
+import random
+import time
+from pathlib import Path
+
+import pytest
+from fastapi.testclient import TestClient
+
+from services.api.main import create_app
+from services.farm.archive import archive_job
+from services.farm.blobs import FileBlobStore, content_key
+from services.farm.settings import Settings
+from services.farm.store import JobStore
+from tests.conftest import wait_until
+
+
+def job_keys(store: JobStore, job_id: str) -> set[str]:
+    """Every key of the job in Redis, less the prefix, plus its entries in the shared sets."""
+    keys = {k.decode()[len(store.prefix) + 1:] for k in store.r.keys(store.job_key(job_id) + "*")}
+    keys |= {f"pending:{k}" for k in store.pending_passes_of(job_id)}
+    return keys
+
+
+def blob_files(settings: Settings) -> list[Path]:
+    root = settings.blob_path
+    return sorted(p for p in root.rglob("*") if p.is_file()) if root.exists() else []
+
+
+def own_scene(scene: dict) -> dict:
+    """The scene with a seed of its own: an image no other test's job makes (the session's farm
+    and its key prefix, blob uses included, are shared by the tests)."""
+    return {**scene, "render": {**scene["render"], "seed": random.randrange(1, 2**31)}}
+
+
+def listed_ids(client: TestClient) -> set[str]:
+    return {j["id"] for j in client.get("/api/jobs", params={"limit": 500}).json()["data"]}
+
+
+IMAGES = ["image.exr", "image.png", "image.png?exposure=1.5&tonemap=aces", "image.npy"]
+
+
+def test_a_done_job_leaves_only_its_hash_and_scene_in_redis(farm, tiny_scene, tmp_path,
+                                                            wait_for_job):
+    # Only the sweep at start: the test archives by hand, between the two reads of the image.
+    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
+    store = farm.store()
+    tiny_scene = own_scene(tiny_scene)
+    with TestClient(create_app(settings)) as client:
+        ids = [client.post("/api/jobs", json={"scene": tiny_scene, "name": f"j{i}",
+                                              "tile_size": 16}).json()["id"] for i in range(3)]
+        for job_id in ids:
+            assert wait_for_job(client, job_id)["status"] == "done"
+        before = {(j, path): client.get(f"/api/jobs/{j}/{path}") for j in ids for path in IMAGES}
+        detail_before = {j: client.get(f"/api/jobs/{j}").json() for j in ids}
+        assert all(r.status_code == 200 for r in before.values())
+        assert all(f"job:{j}:acc:0" in job_keys(store, j) for j in ids)  # in Redis until now
+
+        # (the farm's other tests leave done jobs of their own to archive: only ours here)
+        blobs = FileBlobStore(settings.blob_path)
+        assert set(ids) <= set(store.jobs_to_archive())
+        assert [archive_job(store, blobs, j) for j in ids] == [True] * 3
+        assert [archive_job(store, blobs, j) for j in ids] == [False] * 3  # once
+        assert not set(ids) & set(store.jobs_to_archive())
+
+        for job_id in ids:
+            assert job_keys(store, job_id) == {f"job:{job_id}", f"job:{job_id}:scene"}
+        for (job_id, path), old in before.items():
+            new = client.get(f"/api/jobs/{job_id}/{path}")
+            assert new.status_code == 200
+            assert new.content == old.content, (job_id, path)  # bit-identical, EXR included
+            assert new.headers["etag"] == old.headers["etag"]
+        for job_id in ids:
+            detail = client.get(f"/api/jobs/{job_id}").json()
+            assert detail == detail_before[job_id]  # tiles done, their samples, as before
+        assert set(ids) <= listed_ids(client)  # still listed
+        # The three jobs render the same scene: one EXR and one PNG in the store, used 3 times
+        for fmt in ("exr", "png"):
+            key = content_key(before[(ids[0], f"image.{fmt}")].content)
+            assert blobs.exists(key)
+            assert store.r.hget(store.k("blob_refs"), key) == b"3"
+
+
+def test_deleting_a_finished_job_leaves_no_key_and_no_blob(farm, tiny_scene, tmp_path,
+                                                          wait_for_job):
+    settings = farm.settings.model_copy(update={"data_dir": tmp_path})
+    store = farm.store()
+    tiny_scene = own_scene(tiny_scene)
+    with TestClient(create_app(settings)) as client:
+        first, second = (client.post("/api/jobs", json={"scene": tiny_scene}).json()["id"]
+                         for _ in range(2))
+        for job_id in (first, second):
+            assert wait_for_job(client, job_id)["status"] == "done"
+            wait_until(lambda j=job_id: store.get_job(j).images, 30, "the image archived")
+        exr = client.get(f"/api/jobs/{first}/image.exr").content
+
+        # Two jobs use the same image: deleting one keeps it for the other
+        assert client.delete(f"/api/jobs/{first}").status_code == 204
+        assert job_keys(store, first) == set()
+        assert client.get(f"/api/jobs/{first}").status_code == 404
+        assert client.get(f"/api/jobs/{second}/image.exr").content == exr
+        assert client.delete(f"/api/jobs/{second}").status_code == 204
+        assert job_keys(store, second) == set()
+        assert blob_files(settings) == []
+        assert not listed_ids(client) & {first, second}
+        assert store.r.hget(store.k("blob_refs"), content_key(exr)) is None
+
+        # A running job is cancelled (200), then deleted (204) with its partial image's keys
+        big = dict(tiny_scene, render={**tiny_scene["render"], "spp": 64})
+        third = client.post("/api/jobs", json={"scene": big, "spp_per_pass": 1,
+                                               "max_spp_per_pass": 1}).json()["id"]
+        r = client.delete(f"/api/jobs/{third}")
+        assert (r.status_code, r.json()["status"]) == (200, "cancelled")
+        assert client.delete(f"/api/jobs/{third}").status_code == 204
+        # a pass that was rendering when it was deleted lands, and its merge drops it
+        wait_until(lambda: not job_keys(store, third), 30, "no key of the deleted job")
+        assert third not in listed_ids(client)
+
+
+def test_retention_removes_old_finished_jobs(farm, tiny_scene, tmp_path, wait_for_job):
+    settings = farm.settings.model_copy(update={"data_dir": tmp_path, "keep_days": 1.0})
+    store = farm.store()
+    tiny_scene = own_scene(tiny_scene)
+    with TestClient(create_app(settings)) as client:
+        old, new = (client.post("/api/jobs", json={"scene": tiny_scene, "name": name,
+                                                   "tile_size": 16}).json()["id"]
+                    for name in ("old", "new"))
+        for job_id in (old, new):
+            assert wait_for_job(client, job_id)["status"] == "done"
+            wait_until(lambda j=job_id: store.get_job(j).images, 30, "the image archived")
+        time.sleep(2 * settings.sweep_interval)  # sweeps pass: a day has not
+        assert {old, new} <= listed_ids(client)
+
+        store.set_finished_at(old, time.time() - 1.5 * 86400)
+        wait_until(lambda: client.get(f"/api/jobs/{old}").status_code == 404, 30,
+                   "the old job deleted by the sweeper")
+        assert job_keys(store, old) == set()
+        assert listed_ids(client) & {old, new} == {new}
+        assert len(blob_files(settings)) == 2  # the new job's EXR and PNG (the same scene's)
+        assert client.get(f"/api/jobs/{new}/image.exr").status_code == 200
+
+
+def test_the_file_blob_store_is_content_addressed(tmp_path):
+    blobs = FileBlobStore(tmp_path)
+    key = content_key(b"pixels")
+    assert not blobs.exists(key) and blobs.get(key) is None
+    blobs.put(key, b"pixels")
+    assert blobs.exists(key) and blobs.get(key) == b"pixels"
+    assert blobs.path(key).relative_to(tmp_path).parts[:2] == ("sha256", key[7:9])
+    blobs.delete(key)
+    blobs.delete(key)  # absent: nothing happens
+    assert not blobs.exists(key)
+    for bad in ("../etc/passwd", "sha256:" + "0" * 63, "md5:" + "0" * 64, "sha256:" + "A" * 64):
+        with pytest.raises(ValueError):
+            blobs.path(bad)
