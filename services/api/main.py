@@ -11,11 +11,13 @@ from fastapi.middleware.cors import CORSMiddleware
 from fastapi.staticfiles import StaticFiles
 
 from services.api.deps import require_token
-from services.api.guards import BodyLimit, validation_error
+from services.api.guards import BodyLimit, database_unavailable, validation_error
 from services.api.intake import Intake
 from services.api.routes import dashboard, health, jobs, workers
+from services.farm.archive import Archive
 from services.farm.merge import StallRule, Sweeper
 from services.farm.queue import celery_client
+from services.farm.records import RecordsUnavailable
 from services.farm.settings import Settings, get_settings
 from services.farm.store import JobStore
 
@@ -28,14 +30,17 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         store = JobStore.from_url(settings.redis_url, settings.key_prefix)
         app.state.store = store
         app.state.celery = celery_client(settings)
+        # the job database, migrated; the blob store
+        app.state.archive = archive = Archive.open(store, settings)
         stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues)
-        sweeper = Sweeper(store, settings.sweep_interval, stall)
+        sweeper = Sweeper(store, settings.sweep_interval, stall, then=archive.sweep)
         sweeper.start()  # merges what a previous run or a lost worker left behind
         try:
             yield
         finally:
             sweeper.stop()
             app.state.intake.close()
+            archive.close()
             store.close()
 
     app = FastAPI(title="Lucent", version="0.1.0", lifespan=lifespan,
@@ -48,6 +53,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
 
     app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
     app.add_exception_handler(RequestValidationError, validation_error)
+    app.add_exception_handler(RecordsUnavailable, database_unavailable)
     if settings.cors_origins:
         # Off unless configured: without Access-Control-Allow-Origin a browser keeps other sites'
         # pages from reading the API. No cookies are used (the token is a header), so no

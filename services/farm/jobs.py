@@ -25,9 +25,11 @@ from celery import Celery
 
 from renderer.materials.auto import auto_choices
 from renderer.scene import Limits, SceneError, load_scene
+from services.farm.archive import Archive
 from services.farm.cost import check_cost
 from services.farm.planner import Plan
 from services.farm.queue import enqueue
+from services.farm.records import Records, RecordsUnavailable
 from services.farm.settings import Settings
 from services.farm.store import JobMeta, JobStore
 
@@ -91,8 +93,12 @@ def check_scene(scene: Any, limits: Limits) -> CheckedScene | Refusal:
 
 
 def queue_job(store: JobStore, celery: Celery, settings: Settings, options: JobOptions,
-              scene: CheckedScene) -> JobMeta | Refusal:
-    """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal."""
+              scene: CheckedScene, records: Records,
+              submitter: str | None = None) -> JobMeta | Refusal:
+    """Plan, record and queue a job, or say why not; nothing is queued when the answer is a
+    Refusal. The job is in Redis before its row is written (``services.farm.archive``: a row
+    always has a job behind it), and is queued only once it has a row: a database that does not
+    answer (``RecordsUnavailable``) leaves nothing queued."""
     first = min(options.spp_per_pass or settings.default_spp_per_pass, scene.spp)
     # The largest pass: as asked, else the default but never below the first pass
     largest = options.max_spp_per_pass or max(first, settings.default_max_spp_per_pass)
@@ -117,17 +123,32 @@ def queue_job(store: JobStore, celery: Celery, settings: Settings, options: JobO
                        {"Retry-After": "60"} if refused.status == 429 else None)
     job_id = uuid.uuid4().hex  # store.JOB_ID's form
     meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
-                            scene.methods)
+                            scene.methods, submitter)
+    try:
+        records.create(meta)
+    except RecordsUnavailable:
+        store.delete_job(job_id)
+        raise
     enqueue(celery, job_id, plan.order(), options.priority)
     return meta
 
 
-def retry_job(store: JobStore, celery: Celery, meta: JobMeta) -> str | None:
+def retry_job(store: JobStore, celery: Celery, archive: Archive, meta: JobMeta) -> str | None:
     """Queue again every pass not merged yet of a failed or cancelled job, its tries counted
-    afresh; None when done, else why the job cannot be retried."""
+    afresh (an archived job is put back in Redis first); None when done, else why the job
+    cannot be retried."""
     if meta.status not in ("failed", "cancelled"):
         return f"job {meta.id} is {meta.status}: only failed or cancelled jobs can be retried"
-    todo = store.reopen_job(meta.id)
+    if store.get_status(meta.id) is not None:
+        todo = store.reopen_job(meta.id)
+    else:
+        record = archive.records.get(meta.id)
+        if record is None:
+            return f"job {meta.id} was deleted"
+        restored = archive.restore(record)
+        if isinstance(restored, str):
+            return restored
+        todo = restored
     enqueue(celery, meta.id, todo, meta.priority)
     store.finish_if_complete(meta.id)  # nothing was left to render
     return None

@@ -31,6 +31,7 @@ from __future__ import annotations
 import logging
 import threading
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import redis
@@ -38,6 +39,7 @@ from celery import Celery
 
 from renderer.film.buffer import SampleBuffer
 from services.farm.queue import enqueue, waiting_ahead
+from services.farm.records import RecordsUnavailable
 from services.farm.store import JobStore
 
 log = logging.getLogger(__name__)
@@ -122,24 +124,37 @@ def sweep(store: JobStore, stall: StallRule | None = None) -> int:
 
 
 class Sweeper:
-    """The service's background merger: ``sweep`` at start and every ``interval`` seconds."""
+    """The service's background merger: ``sweep`` at start and every ``interval`` seconds, then
+    ``then`` (the archive's round: ``services.farm.archive.Archive.sweep``) if given."""
 
-    def __init__(self, store: JobStore, interval: float, stall: StallRule | None = None):
+    def __init__(self, store: JobStore, interval: float, stall: StallRule | None = None,
+                 then: Callable[[], object] | None = None):
         self.store = store
         self.interval = interval
         self.stall = stall
+        self.then = then
         self._stop = threading.Event()
         self._thread: threading.Thread | None = None
 
     def start(self) -> None:
-        sweep(self.store, self.stall)  # carry on from Redis before serving
+        self._sweep()  # carry on from Redis before serving
         self._thread = threading.Thread(target=self._run, name="lucent-sweeper", daemon=True)
         self._thread.start()
+
+    def _sweep(self) -> None:
+        sweep(self.store, self.stall)
+        if self.then is not None:
+            try:
+                self.then()
+            except (RecordsUnavailable, redis.RedisError) as err:  # the next sweep retries
+                log.warning("the archive's round failed: %s", err)
+            except Exception:  # nor does a job that cannot be archived stop the sweeps
+                log.exception("the archive's round failed")
 
     def _run(self) -> None:
         while not self._stop.wait(self.interval):
             try:
-                sweep(self.store, self.stall)
+                self._sweep()
             except redis.RedisError as err:
                 log.warning("sweep failed: %s", err)
 

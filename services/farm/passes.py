@@ -48,6 +48,8 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
     # deliveries that run are counted (one lost by the broker, then re-queued by the sweeper, is
     # not), and counting one marks the job alive for the sweeper's stall rule.
     attempt = store.add_attempt(job_id, tile, pass_index)
+    if attempt == 0:
+        return "skipped: no such job"  # archived or deleted since it was read
     if attempt > settings.max_attempts:
         store.fail_tile(job_id, tile, f"pass {pass_index} gave up after {attempt - 1} tries "
                         "(its worker was lost or timed out each time)")

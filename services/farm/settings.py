@@ -23,7 +23,9 @@ node that died as a whole.
 
 from __future__ import annotations
 
+import os
 from functools import lru_cache
+from pathlib import Path
 from typing import Annotated
 
 from pydantic import AliasChoices, Field, field_validator, model_validator
@@ -51,9 +53,43 @@ class Settings(BaseSettings):
     api_token: str | None = None
     """When set, every ``/api`` route and ``/metrics`` need ``Authorization: Bearer <token>``."""
 
+    api_tokens: Annotated[dict[str, str], NoDecode] = Field(default_factory=dict)
+    """Named tokens, ``name:token`` comma-separated (``alice:s3cret,bob:0th3r``): each is accepted
+    as ``LUCENT_API_TOKEN`` is, and a job submitted with one records its name as the submitter."""
+
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     """Origins (``https://farm.example.org``) whose pages may call the API from a browser,
     comma-separated; empty (the default): no CORS headers, so only same-origin pages can."""
+
+    # --- Farm state that lasts (``services.farm.records``, ``blobs``, ``archive``) ---------------
+    data_dir: Path = Field(default_factory=lambda: _default_data_dir())
+    """The farm's data folder: the embedded job database (SQLite) and the blob store live here
+    unless ``DATABASE_URL`` and ``LUCENT_BLOB_DIR`` say otherwise."""
+
+    database_url: str | None = Field(
+        default=None, validation_alias=AliasChoices("DATABASE_URL", "LUCENT_DATABASE_URL"))
+    """The job records' database (SQLAlchemy URL): ``postgresql+psycopg://user@host/db`` for a
+    deployment; unset, SQLite in ``data_dir`` (``lucent.db``: nothing to install)."""
+
+    database_schema: str | None = Field(default=None, pattern=r"^[a-z_][a-z0-9_]{0,62}$")
+    """PostgreSQL only: the schema of the farm's tables (created if missing), so that two farms
+    (or test runs) can share one database, as ``key_prefix`` separates them in Redis."""
+
+    blob_dir: Path | None = None
+    """The filesystem blob store (finished jobs' images and scenes); unset: ``data_dir/blobs``.
+    Several API processes must see the same folder (a shared volume)."""
+
+    keep_days: float | None = Field(default=None, gt=0)
+    """Finished jobs older than this (days since they finished) are deleted: record, image and
+    scene. Unset: kept until deleted by hand."""
+
+    max_image_bytes: int | None = Field(default=None, ge=0)
+    """The most bytes of finished jobs' images the blob store keeps; over it the oldest images
+    are removed (their records stay, and their image routes answer 410). Unset: no cap."""
+
+    retention_interval: float = Field(default=60.0, gt=0)
+    """Seconds between the sweeper's retention rounds (``keep_days``, ``max_image_bytes``) and
+    its look for jobs whose in-flight state Redis lost."""
 
     # --- Job limits -----------------------------------------------------------------------------
     default_tile_size: int = 32
@@ -136,6 +172,26 @@ class Settings(BaseSettings):
     sweep_interval: float = 1.0
     """Seconds between the service's sweeps: pass buffers left unmerged, jobs left unfinished."""
 
+    @property
+    def database(self) -> str:
+        """The job database's URL: ``DATABASE_URL``, else SQLite in the data folder."""
+        return self.database_url or f"sqlite:///{self.data_dir / 'lucent.db'}"
+
+    @property
+    def blob_root(self) -> Path:
+        return self.blob_dir or self.data_dir / "blobs"
+
+    @field_validator("api_tokens", mode="before")
+    @classmethod
+    def _split_tokens(cls, value: object) -> object:
+        # LUCENT_API_TOKENS="alice:s3cret,bob:0th3r"
+        if isinstance(value, str):
+            pairs = [p.strip().partition(":") for p in value.split(",") if p.strip()]
+            if any(not name or not token for name, _, token in pairs):
+                raise ValueError("LUCENT_API_TOKENS is name:token, comma-separated")
+            return {name.strip(): token.strip() for name, _, token in pairs}
+        return value
+
     @field_validator("cors_origins", mode="before")
     @classmethod
     def _split_origins(cls, value: object) -> object:
@@ -146,7 +202,7 @@ class Settings(BaseSettings):
 
     @model_validator(mode="after")
     def _check(self) -> Settings:
-        if self.environment != "development" and not self.api_token:
+        if self.environment != "development" and not (self.api_token or self.api_tokens):
             raise ValueError("LUCENT_API_TOKEN must be set outside development")
         if not self.task_soft_time_limit < self.task_time_limit < self.visibility_timeout:
             raise ValueError(
@@ -161,6 +217,12 @@ class Settings(BaseSettings):
             raise ValueError("need sweep_interval < stall_timeout "
                              f"(got {self.sweep_interval}, {self.stall_timeout})")
         return self
+
+
+def _default_data_dir() -> Path:
+    """``$XDG_DATA_HOME/lucent``, else ``~/.local/share/lucent``."""
+    base = os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share"
+    return Path(base) / "lucent"
 
 
 @lru_cache

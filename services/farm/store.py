@@ -80,11 +80,22 @@ return stalls
 
 
 # Count a delivery of a pass (KEYS[1] attempts hash, ARGV[1] tile:pass) and note the job alive
-# (KEYS[2] job hash, ARGV[2] now) unless its hash is gone: a deleted job is not brought back.
+# (KEYS[2] job hash, ARGV[2] now); 0 when its hash is gone: a job archived or deleted meanwhile
+# is not brought back, not even as a stray key.
 _ADD_ATTEMPT = """
+if redis.call('EXISTS', KEYS[2]) == 0 then return 0 end
 local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
-if redis.call('EXISTS', KEYS[2]) == 1 then redis.call('HSET', KEYS[2], 'active_at', ARGV[2]) end
+redis.call('HSET', KEYS[2], 'active_at', ARGV[2])
 return n
+"""
+
+# Set a field of one of a job's hashes (KEYS[2]) only while the job's own hash (KEYS[1]) exists;
+# ARGV[1] field, ARGV[2] value, ARGV[3] the value it must have now or "" for any. Returns 1 if set.
+_HSET_IF_JOB = """
+if redis.call('EXISTS', KEYS[1]) == 0 then return 0 end
+if ARGV[3] ~= '' and redis.call('HGET', KEYS[2], ARGV[1]) ~= ARGV[3] then return 0 end
+redis.call('HSET', KEYS[2], ARGV[1], ARGV[2])
+return 1
 """
 
 
@@ -105,6 +116,21 @@ def pass_member(tile: int, pass_index: int) -> str:
     return f"{tile}:{pass_index}"
 
 
+def _job_fields(job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
+                submitter: str | None, created_at: float) -> dict[str, Any]:
+    """A new job's hash: queued, nothing merged."""
+    return {
+        "id": job_id, "name": name, "status": "queued", "priority": priority,
+        "width": plan.width, "height": plan.height, "spp": plan.spp,
+        "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
+        "max_spp_per_pass": plan.max_spp_per_pass,
+        "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
+        "version": 0, "status_version": 0, "created_at": created_at, "started_at": "",
+        "finished_at": "", "error": "", "methods": json.dumps(methods),
+        "submitter": submitter or "",
+    }
+
+
 @dataclass
 class JobMeta:
     """A job's hash, typed."""
@@ -123,6 +149,7 @@ class JobMeta:
     finished_at: float | None
     error: str | None
     methods: dict[str, str]
+    submitter: str | None = None  # the name of the API token it was submitted with
 
     @property
     def samples_planned(self) -> int:
@@ -152,7 +179,21 @@ class JobMeta:
             finished_at=opt_float("finished_at"),
             error=d.get("error") or None,
             methods=json.loads(d.get("methods") or "{}"),
+            submitter=d.get("submitter") or None,
         )
+
+
+@dataclass(frozen=True)
+class JobSnapshot:
+    """A job as Redis holds it at one instant (``JobStore.snapshot``)."""
+
+    meta: JobMeta
+    scene_json: bytes
+    tile_states: dict[int, str]
+    tile_samples: dict[int, int]
+    tile_errors: dict[int, str]
+    merged: list[str]  # ``tile:pass``
+    tile_buffers: list[bytes | None]  # by tile; None before its first merge
 
 
 class JobStore:
@@ -166,6 +207,7 @@ class JobStore:
         self._transition = client.register_script(_TRANSITION)
         self._claim_stall = client.register_script(_CLAIM_STALL)
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
+        self._hset_if_job = client.register_script(_HSET_IF_JOB)
 
     @classmethod
     def from_url(cls, url: str, prefix: str = "lucent") -> JobStore:
@@ -186,17 +228,10 @@ class JobStore:
 
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
-                   scene_json: str | bytes, methods: dict[str, str] | None = None) -> JobMeta:
-        now = time.time()
-        fields: dict[str, Any] = {
-            "id": job_id, "name": name, "status": "queued", "priority": priority,
-            "width": plan.width, "height": plan.height, "spp": plan.spp,
-            "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
-            "max_spp_per_pass": plan.max_spp_per_pass,
-            "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
-            "version": 0, "status_version": 0, "created_at": now, "started_at": "",
-            "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
-        }
+                   scene_json: str | bytes, methods: dict[str, str] | None = None,
+                   submitter: str | None = None, created_at: float | None = None) -> JobMeta:
+        now = time.time() if created_at is None else created_at
+        fields = _job_fields(job_id, name, priority, plan, methods or {}, submitter, now)
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
         pipe.set(self.k("job", job_id, "scene"), scene_json)
@@ -219,17 +254,19 @@ class JobStore:
         raw = self.r.get(self.k("job", job_id, "scene"))
         return json.loads(raw) if raw is not None else None
 
-    def list_jobs(self, status: str | None = None, offset: int = 0,
-                  limit: int = 50) -> tuple[list[JobMeta], int]:
-        """Jobs newest first, filtered by status; returns (page, total matching)."""
-        ids = [i.decode() for i in self.r.zrevrange(self.k("jobs"), 0, -1)]
+    def get_jobs(self, job_ids: list[str]) -> dict[str, JobMeta]:
+        """Those of the jobs that Redis holds, by id (one round trip)."""
         pipe = self.r.pipeline()
-        for job_id in ids:
+        for job_id in job_ids:
             pipe.hgetall(self.job_key(job_id))
-        metas = [JobMeta.from_hash(h) for h in pipe.execute() if h]
-        if status is not None:
-            metas = [m for m in metas if m.status == status]
-        return metas[offset:offset + limit], len(metas)
+        return {j: JobMeta.from_hash(h)
+                for j, h in zip(job_ids, pipe.execute(), strict=True) if h}
+
+    def jobs_in_flight(self) -> list[JobMeta]:
+        """Every job Redis holds: queued, running, and finished ones not archived yet (the job
+        list is no longer than that: archived jobs leave it)."""
+        return list(self.get_jobs([i.decode() for i in self.r.zrange(self.k("jobs"), 0, -1)])
+                    .values())
 
     def active_samples_left(self) -> list[int]:
         """Pixel-samples that each queued or running job has still to render."""
@@ -334,28 +371,30 @@ class JobStore:
         h = self.r.hgetall(self.k("job", job_id, "tile_error"))
         return {int(k): v.decode() for k, v in h.items()}
 
+    # A worker writes a tile's fields only while its job's hash exists: a late delivery of a job
+    # archived or deleted meanwhile leaves no key behind in Redis.
+    def _set_tile(self, job_id: str, name: str, tile: int, value: str, only_if: str = "") -> None:
+        self._hset_if_job(keys=[self.job_key(job_id), self.k("job", job_id, name)],
+                          args=[str(tile), value, only_if])
+
     def set_tile_state(self, job_id: str, tile: int, state: str) -> None:
-        self.r.hset(self.k("job", job_id, "tile_state"), str(tile), state)
+        self._set_tile(job_id, "tile_state", tile, state)
 
     def set_tile_running(self, job_id: str, tile: int) -> None:
         # Only a queued tile becomes running: a done tile stays done when a late duplicate runs.
-        key = self.k("job", job_id, "tile_state")
-        if _s(self.r.hget(key, str(tile))) == "queued":
-            self.r.hset(key, str(tile), "running")
+        self._set_tile(job_id, "tile_state", tile, "running", only_if="queued")
 
     def fail_tile(self, job_id: str, tile: int, reason: str) -> None:
-        pipe = self.r.pipeline()
-        pipe.hset(self.k("job", job_id, "tile_state"), str(tile), "failed")
-        pipe.hset(self.k("job", job_id, "tile_error"), str(tile), reason)
-        pipe.execute()
+        self._set_tile(job_id, "tile_state", tile, "failed")
+        self._set_tile(job_id, "tile_error", tile, reason)
         self.fail_job(job_id, f"tile {tile}: {reason}")
 
     def note_tile_error(self, job_id: str, tile: int, reason: str) -> None:
-        self.r.hset(self.k("job", job_id, "tile_error"), str(tile), reason)
+        self._set_tile(job_id, "tile_error", tile, reason)
 
     def add_attempt(self, job_id: str, tile: int, pass_index: int) -> int:
         """Count a delivery of the pass that is about to run; it is also a sign of life of the
-        job (``active_at``: the sweeper's stall clock starts again)."""
+        job (``active_at``: the sweeper's stall clock starts again). 0: the job is gone."""
         return int(self._add_attempt(
             keys=[self.k("job", job_id, "attempts"), self.job_key(job_id)],
             args=[pass_member(tile, pass_index), time.time()]))
@@ -456,6 +495,86 @@ class JobStore:
         for t in range(n_tiles):
             pipe.get(self.acc_key(job_id, t))
         return pipe.execute()
+
+    # --- leaving Redis (services.farm.archive) --------------------------------------------------
+    def claim_archive(self, job_id: str, ttl: float) -> bool:
+        """Claim the archiving of a finished job for ``ttl`` seconds: of several sweepers (API
+        processes), one archives it; one that dies mid-way lets go when the claim expires."""
+        return bool(self.r.set(self.k("job", job_id, "archiving"), "1", nx=True,
+                               px=int(ttl * 1000)))
+
+    def release_archive(self, job_id: str) -> None:
+        self.r.delete(self.k("job", job_id, "archiving"))
+
+    def snapshot(self, job_id: str) -> JobSnapshot | None:
+        """Everything Redis holds of a job, read in one MULTI/EXEC: no merge lands between its
+        parts, so counters, merged passes and buffers agree (the archive stores them)."""
+        meta = self.get_job(job_id)
+        if meta is None:
+            return None
+        n_tiles = meta.plan.n_tiles
+        pipe = self.r.pipeline(transaction=True)
+        pipe.hgetall(self.job_key(job_id))
+        pipe.get(self.k("job", job_id, "scene"))
+        for name in ("tile_state", "tile_samples", "tile_error"):
+            pipe.hgetall(self.k("job", job_id, name))
+        pipe.smembers(self.k("job", job_id, "merged"))
+        for t in range(n_tiles):
+            pipe.get(self.acc_key(job_id, t))
+        h, scene, states, samples, errors, merged, *buffers = pipe.execute()
+        if not h or scene is None:
+            return None
+        return JobSnapshot(
+            JobMeta.from_hash(h), scene, {int(k): v.decode() for k, v in states.items()},
+            {int(k): int(v) for k, v in samples.items()},
+            {int(k): v.decode() for k, v in errors.items()}, [m.decode() for m in merged],
+            buffers)
+
+    def delete_job(self, job_id: str) -> None:
+        """Remove every key of the job: its hash, scene, tile hashes, attempts, merged set,
+        accumulations, pass buffers not merged and its place in the job list."""
+        meta = self.get_job(job_id)
+        keys = [self.job_key(job_id), *(self.k("job", job_id, name) for name in (
+            "scene", "tile_state", "tile_samples", "tile_error", "attempts", "merged",
+            "archiving"))]
+        if meta is not None:
+            keys += [self.acc_key(job_id, t) for t in range(meta.plan.n_tiles)]
+        prefix = self.k("job", job_id, "pass") + ":"
+        passes = [key for key in self.pending_passes() if key.startswith(prefix)]
+        pipe = self.r.pipeline()
+        pipe.delete(*keys, *passes)
+        if passes:
+            pipe.srem(self.k("pending"), *passes)
+        pipe.zrem(self.k("jobs"), job_id)
+        pipe.execute()
+
+    def restore_job(self, meta: JobMeta, scene_json: bytes, tile_buffers: dict[int, bytes],
+                    merged: list[str], tile_samples: dict[int, int]) -> None:
+        """Put an archived job back in Redis, running, as it was when it stopped (a retry):
+        the counters of ``meta``, the tiles' merged buffers and samples, the merged passes; a
+        tile with every sample is done, any other queued."""
+        plan = meta.plan
+        fields = _job_fields(meta.id, meta.name, meta.priority, plan, meta.methods,
+                             meta.submitter, meta.created_at)
+        fields.update(status="running", tasks_merged=meta.tasks_merged,
+                      samples_merged=meta.samples_merged, dropped=meta.dropped,
+                      version=meta.version, started_at=meta.started_at or "",
+                      active_at=time.time())
+        states = {str(t): "done" if tile_samples.get(t, 0) >= plan.spp else "queued"
+                  for t in range(plan.n_tiles)}
+        pipe = self.r.pipeline()
+        pipe.hset(self.job_key(meta.id), mapping=fields)
+        pipe.set(self.k("job", meta.id, "scene"), scene_json)
+        pipe.hset(self.k("job", meta.id, "tile_state"), mapping=states)
+        if tile_samples:
+            pipe.hset(self.k("job", meta.id, "tile_samples"),
+                      mapping={str(t): n for t, n in tile_samples.items()})
+        for t, data in tile_buffers.items():
+            pipe.set(self.acc_key(meta.id, t), data)
+        if merged:
+            pipe.sadd(self.k("job", meta.id, "merged"), *merged)
+        pipe.zadd(self.k("jobs"), {meta.id: meta.created_at})
+        pipe.execute()
 
     def pending_passes(self) -> list[str]:
         """The keys of the pass buffers written and not merged yet."""

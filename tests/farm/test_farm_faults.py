@@ -14,6 +14,7 @@ from __future__ import annotations
 import base64
 import contextlib
 import copy
+import functools
 import io
 import json
 import os
@@ -36,13 +37,15 @@ from fastapi.testclient import TestClient
 
 from renderer.render import render
 from services.api.main import create_app
-from services.client import Client, JobLost
-from services.farm.merge import StallRule, assemble, requeue_stalled
+from services.client import Client
+from services.farm.merge import StallRule, requeue_stalled
 from services.farm.planner import Plan, celery_priority
 from services.farm.queue import TASK, celery_client
+from services.farm.records import Records
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 from services.launcher import EmbeddedRedis, free_port, terminate, worker_command, worker_env
+from tests.farm.conftest import assert_archived_whole, job_status, records_of
 
 psutil = pytest.importorskip("psutil")
 
@@ -148,10 +151,17 @@ def nodes(own_redis: EmbeddedRedis, prefix: str, tmp_path: Path) -> Iterator[Nod
 
 
 def _api(redis_url: str, prefix: str) -> TestClient:
-    """The API on that Redis: its sweeper merges leftovers, finishes jobs and re-queues the
-    passes of jobs stalled for ``STALL_TIMEOUT`` every 0.2 s."""
+    """The API on that Redis: its sweeper merges leftovers, finishes and archives jobs and
+    re-queues the passes of jobs stalled for ``STALL_TIMEOUT`` every 0.2 s, and looks for jobs
+    Redis lost every second. Its records are the session's (tests/conftest.py)."""
     return TestClient(create_app(Settings(redis_url=redis_url, key_prefix=prefix,
-                                          sweep_interval=0.2, api_token=None, **TIMINGS)))
+                                          sweep_interval=0.2, retention_interval=1.0,
+                                          api_token=None, **TIMINGS)))
+
+
+@functools.cache
+def _records() -> Records:
+    return records_of(Settings())
 
 
 def _scene(cornell: dict, width: int, height: int, spp: int) -> dict:
@@ -173,21 +183,21 @@ def _submit(api: TestClient, scene: dict, tile_size: int, spp_per_pass: int) -> 
 
 def _finished(store: JobStore, job_id: str, timeout: float = TIMEOUT) -> str:
     try:
-        return _until(lambda: (s := store.get_status(job_id)) in ("done", "failed", "cancelled")
-                      and s, timeout, f"job {job_id} to finish", interval=0.1)
+        return _until(lambda: (s := job_status(store, _records(), job_id))
+                      in ("done", "failed", "cancelled") and s, timeout, f"job {job_id} to finish",
+                      interval=0.1)
     except AssertionError as err:  # say what it waits for
         raise AssertionError(f"{err}: {_stuck(store, job_id)}") from None
 
 
 def _assert_nothing_lost(api: TestClient, store: JobStore, job_id: str, scene: dict) -> None:
-    """Done, each pass merged once, every pixel exactly spp samples, the local render's image."""
+    """Done, each pass merged once, every pixel exactly spp samples (counted when the job was
+    archived), nothing of it left in Redis, the local render's image."""
     job = api.get(f"/api/jobs/{job_id}").json()
     assert job["status"] == "done", job
     assert job["tasks_merged"] == job["tasks_total"]
-    assert store.r.scard(store.k("job", job_id, "merged")) == job["tasks_total"]
     assert {t["state"] for t in job["tile_states"]} == {"done"}
-    frame, _ = assemble(store, job_id)
-    assert (frame.count + frame.dropped == scene["render"]["spp"]).all()
+    assert_archived_whole(_records(), store, job_id, scene["render"]["spp"])
     _until(lambda: store.r.scard(store.k("pending")) == 0, 10, "no pass buffer left")
     image = np.load(io.BytesIO(api.get(f"/api/jobs/{job_id}/image.npy").content))
     np.testing.assert_allclose(image, render(scene), rtol=1e-5, atol=1e-7)
@@ -584,11 +594,11 @@ def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
 
 @pytest.mark.slow
 def test_redis_restarted_without_persistence_loses_the_job_clearly(tmp_path, prefix, cornell):
-    """Without persistence a restarted Redis is empty: the job (its hash, scene, tiles,
-    accumulations) and its queued passes are gone. What documents that here: the API answers 404
-    for the job, ``lucent submit --wait``'s client stops with ``JobLost`` instead of polling
-    forever, the passes that were in flight are discarded (not left pending), and the same
-    workers render a new job."""
+    """Without persistence a restarted Redis is empty: the job's in-flight state (its hash,
+    scene, tiles, accumulations) and its queued passes are gone. What documents that here: its
+    record stays and is failed with the reason within a sweep, so the API answers it and
+    ``lucent submit --wait``'s client stops instead of polling forever; the passes that were in
+    flight are discarded (not left pending), and the same workers render a new job."""
     server = EmbeddedRedis().start()
     nodes = Nodes(server.url, prefix, tmp_path)
     store = JobStore.from_url(server.url, prefix)
@@ -599,11 +609,12 @@ def test_redis_restarted_without_persistence_loses_the_job_clearly(tmp_path, pre
         with _api(server.url, prefix) as api:
             server, job_id, _ = _restart_redis_a_third_into_a_job(server, api, store, scene,
                                                                   appendonly=False)
-            assert api.get(f"/api/jobs/{job_id}").status_code == 404
+            lost = _until(lambda: (j := api.get(f"/api/jobs/{job_id}").json())["status"]
+                          == "failed" and j, 30, "the job reported lost")
+            assert lost["error"].startswith("lost: Redis no longer holds"), lost
             client = Client("http://testserver")
             client.http = api
-            with pytest.raises(JobLost, match="gone from the server"):
-                client.wait(job_id, progress=False)
+            assert client.wait(job_id, progress=False)["status"] == "failed"
             assert store.r.llen("celery") == 0
             _until(lambda: store.r.scard(store.k("pending")) == 0, 30,
                    "in-flight passes discarded")

@@ -15,9 +15,9 @@ from fastapi.testclient import TestClient
 
 from renderer.render import render
 from services.api.main import create_app
-from services.farm.merge import assemble
 from services.farm.planner import Plan
 from services.farm.queue import enqueue
+from tests.farm.conftest import archived, assert_archived_whole
 
 # As long as the farm fixture waits for its first warm processes (conftest.WORKER_START_TIMEOUT).
 POOL_RECOVERY_TIMEOUT = 240.0
@@ -34,13 +34,11 @@ def _live(client) -> list[dict]:
     return [w for w in workers if w["state"] in ("idle", "busy")]
 
 
-def _assert_complete(farm, job_id, scene, image):
-    """Every pixel holds exactly spp samples, and the image is the local render's."""
-    store = farm.store()
-    frame, _ = assemble(store, job_id)
-    assert (frame.count + frame.dropped == scene["render"]["spp"]).all()
-    assert store.r.scard(store.k("pending")) == 0
-    np.testing.assert_allclose(image, render(scene), rtol=1e-5, atol=1e-7)
+def _assert_complete(farm, client, job_id, scene):
+    """Archived with every pixel at exactly spp samples and nothing left in Redis, and the image
+    (from the blob store now) is the local render's."""
+    assert_archived_whole(farm.records(), farm.store(), job_id, scene["render"]["spp"])
+    np.testing.assert_allclose(_image(client, job_id), render(scene), rtol=1e-5, atol=1e-7)
 
 
 @pytest.mark.parametrize(("tile_size", "spp_per_pass"), [(16, 8), (10, 3)])
@@ -54,7 +52,7 @@ def test_job_equals_the_local_render(farm, farm_client, wait_for_job, tiny_scene
     assert job["progress"] == 1.0 and job["tasks_merged"] == job["tasks_total"]
     assert {t["state"] for t in job["tile_states"]} == {"done"}
     assert {t["samples"] for t in job["tile_states"]} == {16}
-    _assert_complete(farm, job["id"], tiny_scene, _image(farm_client, job["id"]))
+    _assert_complete(farm, farm_client, job["id"], tiny_scene)
     # ETag: a poller gets 304 while nothing changes.
     png = farm_client.get(f"/api/jobs/{job['id']}/image.png")
     assert png.headers["content-type"] == "image/png" and png.content[:4] == b"\x89PNG"
@@ -93,7 +91,7 @@ def test_a_task_delivered_twice_is_merged_once(farm, farm_client, wait_for_job, 
     job = wait_for_job(farm_client, job_id)
     assert job["status"] == "done"
     assert job["tasks_merged"] == plan.n_tasks
-    _assert_complete(farm, job_id, tiny_scene, _image(farm_client, job_id))
+    _assert_complete(farm, farm_client, job_id, tiny_scene)
 
 
 def test_a_message_for_a_pass_outside_the_plan_is_skipped(farm, farm_client, wait_for_job,
@@ -110,7 +108,7 @@ def test_a_message_for_a_pass_outside_the_plan_is_skipped(farm, farm_client, wai
     assert job["status"] == "done", job
     assert job["tasks_merged"] == job["tasks_total"] == 4 * 3  # 2 x 2 tiles, 4 + 4 + 8 spp
     assert all(t["error"] is None for t in job["tile_states"])
-    _assert_complete(farm, job_id, tiny_scene, _image(farm_client, job_id))
+    _assert_complete(farm, farm_client, job_id, tiny_scene)
 
 
 def test_cancel_mid_job(farm, farm_client, wait_for_job, wait_until, tiny_scene):
@@ -151,7 +149,7 @@ def test_worker_process_killed_mid_job(farm, farm_client, wait_for_job, wait_unt
     job = wait_for_job(farm_client, job_id)
     assert job["status"] == "done", job
     assert farm.proc.poll() is None
-    _assert_complete(farm, job_id, scene, _image(farm_client, job_id))
+    _assert_complete(farm, farm_client, job_id, scene)
     # The pool replaces both processes; the replacements warm up and report themselves (the
     # next tests need two live processes again: warm-up after a fork takes seconds on a busy CI).
     wait_until(lambda: len(_live(farm_client)) >= 2, POOL_RECOVERY_TIMEOUT,
@@ -171,7 +169,7 @@ def test_service_restarted_mid_job(farm, wait_for_job, wait_until, tiny_scene):
     with TestClient(create_app(farm.settings)) as second:
         job = wait_for_job(second, job_id)
         assert job["status"] == "done"
-        _assert_complete(farm, job_id, scene, _image(second, job_id))
+        _assert_complete(farm, second, job_id, scene)
 
 
 def test_a_poison_scene_fails_the_job_not_the_worker(farm, farm_client, wait_for_job,
@@ -215,7 +213,6 @@ def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job
     assert r.status_code == 201, r.text
     job = wait_for_job(farm_client, r.json()["id"])
     assert job["status"] == "done", job
-    frame, _ = assemble(farm.store(), job["id"])
-    samples = frame.count + frame.dropped
-    assert samples.min() >= MIN_SAMPLES
-    assert samples.min() < 256 and samples.max() == 256
+    low, high = archived(farm.records(), job["id"]).pixel_samples
+    assert low >= MIN_SAMPLES
+    assert low < 256 and high == 256

@@ -1,4 +1,5 @@
-"""``/healthz`` (the process is up), ``/readyz`` (Redis answers), ``/metrics`` (Prometheus).
+"""``/healthz`` (the process is up), ``/readyz`` (Redis and the job database answer),
+``/metrics`` (Prometheus).
 
 The probes are open; ``/metrics`` tells how busy the farm is and sits behind the API token when
 one is set (Prometheus sends it with ``authorization: {credentials_file: ...}``)."""
@@ -11,7 +12,8 @@ import redis
 from fastapi import APIRouter, Response, status
 from fastapi.responses import PlainTextResponse
 
-from services.api.deps import StoreDep
+from services.api.deps import ArchiveDep, StoreDep
+from services.farm.records import RecordsUnavailable
 from services.farm.store import STATUSES
 
 router = APIRouter(tags=["health"])
@@ -24,20 +26,24 @@ def healthz() -> dict[str, str]:
 
 
 @router.get("/readyz")
-def readyz(store: StoreDep, response: Response) -> dict[str, str]:
+def readyz(store: StoreDep, archive: ArchiveDep, response: Response) -> dict[str, str]:
     try:
         store.ping()
     except redis.RedisError as err:
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
         return {"status": "unavailable", "redis": str(err)}
+    try:
+        archive.records.ping()
+    except RecordsUnavailable as err:
+        response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
+        return {"status": "unavailable", "database": str(err)}
     return {"status": "ok"}
 
 
 @metrics_router.get("/metrics", response_class=PlainTextResponse)
-def metrics(store: StoreDep) -> str:
+def metrics(store: StoreDep, archive: ArchiveDep) -> str:
     """Prometheus text format (version 0.0.4)."""
-    jobs, _ = store.list_jobs(limit=1_000_000)
-    by_status = Counter(m.status for m in jobs)
+    by_status = archive.records.count_by_status()
     workers = store.workers()
     live = Counter(w.get("state", "lost") for w in workers)
     counters = store.metrics()

@@ -9,14 +9,16 @@ from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Res
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from services.api.deps import CeleryDep, SettingsDep, StoreDep
+from services.api.deps import ArchiveDep, CeleryDep, SettingsDep, StoreDep, SubmitterDep
 from services.api.guards import echo_text, error_content
 from services.api.intake import Rejection
 from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
+from services.farm.archive import Archive
+from services.farm.images import MEDIA, encode
 from services.farm.jobs import Refusal, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
-from services.farm.store import ACTIVE, JobMeta, JobStore, is_job_id
+from services.farm.store import ACTIVE, FINAL, JobMeta, is_job_id
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
@@ -45,6 +47,7 @@ def to_public(meta: JobMeta) -> JobPublic:
         samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
         created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
         error=meta.error, image_version=meta.version, methods=meta.methods,
+        submitter=meta.submitter,
     )
 
 
@@ -62,11 +65,12 @@ def valid_job_id(job_id: Annotated[str, Path(description="the id POST /api/jobs 
 JobId = Annotated[str, Depends(valid_job_id)]
 
 
-def _get_or_404(store: JobStore, job_id: str) -> JobMeta:
-    meta = store.get_job(job_id)
-    if meta is None:
+def _get_or_404(archive: Archive, job_id: str) -> JobMeta:
+    """The job, live from Redis while it is there, else from its record."""
+    found = archive.job(job_id)
+    if found is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
-    return meta
+    return found[0]
 
 
 # The body is read by the route (services/api/intake.py), not by FastAPI; the schema says what
@@ -82,14 +86,15 @@ _JOB_CREATE_BODY = {"requestBody": {"required": True, "content": {
                                       "`loc` names the field"},
                  429: {"description": "the farm's backlog is full (LUCENT_MAX_QUEUED_SAMPLES)"}})
 async def create_job(request: Request, store: StoreDep, celery: CeleryDep,
-                     settings: SettingsDep):
+                     settings: SettingsDep, archive: ArchiveDep, submitter: SubmitterDep):
     """Validate the request and its scene (``JobCreate``), plan tiles × passes and queue them.
     Nothing is queued if the scene is invalid or over a limit."""
     read = await request.app.state.intake.read(await request.body(),
                                                request.headers.get("content-type"))
     if isinstance(read, Rejection):
         return JSONResponse(status_code=read.status, content=read.content)
-    answer = await run_in_threadpool(queue_job, store, celery, settings, read.options, read.scene)
+    answer = await run_in_threadpool(queue_job, store, celery, settings, read.options, read.scene,
+                                     archive.records, submitter)
     if isinstance(answer, Refusal):
         return JSONResponse(status_code=answer.status, headers=answer.headers,
                             content=error_content({"loc": loc, "msg": msg, "type": kind}
@@ -98,21 +103,25 @@ async def create_job(request: Request, store: StoreDep, celery: CeleryDep,
 
 
 @router.get("", response_model=JobsPublic)
-def list_jobs(store: StoreDep,
+def list_jobs(archive: ArchiveDep,
               status_: Annotated[JobStatus | None, Query(alias="status")] = None,
               offset: Annotated[int, Query(ge=0)] = 0,
               limit: Annotated[int, Query(ge=1, le=500)] = 50):
-    metas, total = store.list_jobs(status_, offset, limit)
+    """Newest first, from the job database (paged and filtered there); the jobs in flight show
+    their live progress."""
+    metas, total = archive.page(status_, offset, limit)
     return JobsPublic(data=[to_public(m) for m in metas], count=total, offset=offset, limit=limit)
 
 
 @router.get("/{job_id}", response_model=JobDetail)
-def get_job(job_id: JobId, store: StoreDep):
-    """Status, progress, per-tile state and samples: answered from Redis, no image touched."""
-    meta = _get_or_404(store, job_id)
-    states = store.tile_states(job_id)
-    samples = store.tile_samples(job_id)
-    errors = store.tile_errors(job_id)
+def get_job(job_id: JobId, archive: ArchiveDep):
+    """Status, progress, per-tile state and samples: answered from Redis while the job is in
+    flight, from its record once it is archived; no image touched."""
+    found = archive.job(job_id)
+    if found is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
+    meta, table = found
+    states, samples, errors = table.states, table.samples, table.errors
     tiles = []
     for t in range(meta.plan.n_tiles):
         x0, y0, w, h = meta.plan.tile_rect(t)
@@ -126,8 +135,6 @@ def get_job(job_id: JobId, store: StoreDep):
     return JobDetail(**to_public(meta).model_dump(), tile_states=tiles, errors=all_errors)
 
 
-_MEDIA = {"png": "image/png", "exr": "image/x-exr", "npy": "application/octet-stream"}
-
 # Stops: the preview is scaled by 2**exposure in float32 (to_srgb8). A finite number in a range
 # that float32 holds with room to spare (2**64 ~ 1.8e19; the dashboard's slider spans +-5).
 MAX_EXPOSURE = 64.0
@@ -136,60 +143,55 @@ Exposure = Annotated[float, Query(ge=-MAX_EXPOSURE, le=MAX_EXPOSURE, allow_inf_n
 
 
 @router.get("/{job_id}/image.{fmt}", responses={
-    200: {"content": {m: {} for m in _MEDIA.values()}}, 304: {"description": "not modified"}})
+    200: {"content": {m: {} for m in MEDIA.values()}}, 304: {"description": "not modified"},
+    410: {"description": "a finished job whose image is no longer stored"}})
 def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request,
-              store: StoreDep, exposure: Exposure = 0.0,
+              store: StoreDep, archive: ArchiveDep, exposure: Exposure = 0.0,
               tonemap: Literal["clamp", "reinhard", "aces"] = "clamp"):
-    """The merged image as it stands (progressive while running). ``ETag`` changes with every
-    merge; send it back in ``If-None-Match`` to get 304 when nothing changed."""
-    meta = _get_or_404(store, job_id)
+    """The merged image as it stands (progressive while running; from the blob store once the
+    job is archived). ``ETag`` changes with every merge; send it back in ``If-None-Match`` to get
+    304 when nothing changed."""
+    meta = store.get_job(job_id)
+    record = archive.records.get(job_id) if meta is None else None
+    if record is not None:
+        meta = record.meta
+    if meta is None:
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
     etag = f'"{job_id}-{meta.version}-{fmt}-{exposure:g}-{tonemap}"'
     headers = {"ETag": etag, "Cache-Control": "no-cache"}
     if etag in [t.strip() for t in request.headers.get("if-none-match", "").split(",")]:
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
+    if record is not None:
+        data = archive.stored_image(record, fmt, exposure, tonemap)
+        if isinstance(data, str):
+            raise HTTPException(status.HTTP_410_GONE, detail=data)
+        return Response(content=data, media_type=MEDIA[fmt], headers=headers)
     # The buffers are read after the version: the image is never older than its ETag says.
     assembled = assemble(store, job_id)
-    if assembled is None:
-        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
+    if assembled is None:  # archived meanwhile: the stored image is the same
+        return get_image(job_id, fmt, request, store, archive, exposure, tonemap)
     image = assembled[0].mean()
-    return Response(content=_encode(image, fmt, exposure, tonemap), media_type=_MEDIA[fmt],
+    return Response(content=encode(image, fmt, exposure, tonemap), media_type=MEDIA[fmt],
                     headers=headers)
 
 
-def _encode(image, fmt: str, exposure: float, tonemap: str) -> bytes:
-    import io
-
-    import numpy as np
-
-    if fmt == "npy":
-        out = io.BytesIO()
-        np.save(out, image, allow_pickle=False)
-        return out.getvalue()
-    if fmt == "exr":
-        from renderer.film.image_io import encode_exr
-
-        return encode_exr(image)
-    from PIL import Image
-
-    from renderer.film.tonemap import to_srgb8
-
-    out = io.BytesIO()
-    Image.fromarray(to_srgb8(image, exposure=exposure, tonemap=tonemap)).save(out, format="PNG")
-    return out.getvalue()
-
-
-@router.delete("/{job_id}", response_model=JobPublic)
-def cancel_job(job_id: JobId, store: StoreDep):
-    """Cancel: queued tasks do nothing when they come up; running ones finish their pass."""
-    _get_or_404(store, job_id)
+@router.delete("/{job_id}", response_model=JobPublic, responses={
+    204: {"description": "a finished job, deleted: its record, image and scene"}})
+def delete_job(job_id: JobId, store: StoreDep, archive: ArchiveDep):
+    """A queued or running job is cancelled (queued tasks do nothing when they come up; running
+    ones finish their pass) and answered; a finished one is deleted (204)."""
+    meta = _get_or_404(archive, job_id)
+    if meta.status in FINAL:
+        archive.remove(job_id)
+        return Response(status_code=status.HTTP_204_NO_CONTENT)
     store.cancel_job(job_id)
-    return to_public(_get_or_404(store, job_id))
+    return to_public(_get_or_404(archive, job_id))
 
 
 @router.post("/{job_id}/retry", response_model=JobPublic)
-def retry_job(job_id: JobId, store: StoreDep, celery: CeleryDep):
+def retry_job(job_id: JobId, store: StoreDep, celery: CeleryDep, archive: ArchiveDep):
     """Requeue every pass not merged yet of a failed or cancelled job (tries counted afresh)."""
-    refused = retry(store, celery, _get_or_404(store, job_id))
+    refused = retry(store, celery, archive, _get_or_404(archive, job_id))
     if refused is not None:
         raise HTTPException(status.HTTP_409_CONFLICT, detail=refused)
-    return to_public(_get_or_404(store, job_id))
+    return to_public(_get_or_404(archive, job_id))
