@@ -24,6 +24,8 @@ timings                ``created_at``, ``started_at``, ``finished_at`` (Unix sec
 ``pixel_samples_*``    at archive, the fewest and most samples (kept + dropped) of any pixel
 =====================  ========================================================================
 
+``job_counts`` holds the number of jobs of each status, kept by triggers on ``jobs``.
+
 Backends: SQLite in the farm's data folder by default (Python's own ``sqlite3``: nothing to
 install); PostgreSQL with ``DATABASE_URL=postgresql+psycopg://...`` (psycopg 3). The schema is
 Alembic's (``services/farm/migrations``), upgraded at start-up by ``Records.migrate``: idempotent,
@@ -112,6 +114,13 @@ jobs = Table(
     Index("jobs_finished_at", "finished_at"),
 )
 
+# Jobs by status, kept by triggers on ``jobs`` (migration 0002): a listing's total is one row.
+job_counts = Table(
+    "job_counts", metadata,
+    Column("status", String(16), primary_key=True),
+    Column("n", BigInteger, nullable=False),
+)
+
 # The page of a listing reads everything but the per-tile JSON (up to ~100 kB a job).
 _LISTED = [c for c in jobs.c if c.name != "tiles"]
 
@@ -195,8 +204,9 @@ class Records:
                 f"the job database ({self.where}) is unavailable: {reason}") from err
 
     # --- the schema -----------------------------------------------------------------------------
-    def migrate(self) -> None:
-        """Upgrade the schema to the newest migration; does nothing when it is there already."""
+    def migrate(self, target: str = "head") -> None:
+        """Upgrade the schema to ``target`` (the newest migration); does nothing when it is
+        there already."""
         from alembic import command
         from alembic.config import Config
 
@@ -208,7 +218,7 @@ class Records:
                 if self.schema:
                     conn.execute(text(f'CREATE SCHEMA IF NOT EXISTS "{self.schema}"'))
             config.attributes["connection"] = conn
-            command.upgrade(config, "head")
+            command.upgrade(config, target)
 
     @contextlib.contextmanager
     def _migration_lock(self) -> Iterator[None]:
@@ -273,10 +283,10 @@ class Records:
              limit: int = 50) -> tuple[list[JobRecord], int]:
         """Jobs newest first, filtered by status; returns (the page, how many match)."""
         query = select(*_LISTED).order_by(jobs.c.created_at.desc(), jobs.c.id.desc())
-        count = select(func.count()).select_from(jobs)
+        count = select(func.coalesce(func.sum(job_counts.c.n), 0))
         if status is not None:
             query = query.where(jobs.c.status == status)
-            count = count.where(jobs.c.status == status)
+            count = count.where(job_counts.c.status == status)
         with self._begin() as conn:
             rows = conn.execute(query.offset(offset).limit(limit)).mappings().all()
             total = conn.scalar(count) or 0
@@ -284,8 +294,7 @@ class Records:
 
     def count_by_status(self) -> dict[str, int]:
         with self._begin() as conn:
-            rows = conn.execute(select(jobs.c.status, func.count()).group_by(jobs.c.status))
-            return {status: int(n) for status, n in rows}
+            return {status: int(n) for status, n in conn.execute(select(job_counts))}
 
     # --- jobs in flight -------------------------------------------------------------------------
     def sync(self, metas: list[JobMeta]) -> None:

@@ -8,6 +8,7 @@ PostgreSQL of ``DATABASE_URL`` (a schema per test: tests/conftest.py ``farm_stat
 from __future__ import annotations
 
 import copy
+import dataclasses
 import io
 import os
 import socket
@@ -60,14 +61,34 @@ def test_migration_at_start_up_is_idempotent(settings):
     with TestClient(create_app(settings)) as c:
         assert c.get("/readyz").json() == {"status": "ok"}
     records = records_of(settings)
-    assert records.revision() == "0001"
+    assert records.revision() == "0002"
     records.create(_meta(time.time()))
     records.migrate()
     with TestClient(create_app(settings)) as c:
         assert c.get("/api/jobs").json()["count"] == 1
-    assert records.revision() == "0001"
+    assert records.revision() == "0002"
     indexes = {i["name"] for i in inspect(records.engine).get_indexes("jobs")}
     assert {"jobs_created_at", "jobs_status_created_at", "jobs_finished_at"} <= indexes
+
+
+def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
+    """A database at the first migration, with jobs in it, upgraded: the counts by status
+    (kept by triggers from then on) start from the jobs it has."""
+    records = Records(f"sqlite:///{tmp_path}/old.db")
+    records.migrate("0001")
+    t0 = time.time()
+    for status in ("done", "done", "failed", "running"):
+        records.create(_meta(t0, status))
+    records.migrate()
+    assert records.revision() == "0002"
+    assert records.count_by_status() == {"queued": 0, "running": 1, "done": 2, "failed": 1,
+                                         "cancelled": 0}
+    first = records.page("done")[0][0].meta
+    records.sync([dataclasses.replace(first, status="failed")])
+    records.delete(records.page("running")[0][0].meta.id)
+    assert records.count_by_status() == {"queued": 0, "running": 0, "done": 1, "failed": 2,
+                                         "cancelled": 0}
+    assert records.page()[1] == 3 and records.page("failed")[1] == 2
 
 
 def test_listing_pages_and_filters_in_the_database(client, settings):

@@ -102,10 +102,14 @@ async def create_job(request: Request, store: StoreDep, celery: CeleryDep,
     return to_public(answer)
 
 
+# Past any job list a farm keeps, and within what every database takes for OFFSET.
+MAX_OFFSET = 10**9
+
+
 @router.get("", response_model=JobsPublic)
 def list_jobs(archive: ArchiveDep,
               status_: Annotated[JobStatus | None, Query(alias="status")] = None,
-              offset: Annotated[int, Query(ge=0)] = 0,
+              offset: Annotated[int, Query(ge=0, le=MAX_OFFSET)] = 0,
               limit: Annotated[int, Query(ge=1, le=500)] = 50):
     """Newest first, from the job database (paged and filtered there); the jobs in flight show
     their live progress."""
