@@ -191,7 +191,10 @@ class Archive:
             size = sum(self.blobs.put(job_blob(job_id, name), data)
                        for name, data in blobs.items())
             samples = frame.count + frame.dropped
-            done = Archived(tiles.to_json(), size, (int(samples.min()), int(samples.max())))
+            # the passes delivered more than once, and how often (lost workers, crashes)
+            redelivered = {m: n for m, n in snap.attempts.items() if n > 1}
+            done = Archived({**tiles.to_json(), "redelivered": redelivered}, size,
+                            (int(samples.min()), int(samples.max())))
             if not self.records.archive(meta, done):
                 self.blobs.delete(job_blob(job_id))  # deleted meanwhile: stays deleted
             self.store.delete_job(job_id)

@@ -17,7 +17,8 @@ counters               ``tasks_merged``, ``samples_merged``, ``dropped``, ``vers
 timings                ``created_at``, ``started_at``, ``finished_at`` (Unix seconds)
 ``error``, ``methods`` the reason a job failed; what ``auto`` chose for each material (JSON)
 ``submitter``          the name of the API token it came with (``LUCENT_API_TOKENS``), if any
-``tiles``              once archived: per tile state, samples per pixel and last error (JSON)
+``tiles``              once archived: per tile state, samples per pixel and last error, and
+                       the passes delivered more than once with their deliveries (JSON)
 ``archived_at``        when its Redis keys were removed; NULL while Redis holds the job
 ``image_bytes``        bytes of its image (and resumable state) in the blob store
 ``image_removed_at``   when the image cap (``LUCENT_MAX_IMAGE_BYTES``) removed its image

@@ -192,6 +192,7 @@ class JobSnapshot:
     tile_states: dict[int, str]
     tile_samples: dict[int, int]
     tile_errors: dict[int, str]
+    attempts: dict[str, int]  # ``tile:pass`` -> deliveries
     merged: list[str]  # ``tile:pass``
     tile_buffers: list[bytes | None]  # by tile; None before its first merge
 
@@ -516,18 +517,19 @@ class JobStore:
         pipe = self.r.pipeline(transaction=True)
         pipe.hgetall(self.job_key(job_id))
         pipe.get(self.k("job", job_id, "scene"))
-        for name in ("tile_state", "tile_samples", "tile_error"):
+        for name in ("tile_state", "tile_samples", "tile_error", "attempts"):
             pipe.hgetall(self.k("job", job_id, name))
         pipe.smembers(self.k("job", job_id, "merged"))
         for t in range(n_tiles):
             pipe.get(self.acc_key(job_id, t))
-        h, scene, states, samples, errors, merged, *buffers = pipe.execute()
+        h, scene, states, samples, errors, attempts, merged, *buffers = pipe.execute()
         if not h or scene is None:
             return None
         return JobSnapshot(
             JobMeta.from_hash(h), scene, {int(k): v.decode() for k, v in states.items()},
             {int(k): int(v) for k, v in samples.items()},
-            {int(k): v.decode() for k, v in errors.items()}, [m.decode() for m in merged],
+            {int(k): v.decode() for k, v in errors.items()},
+            {k.decode(): int(v) for k, v in attempts.items()}, [m.decode() for m in merged],
             buffers)
 
     def delete_job(self, job_id: str) -> None:

@@ -326,3 +326,24 @@ def test_dockerfile_multistage_nonroot_warm_cache() -> None:
     # what the API serves from the source tree is in the image
     for path in ("examples", "services", "worker", "renderer"):
         assert any(ln.startswith(f"COPY {path} ") for ln in lines), path
+
+
+def test_the_api_keeps_records_in_postgres_and_blobs_on_a_shared_volume() -> None:
+    """Several API processes share the job database and the blob store (issue #20); the
+    workers need neither."""
+    services = compose()["services"]
+    api = services["api"]
+    assert api["environment"]["DATABASE_URL"].startswith(
+        "postgresql+psycopg://lucent:${POSTGRES_PASSWORD:?")
+    assert api["environment"]["LUCENT_DATA_DIR"] == "/data"
+    assert "lucent-data:/data" in api["volumes"]
+    assert "postgres" in api["depends_on"] and "ports" not in services["postgres"]
+    assert "DATABASE_URL" not in services["worker"]["environment"]
+    env = {e["name"]: e for e in container("api")["env"]}
+    assert "$(POSTGRES_PASSWORD)@postgres:5432/" in env["DATABASE_URL"]["value"]
+    assert "DATABASE_URL" not in {e["name"] for e in container("worker")["env"]}
+    (pvc,) = by_kind("PersistentVolumeClaim", "lucent-data")
+    assert pvc["spec"]["accessModes"] == ["ReadWriteMany"]
+    (sts,) = by_kind("StatefulSet", "postgres")
+    (c,) = sts["spec"]["template"]["spec"]["containers"]
+    assert {e["name"]: e for e in c["env"]}["POSTGRES_PASSWORD"] == env["POSTGRES_PASSWORD"]

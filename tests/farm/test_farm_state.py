@@ -7,11 +7,13 @@ PostgreSQL of ``DATABASE_URL`` (a schema per test: tests/conftest.py ``farm_stat
 
 from __future__ import annotations
 
+import contextlib
 import copy
 import dataclasses
 import io
 import os
 import socket
+import socketserver
 import threading
 import time
 import uuid
@@ -284,50 +286,45 @@ def test_retention_deletes_old_jobs_and_caps_images(client, settings, store):
 # --- 4. the database going away mid-job ----------------------------------------------------------
 
 
-class _Proxy:
-    """A TCP proxy in front of PostgreSQL that can go away (every connection closed, the port
-    refusing) and come back on the same port."""
+def _pump(src: socket.socket, dst: socket.socket) -> None:
+    with contextlib.suppress(OSError):
+        while data := src.recv(65536):
+            dst.sendall(data)
+    for s in (src, dst):
+        with contextlib.suppress(OSError):
+            s.shutdown(socket.SHUT_RDWR)
+
+
+class _Forward(socketserver.BaseRequestHandler):
+    def handle(self) -> None:
+        server: _Proxy = self.server  # type: ignore[assignment]
+        if not server.up:
+            return  # refused: the connection is closed at once
+        upstream = socket.create_connection(server.target)
+        server.conns += [self.request, upstream]
+        threading.Thread(target=_pump, args=(upstream, self.request), daemon=True).start()
+        _pump(self.request, upstream)
+
+
+class _Proxy(socketserver.ThreadingTCPServer):
+    """A TCP proxy in front of PostgreSQL that can go away, as a stopped server does (every
+    connection closed, new ones closed at once), and come back on the same port."""
+
+    daemon_threads = True
 
     def __init__(self, host: str, port: int):
         self.target = (host, port)
-        self.listener = socket.create_server(("127.0.0.1", 0))
-        self.port = self.listener.getsockname()[1]
-        self.conns: list[socket.socket] = []
         self.up = True
-        threading.Thread(target=self._accept, daemon=True).start()
-
-    def _accept(self) -> None:
-        while True:
-            try:
-                client, _ = self.listener.accept()
-            except OSError:
-                return
-            if not self.up:
-                client.close()
-                continue
-            server = socket.create_connection(self.target)
-            self.conns += [client, server]
-            for a, b in ((client, server), (server, client)):
-                threading.Thread(target=self._pump, args=(a, b), daemon=True).start()
-
-    @staticmethod
-    def _pump(a: socket.socket, b: socket.socket) -> None:
-        try:
-            while data := a.recv(65536):
-                b.sendall(data)
-        except OSError:
-            pass
-        for s in (a, b):
-            s.close()
+        self.conns: list[socket.socket] = []
+        super().__init__(("127.0.0.1", 0), _Forward)
+        self.port = self.server_address[1]
+        threading.Thread(target=self.serve_forever, daemon=True).start()
 
     def cut(self) -> None:
         self.up = False
         for s in self.conns:
-            try:
+            with contextlib.suppress(OSError):
                 s.shutdown(socket.SHUT_RDWR)
-            except OSError:
-                pass
-            s.close()
         self.conns.clear()
 
     def heal(self) -> None:
@@ -386,6 +383,9 @@ def test_the_database_going_away_mid_job_is_503_and_loses_no_pass(farm, tmp_path
             np.testing.assert_allclose(_image(api, job_id), render(scene), rtol=1e-5, atol=1e-7)
             assert api.get("/readyz").status_code == 200
     finally:
+        if proxy is not None:
+            proxy.shutdown()
+            proxy.server_close()
         drop_farm_state(settings.model_copy(update={"database_url": url}) if url else settings)
 
 
