@@ -45,7 +45,8 @@ class Settings(BaseSettings):
         default="redis://127.0.0.1:6379/0",
         validation_alias=AliasChoices("REDIS_URL", "LUCENT_REDIS_URL"),
     )
-    """Redis holds everything: the Celery broker, jobs, sample buffers and heartbeats."""
+    """Redis holds what is in flight: the Celery broker, the jobs not archived yet, their sample
+    buffers, and the workers' heartbeats (finished jobs: ``data_dir``, ``database_url``)."""
 
     key_prefix: str = "lucent"
     """Prefix of every key the farm writes (not Celery's own queue keys)."""

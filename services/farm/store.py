@@ -1,9 +1,12 @@
-"""The job store: everything the farm knows lives in Redis, under ``{prefix}:`` keys.
+"""The job store: what is in flight lives in Redis, under ``{prefix}:`` keys.
+
+A job is here from its submission until it is archived (``services.farm.archive``: its record in
+the job database, its image in the blob store), then every key of it is deleted.
 
 =================================  ======  =================================================
 Key                                Type    What
 =================================  ======  =================================================
-``{p}:jobs``                       zset    job id -> submission time (the job list)
+``{p}:jobs``                       zset    job id -> submission time, the jobs Redis holds
 ``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``,
                                            ``active_at``, ``stalls`` (the stall re-queues)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
@@ -14,14 +17,15 @@ Key                                Type    What
 ``{p}:job:{id}:merged``            set     ``tile:pass`` merged into the accumulation
 ``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (``to_bytes``)
 ``{p}:job:{id}:pass:{tile}:{pass}`` string a rendered pass, deleted once merged
+``{p}:job:{id}:archiving``         string  a sweeper archiving the finished job (expires)
 ``{p}:pending``                    set     pass keys written and not merged (the sweeper's)
 ``{p}:workers``                    zset    worker id -> last heartbeat time
 ``{p}:worker:{id}``                hash    the last heartbeat (expires after 3 intervals)
 ``{p}:metrics``                    hash    farm-wide counters for ``/metrics``
 =================================  ======  =================================================
 
-Memory is bounded by the frame: one accumulation per tile, plus at most one pass buffer per task in
-flight. ``version`` counts merges and is the preview image's ETag.
+Memory is bounded by the jobs in flight: one accumulation per tile of each, plus at most one pass
+buffer per task in flight. ``version`` counts merges and is the preview image's ETag.
 """
 
 from __future__ import annotations
