@@ -114,9 +114,9 @@ class Archive:
     def job(self, job_id: str) -> tuple[JobMeta, TileTable] | None:
         """The job and its tiles: live from Redis while it is there, else from its record."""
         meta = self.store.get_job(job_id)
-        if meta is not None:
-            return meta, TileTable(self.store.tile_states(job_id),
-                                   self.store.tile_samples(job_id),
+        states = self.store.tile_states(job_id) if meta is not None else {}
+        if meta is not None and states:  # (no tile states: archived since its hash was read)
+            return meta, TileTable(states, self.store.tile_samples(job_id),
                                    self.store.tile_errors(job_id))
         record = self.records.get(job_id)
         if record is None:
