@@ -22,6 +22,7 @@ from pathlib import Path
 import httpx
 import uvicorn
 
+from renderer.geometry.meshgen import sheet
 from services.api.main import create_app
 from services.farm.settings import Settings
 from services.launcher import EmbeddedRedis, free_port
@@ -34,15 +35,9 @@ def scene_body(grid: int) -> bytes:
     scene = json.loads((ROOT / "examples" / "cornell_box.json").read_text())
     scene["film"] = {"width": 32, "height": 24}
     scene["render"]["spp"] = 1
-    n = grid
-    vertices = [[i / n, j / n, 0.123456789] for j in range(n + 1) for i in range(n + 1)]
-    triangles = []
-    for j in range(n):
-        for i in range(n):
-            a = j * (n + 1) + i
-            triangles += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
-    scene["objects"].append({"type": "mesh", "vertices": vertices, "triangles": triangles,
-                             "material": "white"})
+    vertices, triangles = sheet(grid, z=0.123456789)
+    scene["objects"].append({"type": "mesh", "vertices": vertices.tolist(),
+                             "triangles": triangles.tolist(), "material": "white"})
     return json.dumps({"scene": scene}).encode()
 
 

@@ -29,3 +29,15 @@ def torus(major: float, minor: float, n_major: int, n_minor: int,
         verts = np.stack([r * np.cos(uu), r * np.sin(uu), minor * np.sin(vv)], -1)
         tris = np.concatenate([np.stack([a, b, c], -1), np.stack([a, c, d], -1)])
     return verts.reshape(-1, 3), tris.reshape(-1, 3)
+
+
+def sheet(n: int, z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """An open n × n sheet of quads over [0, 1]² at height ``z``: (n + 1)² vertices, row by row
+    (vertex j·(n + 1) + i at (i/n, j/n, z)), and 2n² triangles facing +z. Large inline meshes for
+    the submission limits and their benchmark. Returns (vertices float64, triangles int64)."""
+    i, j = np.meshgrid(np.arange(n + 1), np.arange(n + 1))
+    vertices = np.stack([i.ravel() / n, j.ravel() / n, np.full(i.size, z)], axis=1)
+    a = (np.arange(n)[None, :] + (n + 1) * np.arange(n)[:, None]).ravel()
+    triangles = np.stack([np.stack([a, a + 1, a + n + 2], axis=1),
+                          np.stack([a, a + n + 2, a + n + 1], axis=1)], axis=1).reshape(-1, 3)
+    return vertices, triangles.astype(np.int64)

@@ -32,6 +32,7 @@ from hypothesis import strategies as st
 from schemathesis.python.asgi import shutdown_lifespans
 
 from renderer.film.buffer import SampleBuffer
+from renderer.geometry.meshgen import sheet
 from services.api.main import create_app
 from services.farm.cost import queued_samples
 from services.farm.planner import Plan
@@ -516,13 +517,9 @@ def test_request_level_integers_are_accepted_as_integers(client, tiny_scene):
 
 def grid_mesh(n: int) -> dict:
     """An n x n grid of quads (2 n² triangles, (n + 1)² vertices): an open sheet."""
-    vertices = [[i / n, j / n, 0.0] for j in range(n + 1) for i in range(n + 1)]
-    triangles = []
-    for j in range(n):
-        for i in range(n):
-            a = j * (n + 1) + i
-            triangles += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
-    return {"type": "mesh", "vertices": vertices, "triangles": triangles, "material": "white"}
+    vertices, triangles = sheet(n)
+    return {"type": "mesh", "vertices": vertices.tolist(), "triangles": triangles.tolist(),
+            "material": "white"}
 
 
 def test_a_mesh_over_the_triangle_limit_is_refused_before_parsing(client, tiny_scene,

@@ -14,19 +14,16 @@ from collections.abc import Iterator
 import pytest
 from fastapi.testclient import TestClient
 
+from renderer.geometry.meshgen import sheet
 from services.api.main import create_app
 from services.farm.settings import Settings
 
 
 def grid_mesh(n: int) -> dict:
     """An n x n grid of quads (2 n² triangles): about 110 n² bytes of JSON."""
-    vertices = [[i / n, j / n, 0.123456789] for j in range(n + 1) for i in range(n + 1)]
-    triangles = []
-    for j in range(n):
-        for i in range(n):
-            a = j * (n + 1) + i
-            triangles += [[a, a + 1, a + n + 2], [a, a + n + 2, a + n + 1]]
-    return {"type": "mesh", "vertices": vertices, "triangles": triangles, "material": "white"}
+    vertices, triangles = sheet(n, z=0.123456789)
+    return {"type": "mesh", "vertices": vertices.tolist(), "triangles": triangles.tolist(),
+            "material": "white"}
 
 
 @pytest.fixture

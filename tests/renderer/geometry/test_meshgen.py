@@ -8,7 +8,7 @@ import math
 import numpy as np
 import pytest
 
-from renderer.geometry.meshgen import torus
+from renderer.geometry.meshgen import sheet, torus
 from renderer.scene.load import find_open_edge
 
 
@@ -36,3 +36,13 @@ def test_torus_is_closed_outward_and_of_the_torus_volume(axis):
 def test_torus_refuses_another_axis():
     with pytest.raises(ValueError, match="axis"):
         torus(1.0, 0.3, 8, 4, axis="x")
+
+
+def test_sheet_lays_its_vertices_row_by_row_and_faces_up():
+    v, t = sheet(3, z=0.25)
+    assert v.shape == (16, 3) and t.shape == (18, 3) and t.dtype == np.int64
+    np.testing.assert_array_equal(v[1 * 4 + 2], [2 / 3, 1 / 3, 0.25])  # vertex j·(n + 1) + i
+    e1, e2 = v[t[:, 1]] - v[t[:, 0]], v[t[:, 2]] - v[t[:, 0]]
+    normals = np.cross(e1, e2)
+    assert np.all(normals[:, 2] > 0) and np.allclose(normals[:, :2], 0)
+    assert np.isclose(0.5 * normals[:, 2].sum(), 1.0)  # the triangles tile the unit square
