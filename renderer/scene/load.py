@@ -23,12 +23,14 @@ from typing import Any
 import numpy as np
 from pydantic import ValidationError
 
+from renderer.scene.files import AssetReader, FileSource, local_assets
 from renderer.scene.limits import Limits
 from renderer.scene.schema import (
     LIGHT_TYPES,
     MATERIAL_TYPES,
     OBJECT_TYPES,
     VOLUME_MATERIAL_TYPES,
+    AssetRef,
     Mesh,
     Scene,
     overflow_message,
@@ -39,6 +41,9 @@ ROOT = "(root)"
 
 FILE = "(file)"
 """Path of errors about a scene file that cannot be read or is not JSON."""
+
+MESH_KINDS = (".obj", ".ply")
+"""The mesh files a scene may name."""
 
 # How many faulty triangles of one mesh are named before the rest are only counted.
 MAX_REPORTED = 5
@@ -86,6 +91,7 @@ def load_scene(
     limits: Limits | None = None,
     allow_paths: bool = False,
     base_dir: Path | None = None,
+    assets: AssetReader | None = None,
 ) -> Scene:
     """Validate a scene document (a dict as from ``json.loads``) and return the ``Scene``.
 
@@ -93,6 +99,8 @@ def load_scene(
     accept meshes given by a file ``path`` (the CLI only: a server must never read a path that a
     request names); relative paths are resolved against ``base_dir`` (else the working directory).
     Meshes read from files are held as arrays (``Mesh.arrays()``) and their ``path`` is cleared.
+    ``assets``: the reader of uploaded assets (``{"asset": "sha256:..."}``, mesh ``asset``); without
+    one, a scene that names an asset is refused (``renderer.scene.files``).
 
     Raises ``SceneError`` listing every problem found.
     """
@@ -116,10 +124,11 @@ def load_scene(
     errors: list[tuple[str, str]] = []
     errors += _check_render_limits(scene, limits)
     errors += _check_material_references(scene)
+    files = FileSource(allow_paths=allow_paths, base_dir=base_dir, assets=assets)
     total_triangles = 0
     for i, obj in enumerate(scene.objects):
         if isinstance(obj, Mesh):
-            errors += _check_mesh(scene, i, obj, base_dir)
+            errors += _check_mesh(scene, i, obj, files)
             total_triangles += obj.num_triangles
     errors += _check_count("objects", total_triangles, limits, "max_triangles", "triangles")
     if errors:
@@ -127,8 +136,14 @@ def load_scene(
     return scene
 
 
-def load_scene_file(path: str | os.PathLike[str], *, limits: Limits | None = None) -> Scene:
-    """Read and validate a scene file (the CLI): mesh ``path``s are allowed, relative to it."""
+def load_scene_file(
+    path: str | os.PathLike[str],
+    *,
+    limits: Limits | None = None,
+    assets: AssetReader | None = None,
+) -> Scene:
+    """Read and validate a scene file (the CLI): file paths are allowed, relative to it; assets
+    come from ``assets``, else the local asset folder (``files.local_assets``)."""
     path = Path(path)
     try:
         raw = path.read_bytes()
@@ -152,7 +167,13 @@ def load_scene_file(path: str | os.PathLike[str], *, limits: Limits | None = Non
     except UnicodeDecodeError as exc:
         raise SceneError(FILE, f"not UTF-8 text ({exc.reason} at byte {exc.start})") from None
 
-    scene = load_scene(data, limits=limits, allow_paths=True, base_dir=path.resolve().parent)
+    scene = load_scene(
+        data,
+        limits=limits,
+        allow_paths=True,
+        base_dir=path.resolve().parent,
+        assets=assets if assets is not None else local_assets(),
+    )
     if markers:  # unreachable (every field refuses the marker); kept as a backstop
         raise SceneError(ROOT, f"{markers[0].token} is not valid JSON: numbers must be finite")
     return scene
@@ -361,12 +382,13 @@ def _check_material_references(scene: Scene) -> list[tuple[str, str]]:
     return errors
 
 
-def _check_mesh(scene: Scene, i: int, mesh: Mesh, base_dir: Path | None) -> list[tuple[str, str]]:
+def _check_mesh(scene: Scene, i: int, mesh: Mesh, files: FileSource) -> list[tuple[str, str]]:
     """Read a file mesh, then check index range, degenerate triangles and closedness."""
     where = f"objects[{i}]"
-    from_file = mesh.path is not None
+    from_file = mesh.path is not None or mesh.asset is not None
+    source_field = f"{where}.asset" if mesh.asset is not None else f"{where}.path"
     if from_file:
-        loaded = _read_mesh_file(where, mesh, base_dir)
+        loaded = _read_mesh_file(where, mesh, files)
         if isinstance(loaded, list):
             return loaded
         vertices, triangles, source = loaded
@@ -384,13 +406,13 @@ def _check_mesh(scene: Scene, i: int, mesh: Mesh, base_dir: Path | None) -> list
             index = int(row[(row < 0) | (row >= n_vertices)][0])
             message = f"vertex index {index} out of range (the mesh has {n_vertices} vertices)"
             if from_file:
-                errors.append((f"{where}.path", f"triangle {t}: {message}"))
+                errors.append((source_field, f"triangle {t}: {message}"))
             else:
                 errors.append((f"{where}.triangles[{t}]", message))
         if bad.size > MAX_REPORTED:
             errors.append(
                 (
-                    f"{where}.path" if from_file else f"{where}.triangles",
+                    source_field if from_file else f"{where}.triangles",
                     f"{bad.size - MAX_REPORTED} more triangles with out-of-range vertex indices",
                 )
             )
@@ -403,7 +425,7 @@ def _check_mesh(scene: Scene, i: int, mesh: Mesh, base_dir: Path | None) -> list
         bad = np.flatnonzero(overflow)
         message = overflow_message("an edge of the triangle")
         errors = [
-            (f"{where}.path", f"triangle {t}: {message}")
+            (source_field, f"triangle {t}: {message}")
             if from_file
             else (f"{where}.triangles[{t}]", message)
             for t in bad[:MAX_REPORTED]
@@ -411,7 +433,7 @@ def _check_mesh(scene: Scene, i: int, mesh: Mesh, base_dir: Path | None) -> list
         if bad.size > MAX_REPORTED:
             errors.append(
                 (
-                    f"{where}.path" if from_file else f"{where}.triangles",
+                    source_field if from_file else f"{where}.triangles",
                     f"{bad.size - MAX_REPORTED} more triangles that overflow",
                 )
             )
@@ -435,7 +457,7 @@ def _check_mesh(scene: Scene, i: int, mesh: Mesh, base_dir: Path | None) -> list
         dropped = int(bad.size)
         triangles = triangles[~degenerate]
         if triangles.shape[0] == 0:
-            return [(f"{where}.path", f"all {dropped} triangles are degenerate (zero area)")]
+            return [(source_field, f"all {dropped} triangles are degenerate (zero area)")]
 
     if from_file:
         mesh._attach_arrays(vertices, triangles, dropped_degenerate=dropped, source_path=source)
@@ -452,35 +474,42 @@ def _check_mesh(scene: Scene, i: int, mesh: Mesh, base_dir: Path | None) -> list
 
 
 def _read_mesh_file(
-    where: str, mesh: Mesh, base_dir: Path | None
-) -> list[tuple[str, str]] | tuple[np.ndarray, np.ndarray, Path]:
-    """(vertices, triangles, resolved path), or the errors."""
-    assert mesh.path is not None
-    path = Path(mesh.path).expanduser()
-    if not path.is_absolute():
-        path = (base_dir if base_dir is not None else Path.cwd()) / path
+    where: str, mesh: Mesh, files: FileSource
+) -> list[tuple[str, str]] | tuple[np.ndarray, np.ndarray, Path | None]:
+    """(vertices, triangles, resolved path or None for an asset), or the errors (on the mesh's
+    ``path``, or on its ``asset``)."""
+    if mesh.asset is not None:
+        field = f"{where}.asset"
+        read = files.read(AssetRef(asset=mesh.asset), where, MESH_KINDS)
+    else:
+        assert mesh.path is not None
+        field = f"{where}.path"
+        read = files.read(mesh.path, field, MESH_KINDS)
+    if isinstance(read, list):
+        return read
+    data, kind, label = read
     try:
-        # Lazily: the mesh reader is needed only by the CLI, and only for scenes that use it.
-        from renderer.geometry.meshio import read_mesh
+        # Lazily: the mesh reader is needed only for scenes that use it.
+        from renderer.geometry.meshio import parse_obj, parse_ply
     except ImportError as exc:
-        return [(f"{where}.path", f"mesh files cannot be read here ({exc})")]
+        return [(field, f"mesh files cannot be read here ({exc})")]
     try:
-        vertices, triangles = read_mesh(path)
-    except OSError as exc:
-        return [(f"{where}.path", f"cannot read {str(path)!r}: {exc.strerror or exc}")]
+        parse = parse_obj if kind == ".obj" else parse_ply
+        vertices, triangles = parse(data, name=label)
     except Exception as exc:  # a malformed file: report it, whatever the reader raised
         text = str(exc)
-        return [(f"{where}.path", text if str(path) in text else f"{str(path)!r}: {text}")]
+        return [(field, text if label in text else f"{label!r}: {text}")]
 
     vertices = np.asarray(vertices, dtype=np.float64)
     triangles = np.asarray(triangles)
     if vertices.ndim != 2 or vertices.shape[1] != 3:
-        return [(f"{where}.path", f"{str(path)!r}: vertices must have shape (V, 3)")]
+        return [(field, f"{label!r}: vertices must have shape (V, 3)")]
     if triangles.ndim != 2 or triangles.shape[1] != 3 or triangles.shape[0] == 0:
-        return [(f"{where}.path", f"{str(path)!r}: no triangles")]
+        return [(field, f"{label!r}: no triangles")]
     if not np.isfinite(vertices).all():
-        return [(f"{where}.path", f"{str(path)!r}: vertex coordinates must be finite numbers")]
-    return vertices, triangles.astype(np.int64, copy=False), path.resolve()
+        return [(field, f"{label!r}: vertex coordinates must be finite numbers")]
+    source = None if mesh.asset is not None else Path(label)
+    return vertices, triangles.astype(np.int64, copy=False), source
 
 
 # --- Mesh checks (vectorized) ---------------------------------------------------------------------

@@ -24,12 +24,14 @@ Model               JSON
 from __future__ import annotations
 
 import math
+import re
 from itertools import chain
 from pathlib import Path
 from typing import Annotated, Literal
 
 import numpy as np
 from pydantic import (
+    AfterValidator,
     BaseModel,
     ConfigDict,
     Field,
@@ -146,6 +148,56 @@ class SceneModel(BaseModel):
     """Base of every scene model: unknown fields and non-finite numbers are errors."""
 
     model_config = ConfigDict(extra="forbid", allow_inf_nan=False, frozen=False)
+
+
+# --- File references (v1.1, "Files: paths and assets"; read by renderer.scene.files) --------------
+
+ASSET_PATTERN = r"^sha256:[0-9a-f]{64}$"
+"""An asset's name: ``sha256:`` and the lowercase hex SHA-256 of its bytes."""
+
+
+
+def _check_asset_name(name: str) -> str:
+    if not re.fullmatch(ASSET_PATTERN, name):
+        raise scene_error('must be "sha256:" and 64 lowercase hex digits (the SHA-256 of the file)')
+    return name
+
+
+AssetName = Annotated[
+    str,
+    Strict(),
+    AfterValidator(_check_asset_name),
+    WithJsonSchema({"type": "string", "pattern": ASSET_PATTERN}),
+]
+
+
+class AssetRef(SceneModel):
+    """``{"asset": "sha256:<hex>"}``: a file uploaded to the farm (``POST /api/assets``)."""
+
+    asset: AssetName
+
+
+def _path_allowed(path: str, info: ValidationInfo) -> str:
+    # Only the CLI reads files; a server must never open a path that a request names.
+    if not (info.context and info.context.get("allow_paths", False)):
+        raise scene_error(
+            "file paths are accepted only by the command line; upload the file "
+            '(POST /api/assets) and give {"asset": "sha256:..."}'
+        )
+    return path
+
+
+FilePath = Annotated[str, Strict(), Field(min_length=1)]
+
+FileRef = Annotated[AssetRef | FilePath, Field(union_mode="left_to_right")]
+"""A file: a path (the command line only; relative to the scene file) or an uploaded asset.
+Fields of this type add ``field_validator(NAME)(check_file_ref)``, which refuses paths unless
+``load_scene`` was called with ``allow_paths=True``."""
+
+
+def check_file_ref(ref: AssetRef | str, info: ValidationInfo) -> AssetRef | str:
+    """Field validator of a ``FileRef``: a path only where paths are allowed."""
+    return ref if isinstance(ref, AssetRef) else _path_allowed(ref, info)
 
 
 # --- Camera, film and render settings -------------------------------------------------------------
@@ -515,6 +567,8 @@ class Mesh(ObjectBase):
         default=None, min_length=1
     )
     path: str | None = None
+    asset: AssetName | None = None
+    """An uploaded mesh file (OBJ or PLY), ``"sha256:<hex>"``, instead of ``path``."""
     scale: PositiveFloat | tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = None
     """Placement (optional): scale (one number, or one per axis), then ``rotate``, then
     ``translate``, about the world origin, as a box is placed; the file or the inline vertices
@@ -534,23 +588,30 @@ class Mesh(ObjectBase):
     @field_validator("path")
     @classmethod
     def _check_path_allowed(cls, path: str | None, info: ValidationInfo) -> str | None:
-        # Only the CLI reads files; a server must never open a path that a request names.
-        allow = bool(info.context and info.context.get("allow_paths", False))
-        if path is not None and not allow:
-            raise scene_error(
-                "file paths are accepted only by the command line; "
-                "send vertices and triangles inline"
-            )
+        if path is not None:
+            try:
+                _path_allowed(path, info)
+            except PydanticCustomError:
+                raise scene_error(
+                    "file paths are accepted only by the command line; send vertices and "
+                    'triangles inline, or upload the file (POST /api/assets) and give "asset"'
+                ) from None
         return path
 
     @model_validator(mode="after")
     def _check_source(self) -> Mesh:
         inline = self.vertices is not None or self.triangles is not None
-        if inline and self.path is not None:
-            raise scene_error("give either vertices and triangles, or path, not both")
-        if self.path is None:
+        given = [name for name in ("path", "asset") if getattr(self, name) is not None]
+        if len(given) > 1 or (inline and given):
+            parts = (["vertices and triangles"] if inline else []) + given
+            raise scene_error(
+                f"give one of vertices and triangles, path or asset, not {' and '.join(parts)}"
+            )
+        if not given:
             if self.vertices is None and self.triangles is None:
-                raise scene_error("a mesh needs vertices and triangles (or, from the CLI, path)")
+                raise scene_error(
+                    "a mesh needs vertices and triangles, or asset (or, from the CLI, path)"
+                )
             if self.vertices is None:
                 raise scene_error("triangles given without vertices")
             if self.triangles is None:
@@ -562,8 +623,14 @@ class Mesh(ObjectBase):
         # the serialization JSON schema that of the model instead of "any".
         # A mesh read from a file serializes inline, so that the CLI can send a loaded scene to
         # the farm (whose API accepts no paths).
+        # A mesh from an asset keeps its reference (whoever reads the scene can fetch it).
         data = handler(self)
-        if self.vertices is None and self._vertices_array is not None and isinstance(data, dict):
+        if (
+            self.vertices is None
+            and self.asset is None
+            and self._vertices_array is not None
+            and isinstance(data, dict)
+        ):
             data["vertices"] = self._vertices_array.tolist()
             data["triangles"] = self._triangles_array.tolist()
             data.pop("path", None)

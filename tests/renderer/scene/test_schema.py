@@ -420,7 +420,7 @@ STRUCTURAL_CASES = [
     (
         _set(("objects", 1), {"type": "mesh", "material": "red"}),
         "objects[1]",
-        "a mesh needs vertices and triangles (or, from the CLI, path)",
+        "a mesh needs vertices and triangles, or asset (or, from the CLI, path)",
     ),
 ]
 
@@ -466,7 +466,8 @@ def test_mesh_path_rejected_without_allow_paths():
     assert errors_of(data) == [
         (
             "objects[0].path",
-            "file paths are accepted only by the command line; send vertices and triangles inline",
+            "file paths are accepted only by the command line; send vertices and triangles "
+            'inline, or upload the file (POST /api/assets) and give "asset"',
         )
     ]
     # Nor through the bare model (a server that skipped load_scene would still not read files).
@@ -477,7 +478,10 @@ def test_mesh_path_rejected_without_allow_paths():
 def test_mesh_with_both_path_and_vertices():
     data = scene_dict(objects=[tet_mesh("red") | {"path": "bunny.obj"}])
     errors = errors_of(data, allow_paths=True)
-    assert errors == [("objects[0]", "give either vertices and triangles, or path, not both")]
+    assert errors == [
+        ("objects[0]", "give one of vertices and triangles, path or asset, not vertices and "
+         "triangles and path")
+    ]
 
 
 # --- Semantic errors ------------------------------------------------------------------------------
@@ -783,31 +787,36 @@ def test_find_open_edge_on_closed_meshes():
 
 @pytest.fixture
 def fake_meshio(monkeypatch):
-    """A stand-in for renderer.geometry.meshio.read_mesh that records the paths it is given."""
+    """A stand-in for renderer.geometry.meshio's parsers that records the files it is given (by
+    the resolved path load_scene names them with); ``put(tmp_path / "a.obj", (v, t))`` writes a
+    placeholder file and says what parsing it gives."""
     calls: list[Path] = []
     meshes: dict[str, tuple[np.ndarray, np.ndarray]] = {}
 
-    def read_mesh(path):
-        calls.append(Path(path))
-        if Path(path).name not in meshes:
-            raise FileNotFoundError(2, "No such file or directory", str(path))
-        return meshes[Path(path).name]
+    def parse(data, *, name):
+        calls.append(Path(name))
+        return meshes[Path(name).name]
+
+    def put(path: Path, arrays):
+        path.parent.mkdir(parents=True, exist_ok=True)
+        path.write_text("v 0 0 0\n")
+        meshes[path.name] = arrays
 
     module = types.ModuleType("renderer.geometry.meshio")
-    module.read_mesh = read_mesh
+    module.parse_obj = module.parse_ply = parse
     monkeypatch.setitem(sys.modules, "renderer.geometry.meshio", module)
-    return meshes, calls
+    return put, calls
 
 
 def test_mesh_file_is_loaded_with_allow_paths(fake_meshio, tmp_path):
-    meshes, calls = fake_meshio
+    put, calls = fake_meshio
     vertices = np.array(TET_VERTICES + [[2, 0, 0]], dtype=np.float64)
     triangles = np.array(TET_TRIANGLES + [[0, 1, 4], [0, 0, 3]], dtype=np.int64)  # 2 degenerate
-    meshes["tet.obj"] = (vertices, triangles)
+    put(tmp_path / "models" / "tet.obj", (vertices, triangles))
     data = scene_dict(objects=[{"type": "mesh", "material": "glass", "path": "models/tet.obj"}])
 
     scene = load_scene(data, allow_paths=True, base_dir=tmp_path)
-    assert calls == [tmp_path / "models" / "tet.obj"]
+    assert calls == [(tmp_path / "models" / "tet.obj").resolve()]
     mesh = scene.objects[0]
     assert mesh.path is None and mesh.source_path == (tmp_path / "models" / "tet.obj").resolve()
     assert mesh.dropped_degenerate == 2 and mesh.num_triangles == 4
@@ -823,9 +832,9 @@ def test_mesh_file_is_loaded_with_allow_paths(fake_meshio, tmp_path):
 
 
 def test_mesh_file_errors(fake_meshio, tmp_path):
-    meshes, _ = fake_meshio
-    meshes["open.obj"] = (np.array(TET_VERTICES, float), np.array(TET_TRIANGLES[1:]))
-    meshes["bad.obj"] = (np.array(TET_VERTICES, float), np.array([[0, 1, 2], [0, 1, 9]]))
+    put, _ = fake_meshio
+    put(tmp_path / "open.obj", (np.array(TET_VERTICES, float), np.array(TET_TRIANGLES[1:])))
+    put(tmp_path / "bad.obj", (np.array(TET_VERTICES, float), np.array([[0, 1, 2], [0, 1, 9]])))
     data = scene_dict(
         objects=[
             {"type": "mesh", "material": "glass", "path": "missing.obj"},
@@ -845,8 +854,8 @@ def test_mesh_file_errors(fake_meshio, tmp_path):
 
 
 def test_file_mesh_triangles_count_towards_the_limit(fake_meshio, tmp_path):
-    meshes, _ = fake_meshio
-    meshes["tet.obj"] = (np.array(TET_VERTICES, float), np.array(TET_TRIANGLES))
+    put, _ = fake_meshio
+    put(tmp_path / "tet.obj", (np.array(TET_VERTICES, float), np.array(TET_TRIANGLES)))
     data = scene_dict(
         objects=[{"type": "mesh", "material": "glass", "path": "tet.obj"}, tet_mesh("glass")]
     )
