@@ -368,8 +368,12 @@ def _material(materials: dict, name: str, path: str) -> tuple[dict, dict | None]
             "albedo": _rgb(m.albedo_rgb, f"{mpath}.albedo"),
             "phase": phase,
         }
+        alpha = float(mat.get("roughness", 0.0))
         if ior == 1.0:
             bsdf: dict = {"type": "null"}
+        elif alpha > 0.0:
+            bsdf = {"type": "roughdielectric", "distribution": "ggx", "alpha": alpha,
+                    "sample_visible": True, "int_ior": ior, "ext_ior": 1.0}
         else:
             bsdf = {"type": "dielectric", "int_ior": ior, "ext_ior": 1.0}
         return bsdf, medium

@@ -19,7 +19,7 @@ from renderer.integrators.shadow import SHADOW_SLACK, surface_shadow, transmitta
 from renderer.integrators.subsurface.backlight import backlight_light
 from renderer.jit import block
 from renderer.lights import sample_light
-from renderer.materials.bsdf import BACKLIGHT, bsdf_eval, bsdf_pdf
+from renderer.materials.bsdf import BACKLIGHT, ROUGH_TRANSLUCENT, bsdf_eval, bsdf_pdf
 from renderer.materials.phase import hg_pdf
 from renderer.sampling import power_heuristic
 
@@ -38,14 +38,22 @@ def surface_direct(S, mk, mp, p, n, wo, scale, medium, null_media, br, bg, bb, k
                    sob, stack):
     """β·f·Li·Tr/pdf of one light sample at a surface vertex of material kind ``mk`` (row
     ``mp``), MIS-weighted against the BSDF; ``medium`` is the material of the medium on the side
-    the shadow ray starts (−1: vacuum)."""
+    the shadow ray starts (−1: vacuum); for a rough translucent boundary, the boundary's own
+    medium, which the shadow ray is in when it goes inside."""
     none = (0.0, 0.0, 0.0)
     wi, li_rgb, pdf_l, t_max, delta_l = light_sample(S, p, key, dim, sidx, sob)
     if not pdf_l > 0.0:
         return none
     f = bsdf_eval(mk, mp, wo, wi, n)
     if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
-        tr = surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack)
+        if mk == ROUGH_TRANSLUCENT:
+            # ``medium`` is the boundary's own: the shadow ray starts in it when wi goes inside
+            # (a light within the object), else in vacuum; through the medium it is attenuated
+            inside = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0
+            tr = surface_shadow(S, p, n, wi, t_max, scale, medium if inside else -1,
+                                null_media or inside, stack)
+        else:
+            tr = surface_shadow(S, p, n, wi, t_max, scale, medium, null_media, stack)
         if not (tr[0] > 0.0 or tr[1] > 0.0 or tr[2] > 0.0):
             return none
         wr, wg, wb = tr[0] / pdf_l, tr[1] / pdf_l, tr[2] / pdf_l

@@ -45,6 +45,7 @@ from renderer.materials.bsdf import (
     DIFFUSE_ENTRY,
     DIFFUSION,
     ROUGH_DIELECTRIC,
+    ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
     bsdf_sample,
@@ -171,8 +172,9 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
         # the light from behind comes through)
         delta = is_delta(mk)
         if n_lights > 0 and not delta:
-            c = surface_direct(S, mk, mp, p, n, wo, scale, medium, null_media, br, bg, bb, key,
-                               dim, sidx, sob, stack)
+            # (a rough translucent boundary's light sample may go either side: its medium)
+            c = surface_direct(S, mk, mp, p, n, wo, scale, mat if mk == ROUGH_TRANSLUCENT
+                               else medium, null_media, br, bg, bb, key, dim, sidx, sob, stack)
             lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
         if mk == DIFFUSE_ENTRY and mp[DIRECT_LIGHT] > 0.0 and cos_o > 0.0 and n_lights > 0:
             c = entry_direct(S, mp, p, n, cos_o, scale, null_media, br, bg, bb, key, dim, sidx,
@@ -191,13 +193,13 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
         br, bg, bb = br * weight[0], bg * weight[1], bb * weight[2]
         if br == 0.0 and bg == 0.0 and bb == 0.0:
             break
-        if mk == TRANSLUCENT or mk == DIFFUSE_ENTRY:
+        if mk == TRANSLUCENT or mk == DIFFUSE_ENTRY or mk == ROUGH_TRANSLUCENT:
             # Refracted in or out, or reflected: the side wi leaves on decides the medium
             medium = mat if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0 else -1
         if (mk == DIELECTRIC or mk == TRANSLUCENT) and weight[0] != 1.0:
             eta_scale /= weight[0]  # a refraction: the weight was (η_i/η_t)²
-        elif mk == ROUGH_DIELECTRIC and (cos_o > 0.0) != (wi[0] * n[0] + wi[1] * n[1]
-                                                          + wi[2] * n[2] > 0.0):
+        elif (mk == ROUGH_DIELECTRIC or mk == ROUGH_TRANSLUCENT) and (cos_o > 0.0) != (
+                wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0.0):
             eta_scale *= mp[IOR] * mp[IOR] if cos_o > 0.0 else 1.0 / (mp[IOR] * mp[IOR])
         unweighted, prev_pdf, prev_p, depth = delta, pdf, p, depth + 1
         o, d = spawn_offset(p, n, wi, scale), wi

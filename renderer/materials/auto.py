@@ -100,7 +100,7 @@ def expected_floor(method: str, regimes: frozenset[str] | None) -> float:
 
 def choose_method(albedo, density, size: float, target: float | None, *, g: float = 0.0,
                   ior: float = 1.0, footprint: float = 0.0,
-                  regimes: frozenset[str] | None = None) -> AutoChoice:
+                  regimes: frozenset[str] | None = None, rough: bool = False) -> AutoChoice:
     """The method ``auto`` renders a material with; ``density`` is σt, one number or one per
     channel; ``size`` is the smallest half-extent of the objects that use it (the radius of a
     sphere), ``footprint`` the width of a pixel at the nearest of them (0: unknown, never
@@ -111,7 +111,10 @@ def choose_method(albedo, density, size: float, target: float | None, *, g: floa
     if the densest channel is, opaque only if the channel that reaches farthest is. Between those
     it is rendered by ``volumetric``: the approximations' bias floors were measured on grey media
     only (docs/speed-accuracy.md), and a material whose channels fall into different regimes
-    (nearly opaque in blue, deep in red) is the case where they are least to be trusted."""
+    (nearly opaque in blue, deep in red) is the case where they are least to be trusted.
+
+    A rough boundary (``rough``) is rendered by ``volumetric`` (or, clear, by a rough glass):
+    the approximations and the opaque limit have a smooth coat."""
     target = DEFAULT_TARGET if target is None else target
     sigma_t = np.broadcast_to(np.asarray(density, dtype=np.float64), (3,))
     chromatic = len(set(sigma_t.tolist())) > 1
@@ -124,6 +127,9 @@ def choose_method(albedo, density, size: float, target: float | None, *, g: floa
     if a * tau <= target:
         return AutoChoice("dielectric", f"{where}: effectively clear, scattered fraction "
                           f"{a * tau:.3g} <= target {target:g}", a * tau)
+    if rough:
+        return AutoChoice("volumetric", f"{where}: a rough boundary (the approximations have a "
+                          "smooth coat)", 0.0)
     if footprint > 0.0 and OPAQUE_ERROR <= target:
         reach = opaque_reach(albedo, sigma_t, g, ior)
         if reach <= opaque_limit(footprint, size):
@@ -221,7 +227,7 @@ def auto_choice(scene, name: str):
     return choose_method(m.albedo_rgb, m.sigma_t, min(sizes) if sizes else 0.0,
                          scene.render.target_error, g=m.g, ior=m.ior,
                          footprint=pixel_footprint(scene, objects),
-                         regimes=scene_regimes(scene, objects))
+                         regimes=scene_regimes(scene, objects), rough=m.roughness > 0.0)
 
 
 def auto_choices(scene) -> dict:

@@ -24,6 +24,9 @@ from renderer.materials.fresnel import fresnel_dielectric
 from renderer.materials.mirror import mirror_sample
 from renderer.materials.phong import phong_eval, phong_pdf, phong_sample
 from renderer.materials.rough_dielectric import (
+    rough_boundary_eval,
+    rough_boundary_pdf,
+    rough_boundary_sample,
     rough_dielectric_eval,
     rough_dielectric_pdf,
     rough_dielectric_sample,
@@ -42,6 +45,8 @@ DIFFUSION_EXIT = 9  # the exit vertex of DIFFUSION: S_w(wi) = (1 − F(cos θi))
 CONDUCTOR = 10  # a smooth metal: the mirror direction weighted by the conductor Fresnel term
 ROUGH_CONDUCTOR = 11  # a rough metal: GGX microfacets (renderer/materials/conductor.py)
 ROUGH_DIELECTRIC = 12  # rough glass: GGX microfacets that reflect and refract
+ROUGH_TRANSLUCENT = 13  # method "volumetric" behind a rough boundary: GGX as ROUGH_DIELECTRIC,
+# α in translucent's BOUNDARY_ROUGHNESS slot; the medium in the integrator, as TRANSLUCENT
 BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo (slots REFLECTED), plus
 # the integrator's transmitted direct light (integrators/subsurface/backlight.py), which falls
 # with thickness at the per-channel rate in the SIGMA_EFF slots
@@ -71,6 +76,8 @@ def bsdf_eval(kind, param, wo, wi, n):
     """f(wo, wi)·|cos θi| for the non-delta materials (zero for delta ones)."""
     if kind == ROUGH_DIELECTRIC:  # two sides that differ: the outward normal as it is
         return rough_dielectric_eval(param, wo, wi, n)
+    if kind == ROUGH_TRANSLUCENT:
+        return rough_boundary_eval(param, wo, wi, n)
     ns = _facing(wo, n)
     if kind == DIFFUSE:
         return diffuse_eval(param, wo, wi, ns)
@@ -96,6 +103,8 @@ def bsdf_eval(kind, param, wo, wi, n):
 def bsdf_pdf(kind, param, wo, wi, n):
     if kind == ROUGH_DIELECTRIC:
         return rough_dielectric_pdf(param, wo, wi, n)
+    if kind == ROUGH_TRANSLUCENT:
+        return rough_boundary_pdf(param, wo, wi, n)
     ns = _facing(wo, n)
     if kind == DIFFUSE or kind == SINGLE_SCATTER or kind == BACKLIGHT or kind == DIFFUSION_EXIT:
         return diffuse_pdf(param, wo, wi, ns)
@@ -115,6 +124,8 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
         return wi, (w, w, w), 0.0, True
     if kind == ROUGH_DIELECTRIC:
         return rough_dielectric_sample(param, wo, n, uc, u1, u2)
+    if kind == ROUGH_TRANSLUCENT:
+        return rough_boundary_sample(param, wo, n, uc, u1, u2)
     ns = _facing(wo, n)
     if kind == MIRROR:
         wi, weight = mirror_sample(param, wo, ns)

@@ -9,6 +9,10 @@ with h the half vector; on opposite sides it refracts through the microfacet h �
 exact dielectric Fresnel term at wo·h; G = G1(wo) G1(wi) (separable, Mitsuba's). Sampling: a
 visible normal from wo (``renderer.materials.microfacet``), then reflection with probability F,
 else refraction; its density is what ``rough_dielectric_pdf`` returns and MIS uses.
+
+The same boundary over a scattering medium is the ``translucent`` material's with ``roughness``
+(method volumetric): ``rough_boundary_*``, the kind ``ROUGH_TRANSLUCENT``; as Mitsuba 3's
+``roughdielectric`` on the boundary of a ``homogeneous`` medium.
 """
 
 from __future__ import annotations
@@ -19,14 +23,14 @@ from renderer.jit import kernel
 from renderer.materials.dielectric import IOR, ROUGHNESS
 from renderer.materials.fresnel import fresnel_dielectric, reflect, refract
 from renderer.materials.microfacet import from_local, ggx_d, ggx_visible_normal, smith_g1, to_local
+from renderer.materials.translucent import BOUNDARY_ROUGHNESS
 from renderer.vecmath import onb
 
 
 @kernel
-def _terms(param, wo, wi, n):
-    """(value f·|cos θi|, pdf) of the rough dielectric for (wo, wi); n the outward normal."""
-    ior = param[IOR]
-    alpha = param[ROUGHNESS]
+def _terms(ior, alpha, wo, wi, n):
+    """(value f·|cos θi|, pdf) of the rough boundary of index ``ior`` and GGX ``alpha`` for
+    (wo, wi); n the outward normal."""
     cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
     cos_i = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
     if cos_o == 0.0 or cos_i == 0.0:
@@ -60,22 +64,9 @@ def _terms(param, wo, wi, n):
 
 
 @kernel
-def rough_dielectric_eval(param, wo, wi, n):
-    v, _ = _terms(param, wo, wi, n)
-    return (v, v, v)
-
-
-@kernel
-def rough_dielectric_pdf(param, wo, wi, n):
-    _, pdf = _terms(param, wo, wi, n)
-    return pdf
-
-
-@kernel
-def rough_dielectric_sample(param, wo, n, uc, u1, u2):
+def _sample(ior, alpha, wo, n, uc, u1, u2):
     """(wi, f·cos/pdf, pdf, ok): a visible microfacet normal of wo's side, then reflection with
     probability F, else refraction through it."""
-    ior = param[IOR]
     cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
     none = (0.0, 0.0, 0.0)
     if cos_o == 0.0:
@@ -83,7 +74,7 @@ def rough_dielectric_sample(param, wo, n, uc, u1, u2):
     ns = n if cos_o > 0.0 else (-n[0], -n[1], -n[2])
     eta = ior if cos_o > 0.0 else 1.0 / ior
     t, b = onb(ns)
-    h = from_local(ggx_visible_normal(to_local(wo, t, b, ns), param[ROUGHNESS], u1, u2), t, b, ns)
+    h = from_local(ggx_visible_normal(to_local(wo, t, b, ns), alpha, u1, u2), t, b, ns)
     wo_h = wo[0] * h[0] + wo[1] * h[1] + wo[2] * h[2]
     if not wo_h > 0.0:
         return n, none, 0.0, False
@@ -98,8 +89,44 @@ def rough_dielectric_sample(param, wo, n, uc, u1, u2):
     cos_i = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2]
     if (cos_o * cos_i > 0.0) != reflecting:
         return wi, none, 0.0, False
-    value, pdf = _terms(param, wo, wi, n)
+    value, pdf = _terms(ior, alpha, wo, wi, n)
     if not pdf > 0.0:
         return wi, none, 0.0, False
     w = value / pdf
     return wi, (w, w, w), pdf, True
+
+
+# The rough dielectric's row keeps α in dielectric's ROUGHNESS slot; a rough translucent
+# boundary (method volumetric) in translucent's BOUNDARY_ROUGHNESS, since its slot 4 is DENSITY.
+@kernel
+def rough_dielectric_eval(param, wo, wi, n):
+    v, _ = _terms(param[IOR], param[ROUGHNESS], wo, wi, n)
+    return (v, v, v)
+
+
+@kernel
+def rough_dielectric_pdf(param, wo, wi, n):
+    _, pdf = _terms(param[IOR], param[ROUGHNESS], wo, wi, n)
+    return pdf
+
+
+@kernel
+def rough_dielectric_sample(param, wo, n, uc, u1, u2):
+    return _sample(param[IOR], param[ROUGHNESS], wo, n, uc, u1, u2)
+
+
+@kernel
+def rough_boundary_eval(param, wo, wi, n):
+    v, _ = _terms(param[IOR], param[BOUNDARY_ROUGHNESS], wo, wi, n)
+    return (v, v, v)
+
+
+@kernel
+def rough_boundary_pdf(param, wo, wi, n):
+    _, pdf = _terms(param[IOR], param[BOUNDARY_ROUGHNESS], wo, wi, n)
+    return pdf
+
+
+@kernel
+def rough_boundary_sample(param, wo, n, uc, u1, u2):
+    return _sample(param[IOR], param[BOUNDARY_ROUGHNESS], wo, n, uc, u1, u2)

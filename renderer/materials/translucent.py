@@ -1,29 +1,31 @@
 """The ``translucent`` material's row: the parameters every method shares, then each method's.
 
-A translucent object is a homogeneous medium behind a smooth dielectric boundary (its ``IOR``
-slot is the dielectric's, so the boundary samples as ``dielectric_sample``). The shared slots are
-the material's own parameters; from slot 7 on, each method keeps its knobs and what the compiler
-derives for it, so slot 7 names four things by method — each under its own name here. The
-``diffusion`` method's slots are in ``renderer/materials/diffusion.py``.
+A translucent object is a homogeneous medium behind a dielectric boundary (its ``IOR`` slot is
+the dielectric's, so a smooth boundary samples as ``dielectric_sample``; a rough one, method
+volumetric only, as ``rough_boundary_sample``). The shared slots are the material's own
+parameters; from slot 7 on, each method keeps its knobs and what the compiler derives for it, so
+slot 7 names four things by method — each under its own name here. The ``diffusion`` method's
+slots are in ``renderer/materials/diffusion.py``.
 
-===================  =====  =========================================================
-Slot                 Index  Meaning
-===================  =====  =========================================================
-``IOR``              0      index of refraction of the boundary (1: index-matched)
-``ALBEDO``           1–3    single-scattering albedo σs/σt (RGB)
-``DENSITY``          4      extinction σt (per unit length) of a grey medium
-``G``                5      Henyey–Greenstein asymmetry
-``CHROMATIC``        6      1 when σt differs between channels (the walk samples by channel)
-``SIGMA_T``          20–22  extinction σt per channel (all three equal DENSITY when grey)
-``SURFACE_FRACTION`` 7      single_scatter: the share of hits that reflect at the surface
-``DIRECT_LIGHT``     7      diffuse_entry: 1 when the entry point is lit apart
-``SPECULAR_EXP``     8      diffuse_entry: the glossy coat's Phong exponent (0: none)
-``DISTORTION``       7      backlight: how far the normal bends the transmitted lobe
-``POWER``            8      backlight: the lobe's exponent
-``SCALE``            9      backlight: the transmitted share
-``REFLECTED``        12–14  backlight: (1 − scale)·albedo, what the surface reflects
-``SIGMA_EFF``        16–18  backlight: σ_eff per channel, the decay with thickness
-===================  =====  =========================================================
+======================  =====  =========================================================
+Slot                    Index  Meaning
+======================  =====  =========================================================
+``IOR``                 0      index of refraction of the boundary (1: index-matched)
+``ALBEDO``              1–3    single-scattering albedo σs/σt (RGB)
+``DENSITY``             4      extinction σt (per unit length) of a grey medium
+``G``                   5      Henyey–Greenstein asymmetry
+``CHROMATIC``           6      1 when σt differs between channels (the walk samples by channel)
+``SIGMA_T``             20–22  extinction σt per channel (all three equal DENSITY when grey)
+``BOUNDARY_ROUGHNESS``  19     GGX α of the boundary (volumetric; 0: smooth, kind TRANSLUCENT)
+``SURFACE_FRACTION``    7      single_scatter: the share of hits that reflect at the surface
+``DIRECT_LIGHT``        7      diffuse_entry: 1 when the entry point is lit apart
+``SPECULAR_EXP``        8      diffuse_entry: the glossy coat's Phong exponent (0: none)
+``DISTORTION``          7      backlight: how far the normal bends the transmitted lobe
+``POWER``               8      backlight: the lobe's exponent
+``SCALE``               9      backlight: the transmitted share
+``REFLECTED``           12–14  backlight: (1 − scale)·albedo, what the surface reflects
+``SIGMA_EFF``           16–18  backlight: σ_eff per channel, the decay with thickness
+======================  =====  =========================================================
 """
 
 from __future__ import annotations
@@ -32,14 +34,16 @@ import numpy as np
 
 from renderer.materials.dielectric import IOR
 
-__all__ = ["IOR", "ALBEDO", "DENSITY", "G", "CHROMATIC", "SIGMA_T", "SURFACE_FRACTION",
-           "DIRECT_LIGHT", "SPECULAR_EXP", "DISTORTION", "POWER", "SCALE", "REFLECTED", "SIGMA_EFF"]
+__all__ = ["IOR", "ALBEDO", "DENSITY", "G", "CHROMATIC", "SIGMA_T", "BOUNDARY_ROUGHNESS",
+           "SURFACE_FRACTION", "DIRECT_LIGHT", "SPECULAR_EXP", "DISTORTION", "POWER", "SCALE",
+           "REFLECTED", "SIGMA_EFF"]
 
 ALBEDO = 1
 DENSITY = 4
 G = 5
 CHROMATIC = 6
 SIGMA_T = 20
+BOUNDARY_ROUGHNESS = 19
 SURFACE_FRACTION = 7
 DIRECT_LIGHT = 7
 SPECULAR_EXP = 8
@@ -59,6 +63,7 @@ def pack_translucent(p, m) -> None:
     p[DENSITY] = max(m.sigma_t)  # the grey σt; a chromatic walk reads SIGMA_T
     p[CHROMATIC] = 1.0 if m.chromatic else 0.0
     p[G] = m.g
+    p[BOUNDARY_ROUGHNESS] = m.roughness
 
 
 def pack_single_scatter(p, m) -> None:

@@ -32,6 +32,7 @@ from renderer.materials.bsdf import (
     PHONG,
     ROUGH_CONDUCTOR,
     ROUGH_DIELECTRIC,
+    ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
 )
@@ -122,7 +123,8 @@ def _resolve_auto(scene, name: str, m):
     if choice.method == "dielectric":
         absorption = tuple(float(t * (1.0 - a))
                            for t, a in zip(m.sigma_t, m.albedo_rgb, strict=True))
-        return DielectricMaterial(ior=m.ior, absorption=absorption), choice
+        return DielectricMaterial(ior=m.ior, absorption=absorption,
+                                  roughness=m.roughness), choice
     if choice.method == "opaque":
         return m.model_copy(update={"method": "diffusion"}), choice
     return m.model_copy(update={"method": choice.method}), choice
@@ -154,6 +156,8 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         kind = ROUGH_CONDUCTOR
     if kind == DIELECTRIC and m.roughness > 0.0:
         kind = ROUGH_DIELECTRIC
+    if kind == TRANSLUCENT and m.roughness > 0.0 and m.ior != 1.0:
+        kind = ROUGH_TRANSLUCENT  # (at ior 1 the boundary is null, rough or not)
     p = np.zeros(N_PARAMS)
     pack(p, m)
     return kind, p

@@ -370,6 +370,10 @@ class TranslucentMaterial(SceneModel):
     """preset: millimetres per scene unit (10 when a unit is a centimetre; default 1)."""
     g: Float = Field(default=0.0, gt=-1, lt=1)
     """Henyey-Greenstein anisotropy: > 0 forward, < 0 backward."""
+    roughness: Float = Field(default=0.0, ge=0, le=1)
+    """GGX α of the boundary, as Mitsuba writes it; 0 is the smooth boundary. Rendered by the
+    methods volumetric and auto only (the approximations have a smooth coat); no effect at
+    ior 1 (an index-matched boundary neither reflects nor refracts)."""
 
     # Method-specific knobs (docs/methods/*.md); each is an error with any other method.
     surface_fraction: Float | None = Field(default=None, ge=0, le=1)
@@ -453,6 +457,15 @@ class TranslucentMaterial(SceneModel):
         return len(set(self.sigma_t)) > 1
 
     @model_validator(mode="after")
+    def _check_roughness(self) -> TranslucentMaterial:
+        if self.roughness > 0.0 and self.method not in ROUGH_METHODS:
+            raise scene_error(
+                f"roughness (a rough boundary) is rendered by method volumetric (or auto) only; "
+                f"method {self.method!r} has a smooth coat"
+            )
+        return self
+
+    @model_validator(mode="after")
     def _check_knobs(self) -> TranslucentMaterial:
         for knob in sorted(self.model_fields_set):
             owner = METHOD_KNOBS.get(knob)
@@ -463,6 +476,9 @@ class TranslucentMaterial(SceneModel):
                 )
         return self
 
+
+# The methods that render a rough boundary (``roughness`` > 0).
+ROUGH_METHODS = ("volumetric", "auto")
 
 # Which method each knob belongs to.
 METHOD_KNOBS = {
