@@ -176,6 +176,7 @@ def test_no_request_field_can_name_a_server_path():
     scene_fields = free_text_fields(Scene.model_json_schema())
     assert scene_fields == {
         "Mesh.path",  # refused by the API (test below); the CLI alone reads mesh files
+        "Mesh.asset",  # "sha256:" and 64 hex digits (pattern-checked), a content address
         "Mesh.material", "Sphere.material", "Quad.material", "Box.material",  # names in
         "Scene.materials.*",  # `materials`, looked up there, never opened
     }
@@ -216,6 +217,14 @@ def test_a_request_never_opens_a_path_it_names(client, tiny_scene, tmp_path, fil
                                                                           mesh]}, "name": name})
         assert r.status_code == 422
         assert "command line" in r.text
+    # An asset is a content address, never a path: a name that is not one is refused by its
+    # field, and the API (which holds no asset store) refuses a well-formed one by name too.
+    for asset in (name, traversal, "sha256:" + "0" * 64):
+        mesh = {"type": "mesh", "asset": asset, "material": name}
+        r = client.post("/api/jobs", json={"scene": {**scene, "objects": [*scene["objects"],
+                                                                          mesh]}, "name": name})
+        assert r.status_code == 422, r.text
+        assert "objects" in r.text and "asset" in r.text
     # A material named like a path is only a name: the job is accepted, nothing is read.
     assert client.post("/api/jobs", json={"scene": scene, "name": name}).status_code == 201
     for url in (f"/api/examples/{traversal}", "/api/examples/..%2F..%2Fpyproject",
