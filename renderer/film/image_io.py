@@ -2,17 +2,20 @@
 
 | Extension | Written as                                 | Read                                    |
 |-----------|--------------------------------------------|-----------------------------------------|
-| `.exr`    | OpenEXR scanline, float32 B/G/R, no compr. | FLOAT/HALF/UINT scanline; NONE/ZIP/ZIPS |
+| `.exr`    | OpenEXR scanline, float32 B/G/R, no compr. | any: the OpenEXR library (`openexr`)    |
 | `.pfm`    | Portable Float Map "PF", little-endian     | "PF" and greyscale "Pf", either endian  |
+| `.hdr`    | (not written)                              | Radiance RGBE, flat or run-length coded |
 | `.npy`    | NumPy float32 HxWx3                        | HxWx3 or HxW of any real dtype          |
 | `.png`    | 8-bit sRGB after exposure and tone map     | 8-bit, decoded from sRGB to linear      |
 
 Example: `write_image("out/frame.png", rgb, exposure=0.5, tonemap="aces")`; `exposure` and
 `tonemap` only change PNG output, the float formats always hold the radiance as rendered.
 
-The EXR codec is written here in NumPy (plus zlib) rather than taken from a dependency: the
-layout is small and documented ("OpenEXR File Layout", openexr.com), and a farm worker should not
-need a C++ imaging stack to save a frame.
+The EXR writer is written here in NumPy (plus zlib): the layout is small and documented
+("OpenEXR File Layout", openexr.com). Reading goes through the OpenEXR library's own bindings (the
+`openexr` package), since the files users bring (environment maps from Blender, Mitsuba or HDRI
+sites) use PIZ, DWAA and other coders that are not worth writing again. `decode_hdr_image` reads
+the three float formats a scene may name (EXR, PFM, Radiance `.hdr`) from their bytes.
 """
 
 import io
@@ -28,18 +31,16 @@ from PIL import Image
 from renderer.film.tonemap import srgb_to_linear, to_srgb8
 
 SUPPORTED_EXTENSIONS = (".exr", ".pfm", ".npy", ".png")
+READ_EXTENSIONS = SUPPORTED_EXTENSIONS + (".hdr",)
 
 # --- OpenEXR constants (OpenEXR File Layout, "Header Attributes" and "Scan Line Blocks") ---------
 _EXR_MAGIC = 20000630
 _EXR_VERSION = 2
-_EXR_FLAG_TILED = 0x200
-_EXR_FLAG_NON_IMAGE = 0x800  # deep data
-_EXR_FLAG_MULTIPART = 0x1000
 _EXR_PIXEL_DTYPES = {0: np.dtype("<u4"), 1: np.dtype("<f2"), 2: np.dtype("<f4")}  # UINT HALF FLOAT
 _EXR_COMPRESSIONS = ("NONE", "RLE", "ZIPS", "ZIP", "PIZ", "PXR24", "B44", "B44A", "DWAA", "DWAB")
 # Scan lines stored together in one chunk, indexed like _EXR_COMPRESSIONS.
 _EXR_LINES_PER_CHUNK = (1, 1, 1, 16, 32, 16, 32, 32, 32, 256)
-_EXR_NONE, _EXR_ZIPS, _EXR_ZIP = 0, 2, 3
+_EXR_ZIP = 3
 
 
 def write_image(
@@ -69,7 +70,9 @@ def write_image(
 
 def read_image(path: str | os.PathLike) -> np.ndarray:
     """Read an image as linear float32 HxWx3; the format follows the extension."""
-    ext = _extension(path)
+    ext = _extension(path, READ_EXTENSIONS)
+    if ext == ".hdr":
+        return decode_rgbe(Path(path).read_bytes(), name=str(path))
     if ext == ".exr":
         return decode_exr(Path(path).read_bytes(), name=str(path))
     if ext == ".pfm":
@@ -142,122 +145,42 @@ def encode_exr(rgb: np.ndarray, *, compression: str = "NONE", pixel_type: str = 
 
 
 def decode_exr(data: bytes, *, name: str = "<exr>") -> np.ndarray:
-    """Decode a single-part scanline OpenEXR file to float32 HxWx3.
+    """Decode an OpenEXR file to float32 HxWx3, through the OpenEXR library (``openexr``).
 
-    Channels R, G, B are used (a luminance-only file's Y is copied to all three); others such as
-    A are ignored. Pixel types UINT, HALF and FLOAT; compression NONE, ZIPS and ZIP, plus chunks
-    of any other compression that the writer stored raw because compressing did not shrink them.
+    Every compression the library knows (NONE, RLE, ZIPS, ZIP, PIZ, PXR24, B44, DWAA, DWAB, …, as
+    Blender, Mitsuba and HDRI sites write), scanline or tiled, pixel types UINT, HALF and FLOAT;
+    of a multi-part file, the first part. Channels R, G, B are used (a luminance-only file's Y is
+    copied to all three); others such as A are ignored. A file that is not OpenEXR, is truncated
+    or has no colour channels raises ``ValueError`` naming ``name``.
     """
-    if len(data) < 8:
-        raise ValueError(f"{name}: not an OpenEXR file (too short)")
-    magic, version = struct.unpack_from("<ii", data, 0)
-    if magic != _EXR_MAGIC:
+    if len(data) < 8 or struct.unpack_from("<i", data, 0)[0] != _EXR_MAGIC:
         raise ValueError(f"{name}: not an OpenEXR file (bad magic number)")
-    if version & 0xFF != _EXR_VERSION:
-        raise ValueError(f"{name}: OpenEXR version {version & 0xFF} is not supported")
-    if version & (_EXR_FLAG_TILED | _EXR_FLAG_NON_IMAGE | _EXR_FLAG_MULTIPART):
-        raise ValueError(f"{name}: tiled, deep and multi-part OpenEXR files are not supported")
+    try:
+        import OpenEXR  # the maintained bindings of the reference library (PyPI ``openexr``)
 
-    attributes, pos = _exr_read_header(data, name)
-    for required in ("channels", "compression", "dataWindow"):
-        if required not in attributes:
-            raise ValueError(f"{name}: OpenEXR header has no {required!r} attribute")
-    channels = _exr_parse_channels(attributes["channels"], name)
-    code = attributes["compression"][0]
-    if code >= len(_EXR_COMPRESSIONS):
-        raise ValueError(f"{name}: unknown OpenEXR compression code {code}")
-    x_min, y_min, x_max, y_max = struct.unpack("<iiii", attributes["dataWindow"])
-    width, height = x_max - x_min + 1, y_max - y_min + 1
-    if width <= 0 or height <= 0:
-        raise ValueError(f"{name}: empty OpenEXR data window")
-
-    # One scan line as a structured record: a run of `width` samples for each channel in turn.
-    line_dtype = np.dtype([(ch, dtype, (width,)) for ch, dtype in channels])
-    lines_per_chunk = _EXR_LINES_PER_CHUNK[code]
-    n_chunks = -(-height // lines_per_chunk)
-    if pos + 8 * n_chunks > len(data):
-        raise ValueError(f"{name}: truncated OpenEXR offset table")
-    offsets = np.frombuffer(data, "<u8", n_chunks, pos)
-
-    lines = np.empty(height, line_dtype)
-    filled = np.zeros(height, bool)
-    for offset in offsets.tolist():
-        if offset + 8 > len(data):
-            raise ValueError(f"{name}: OpenEXR chunk offset {offset} is past the end of the file")
-        y, size = struct.unpack_from("<ii", data, offset)
-        row = y - y_min
-        if row < 0 or row >= height or row % lines_per_chunk:
-            raise ValueError(f"{name}: OpenEXR chunk has scan line {y} outside the data window")
-        n_lines = min(lines_per_chunk, height - row)
-        expected = n_lines * line_dtype.itemsize
-        chunk = data[offset + 8 : offset + 8 + size]
-        if len(chunk) != size or size > expected:
-            raise ValueError(f"{name}: corrupt OpenEXR chunk at scan line {y}")
-        if size < expected:
-            # Smaller than raw means compressed; equal means stored raw whatever the method.
-            if code not in (_EXR_ZIPS, _EXR_ZIP):
-                raise ValueError(
-                    f"{name}: OpenEXR compression {_EXR_COMPRESSIONS[code]} is not supported "
-                    "(NONE, ZIPS and ZIP are); re-save the file with one of those"
-                )
-            chunk = _zip_decode(chunk, expected, name)
-        lines[row : row + n_lines] = np.frombuffer(chunk, line_dtype, n_lines)
-        filled[row : row + n_lines] = True
-    if not filled.all():
-        missing = int(np.argmin(filled)) + y_min
-        raise ValueError(f"{name}: OpenEXR file is incomplete (scan line {missing} is missing)")
-
-    names = [ch for ch, _ in channels]
-    if {"R", "G", "B"} <= set(names):
-        planes = [lines["R"], lines["G"], lines["B"]]
-    elif "Y" in names:
-        planes = [lines["Y"]] * 3
+        exr = OpenEXR.File(io.BytesIO(data), separate_channels=True)
+        channels = {key: channel.pixels for key, channel in exr.channels().items()}
+    except ImportError as exc:
+        raise ValueError(f"{name}: OpenEXR files cannot be read here ({exc})") from None
+    except Exception as exc:  # the library's errors (RuntimeError, ValueError): a bad file
+        detail = str(exc).replace("<python_buffer>", "").strip(" :")
+        raise ValueError(f"{name}: truncated or corrupt OpenEXR file ({detail})") from None
+    if {"R", "G", "B"} <= channels.keys():
+        planes = [channels["R"], channels["G"], channels["B"]]
+    elif "Y" in channels:
+        planes = [channels["Y"]] * 3
     else:
-        raise ValueError(f"{name}: OpenEXR file has no R, G, B or Y channels (has {names})")
+        raise ValueError(
+            f"{name}: OpenEXR file has no R, G, B or Y channels (has {sorted(channels)})"
+        )
+    if any(plane.ndim != 2 or plane.shape != planes[0].shape for plane in planes):
+        raise ValueError(f"{name}: OpenEXR colour channels of different sizes (subsampled)")
     return np.stack(planes, axis=-1).astype(np.float32)
 
 
 def _exr_attribute(name: str, type_name: str, value: bytes) -> bytes:
     size = struct.pack("<i", len(value))
     return name.encode() + b"\0" + type_name.encode() + b"\0" + size + value
-
-
-def _exr_read_header(data: bytes, name: str) -> tuple[dict[str, bytes], int]:
-    """Attributes as raw bytes by name, and the position just past the header."""
-    attributes = {}
-    pos = 8
-    try:
-        while data[pos] != 0:
-            end = data.index(b"\0", pos)
-            attr_name = data[pos:end].decode("latin-1")
-            type_end = data.index(b"\0", end + 1)
-            (size,) = struct.unpack_from("<i", data, type_end + 1)
-            start = type_end + 5
-            if size < 0 or start + size > len(data):
-                raise ValueError
-            attributes[attr_name] = data[start : start + size]
-            pos = start + size
-    except (IndexError, ValueError, struct.error):
-        raise ValueError(f"{name}: truncated or corrupt OpenEXR header") from None
-    return attributes, pos + 1
-
-
-def _exr_parse_channels(chlist: bytes, name: str) -> list[tuple[str, np.dtype]]:
-    channels = []
-    pos = 0
-    while pos < len(chlist) and chlist[pos] != 0:
-        end = chlist.index(b"\0", pos)
-        channel = chlist[pos:end].decode("latin-1")
-        pixel_type, _, x_sampling, y_sampling = struct.unpack_from("<iB3xii", chlist, end + 1)
-        if pixel_type not in _EXR_PIXEL_DTYPES:
-            raise ValueError(f"{name}: channel {channel!r} has unknown pixel type {pixel_type}")
-        if (x_sampling, y_sampling) != (1, 1):
-            raise ValueError(f"{name}: subsampled channel {channel!r} is not supported")
-        channels.append((channel, _EXR_PIXEL_DTYPES[pixel_type]))
-        pos = end + 17
-    if not channels:
-        raise ValueError(f"{name}: OpenEXR file has no channels")
-    return channels
 
 
 def _zip_encode(raw: bytes) -> bytes:
@@ -268,24 +191,6 @@ def _zip_encode(raw: bytes) -> bytes:
     d = t.copy()
     d[1:] = t[1:] - t[:-1] + np.uint8(128)  # uint8 arithmetic wraps mod 256, as in the C code
     return zlib.compress(d.tobytes())
-
-
-def _zip_decode(chunk: bytes, expected: int, name: str) -> bytes:
-    try:
-        d = np.frombuffer(zlib.decompress(chunk), np.uint8)
-    except zlib.error as error:
-        raise ValueError(f"{name}: corrupt ZIP-compressed OpenEXR chunk ({error})") from None
-    if d.size != expected:
-        raise ValueError(f"{name}: ZIP-compressed OpenEXR chunk has the wrong size")
-    # Undo the predictor: t[i] = t[i-1] + d[i] - 128, a running sum mod 256.
-    d = d.copy()
-    d[1:] -= np.uint8(128)
-    t = np.cumsum(d, dtype=np.uint8)
-    raw = np.empty_like(t)
-    half = (t.size + 1) // 2
-    raw[0::2] = t[:half]
-    raw[1::2] = t[half:]
-    return raw.tobytes()
 
 
 # --- Portable Float Map ---------------------------------------------------------------------------
@@ -329,15 +234,114 @@ def decode_pfm(data: bytes, *, name: str = "<pfm>") -> np.ndarray:
     return np.repeat(rgb, 3, axis=2) if n_channels == 1 else rgb
 
 
+# --- Radiance RGBE (.hdr) -------------------------------------------------------------------------
+
+
+def decode_rgbe(data: bytes, *, name: str = "<hdr>") -> np.ndarray:
+    """Decode a Radiance picture (``.hdr``, ``#?RADIANCE`` / ``#?RGBE``) to float32 HxWx3.
+
+    The header is text lines up to a blank one (``FORMAT=32-bit_rle_rgbe``; an ``EXPOSURE`` is
+    divided out, as Radiance's own readers do), then the resolution line, of which the standard
+    orientation ``-Y H +X W`` (rows top to bottom, left to right) is read. Scan lines are flat
+    RGBE quadruples or the run-length coding of Greg Ward's writer (each line opens 2 2 hi lo,
+    then each of the four components in runs: a count > 128 repeats one byte count − 128 times,
+    else count literal bytes). A texel is (r, g, b)·2^(e − 136), and 0 where e = 0
+    (Ward, "Real Pixels", Graphics Gems II).
+    """
+    if not (data.startswith(b"#?RADIANCE") or data.startswith(b"#?RGBE")):
+        raise ValueError(f"{name}: not a Radiance HDR file (no #?RADIANCE signature)")
+    end = data.find(b"\n\n")
+    if end < 0:
+        raise ValueError(f"{name}: truncated Radiance HDR header")
+    exposure = 1.0
+    for line in data[:end].split(b"\n")[1:]:
+        if line.startswith(b"FORMAT=") and line.strip() != b"FORMAT=32-bit_rle_rgbe":
+            fmt = line[7:].strip().decode("latin-1")
+            raise ValueError(
+                f"{name}: Radiance HDR format {fmt!r} is not supported (32-bit_rle_rgbe is)"
+            )
+        if line.startswith(b"EXPOSURE="):
+            try:
+                exposure *= float(line[9:])
+            except ValueError:
+                raise ValueError(f"{name}: corrupt Radiance HDR EXPOSURE line") from None
+    size_end = data.find(b"\n", end + 2)
+    tokens = data[end + 2 : size_end if size_end >= 0 else len(data)].split()
+    if len(tokens) != 4 or tokens[0] != b"-Y" or tokens[2] != b"+X":
+        raise ValueError(
+            f"{name}: Radiance HDR resolution line {b' '.join(tokens)[:40]!r} is not supported "
+            "(the standard orientation -Y H +X W is)"
+        )
+    try:
+        height, width = int(tokens[1]), int(tokens[3])
+    except ValueError:
+        raise ValueError(f"{name}: corrupt Radiance HDR resolution line") from None
+    if height <= 0 or width <= 0 or size_end < 0:
+        raise ValueError(f"{name}: Radiance HDR image of invalid size {width}x{height}")
+    if not exposure > 0.0:
+        raise ValueError(f"{name}: Radiance HDR EXPOSURE must be > 0")
+    raw = np.frombuffer(data, np.uint8, offset=size_end + 1)
+    rgbe = np.empty((height, width, 4), np.uint8)
+    pos = 0
+    truncated = f"{name}: truncated Radiance HDR pixel data"
+    for y in range(height):
+        head = raw[pos : pos + 4]
+        rle = (8 <= width < 32768 and len(head) == 4 and head[0] == 2 and head[1] == 2
+               and head[2] < 128)
+        if not rle:
+            # Flat: width quadruples
+            if pos + 4 * width > len(raw):
+                raise ValueError(truncated)
+            rgbe[y] = raw[pos : pos + 4 * width].reshape(width, 4)
+            pos += 4 * width
+            continue
+        if (int(head[2]) << 8 | int(head[3])) != width:
+            raise ValueError(f"{name}: corrupt Radiance HDR scan line {y} (wrong length)")
+        pos += 4
+        for c in range(4):
+            x = 0
+            while x < width:
+                if pos >= len(raw):
+                    raise ValueError(truncated)
+                count = int(raw[pos])
+                if count > 128:
+                    count -= 128
+                    if x + count > width or pos + 1 >= len(raw):
+                        raise ValueError(f"{name}: corrupt Radiance HDR scan line {y}")
+                    rgbe[y, x : x + count, c] = raw[pos + 1]
+                    pos += 2
+                else:
+                    if count == 0 or x + count > width or pos + 1 + count > len(raw):
+                        raise ValueError(f"{name}: corrupt Radiance HDR scan line {y}")
+                    rgbe[y, x : x + count, c] = raw[pos + 1 : pos + 1 + count]
+                    pos += 1 + count
+                x += count
+    e = rgbe[:, :, 3].astype(np.int32)
+    scale = np.where(e > 0, np.ldexp(1.0, e - 136), 0.0) / exposure
+    return (rgbe[:, :, :3].astype(np.float64) * scale[:, :, None]).astype(np.float32)
+
+
+def decode_hdr_image(data: bytes, kind: str, *, name: str) -> np.ndarray:
+    """A float image from its bytes: ``kind`` is ``.exr``, ``.pfm`` or ``.hdr``
+    (``renderer.scene.files.sniff``); float32 HxWx3, or ``ValueError`` naming ``name``."""
+    if kind == ".exr":
+        return decode_exr(data, name=name)
+    if kind == ".pfm":
+        return decode_pfm(data, name=name)
+    if kind == ".hdr":
+        return decode_rgbe(data, name=name)
+    raise ValueError(f"{name}: not a float image (EXR, PFM or Radiance HDR)")
+
+
 # --- helpers --------------------------------------------------------------------------------------
 
 
-def _extension(path: str | os.PathLike) -> str:
+def _extension(path: str | os.PathLike, supported: tuple[str, ...] = SUPPORTED_EXTENSIONS) -> str:
     ext = Path(path).suffix.lower()
-    if ext not in SUPPORTED_EXTENSIONS:
+    if ext not in supported:
         raise ValueError(
             f"{path}: unsupported image extension {ext or '(none)'!r}; "
-            f"supported: {', '.join(SUPPORTED_EXTENSIONS)}"
+            f"supported: {', '.join(supported)}"
         )
     return ext
 
