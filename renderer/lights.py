@@ -10,13 +10,16 @@ One light is chosen per shading point with probability ``light_pmf`` in proporti
   by area, spheres uniformly inside the cone they subtend (pbrt-v4 Sphere::Sample);
 - point lights: intensity I (W/sr), radiance at distance r is I/r²;
 - directional lights: irradiance E (W/m²) on a surface facing them;
-- the constant background: radiance L in every direction, sampled uniformly over the sphere.
+- the constant background: radiance L in every direction, sampled uniformly over the sphere;
+- the environment image (``renderer.environment``): its radiance by direction, sampled by
+  luminance × sin θ from a piecewise-constant 2D distribution.
 """
 
 from __future__ import annotations
 
 import math
 
+from renderer.environment import environment_sample
 from renderer.geometry.shapes import QUAD, SPHERE
 from renderer.jit import inline_kernel, kernel
 from renderer.sampling import INV_4PI, sample_discrete, uniform_cone, uniform_triangle
@@ -26,6 +29,7 @@ AREA = 0
 POINT = 1
 DIRECTIONAL = 2
 BACKGROUND = 3
+ENVIRONMENT = 4
 
 INF = math.inf
 
@@ -48,8 +52,8 @@ def _sphere_cone(geo, p):
 
 @inline_kernel
 def sample_light(light_kind, light_prim, light_data, light_cdf, light_pmf, prim_kind, prim_geo,
-                 p, u_sel, u1, u2):
-    """Choose a light and a direction to it from p.
+                 env_image, env_marginal, env_conditional, env_rotation, p, u_sel, u1, u2):
+    """Choose a light and a direction to it from p (``env_*``: the environment's arrays).
 
     Returns (wi, Li, pdf, t_max, is_delta): Li is the radiance (or, for delta lights, the
     irradiance-like quantity I/r² or E) arriving along wi, pdf the probability density per unit
@@ -83,6 +87,10 @@ def sample_light(light_kind, light_prim, light_data, light_cdf, light_pmf, prim_
         phi = 2.0 * math.pi * u2
         wi = (r * math.cos(phi), r * math.sin(phi), z)
         return wi, radiance, pmf * INV_4PI, INF, False
+    if kind == ENVIRONMENT:
+        wi, le, pdf = environment_sample(env_image, env_marginal, env_conditional, env_rotation,
+                                         u1, u2)
+        return wi, le, pmf * pdf, INF, False
 
     # Area light
     prim = light_prim[li]

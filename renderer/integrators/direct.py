@@ -29,7 +29,8 @@ def light_sample(S, p, key, dim, sidx, sob):
     """One sample of the scene's lights seen from p, from the vertex's light dimensions (0–2):
     (wi, Li, pdf, distance to the light point, delta)."""
     return sample_light(S.light_kind, S.light_prim, S.light_data, S.light_cdf, S.light_pmf,
-                        S.prim_kind, S.prim_geo, p, draw(S, key, dim, 0, sidx, sob),
+                        S.prim_kind, S.prim_geo, S.env_image, S.env_marginal, S.env_conditional,
+                        S.env_rotation, p, draw(S, key, dim, 0, sidx, sob),
                         draw(S, key, dim, 1, sidx, sob), draw(S, key, dim, 2, sidx, sob))
 
 

@@ -24,6 +24,7 @@ import math
 import numpy as np
 from numba import prange
 
+from renderer.environment import direction_to_uv, environment_pdf, environment_radiance
 from renderer.geometry.bvh import intersect_closest, traversal_stack
 from renderer.geometry.shapes import spawn_offset, surface_point
 from renderer.integrators.direct import surface_direct
@@ -39,7 +40,7 @@ from renderer.integrators.subsurface.diffusion import diffusion_exit
 from renderer.integrators.subsurface.single_scatter import after_the_event, passes_straight
 from renderer.integrators.subsurface.volumetric import ENDED, SCATTERED, medium_segment
 from renderer.jit import block, inline_kernel, kernel, parallel_kernel
-from renderer.lights import area_light_pdf
+from renderer.lights import ENVIRONMENT, area_light_pdf
 from renderer.materials.bsdf import (
     DIELECTRIC,
     DIFFUSE_ENTRY,
@@ -118,14 +119,22 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
                 dim += DIMS_PER_BOUNCE
                 continue
 
-        # Escaped: the constant background, MIS-weighted against its light sample
+        # Escaped: the constant background or the environment image, MIS-weighted against its
+        # light sample
         if prim < 0:
             if env >= 0 and not skip_emission:
+                if S.light_kind[env] == ENVIRONMENT:
+                    u_env, v_env, _ = direction_to_uv(S.env_rotation, d)
+                    le = environment_radiance(S.env_image, u_env, v_env)
+                    pdf_env = environment_pdf(S.env_marginal, S.env_conditional, S.env_rotation,
+                                              d)
+                else:
+                    le = (S.background[0], S.background[1], S.background[2])
+                    pdf_env = INV_4PI
                 w = 1.0
                 if not unweighted:
-                    w = power_heuristic(prev_pdf, S.light_pmf[env] * INV_4PI)
-                lr, lg, lb = (lr + br * S.background[0] * w, lg + bg * S.background[1] * w,
-                              lb + bb * S.background[2] * w)
+                    w = power_heuristic(prev_pdf, S.light_pmf[env] * pdf_env)
+                lr, lg, lb = lr + br * le[0] * w, lg + bg * le[1] * w, lb + bb * le[2] * w
             break
 
         # The surface point and its material

@@ -14,11 +14,12 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+from renderer.environment import build_environment, no_environment
 from renderer.geometry.bvh import BVH_WIDTH, MAX_LEAF, build_bvh, stack_size, widen_bvh
 from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_order
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
 from renderer.geometry.transform import rotation_matrix
-from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, POINT
+from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, ENVIRONMENT, POINT
 from renderer.materials.auto import auto_choice
 from renderer.materials.bsdf import (
     BACKLIGHT,
@@ -64,6 +65,8 @@ SceneArrays = namedtuple(
         "mat_kind", "mat_param",
         # lights (renderer.lights)
         "light_kind", "light_prim", "light_data", "light_cdf", "light_pmf", "env_light",
+        # the environment image and its sampling tables (renderer.environment)
+        "env_image", "env_marginal", "env_conditional", "env_rotation",
         # camera: position, forward, right, up (unit), tan(fov/2), aspect; background radiance
         "camera", "background",
         # [1] when shadow rays may cross a surface: index-matched media, single-scatter objects
@@ -299,6 +302,17 @@ def compile_scene(scene) -> CompiledScene:
         extra_kind.append(BACKGROUND)
         extra_data.append(row)
         extra_power.append(4.0 * math.pi**2 * radius**2 * _luminance(background))
+    env_arrays = no_environment()
+    if scene.environment is not None:
+        env = scene.environment
+        rotation = (np.eye(3) if env.rotate is None
+                    else rotation_matrix(env.rotate.axis, env.rotate.angle))
+        *env_arrays, integral = build_environment(env.pixels(), env.scale, rotation)
+        if integral > 0.0:
+            env_light = len(emissive) + len(extra_kind)
+            extra_kind.append(ENVIRONMENT)
+            extra_data.append(np.zeros(6))
+            extra_power.append(math.pi * radius**2 * integral)
     if extra_kind:
         light_kind.append(np.asarray(extra_kind, np.int32))
         light_prim.append(np.full(len(extra_kind), -1, np.int64))
@@ -324,6 +338,8 @@ def compile_scene(scene) -> CompiledScene:
         mat_kind=mat_kind, mat_param=mat_param,
         light_kind=light_kind_a, light_prim=light_prim_a, light_data=light_data_a,
         light_cdf=light_cdf, light_pmf=light_pmf, env_light=np.array([env_light], np.int64),
+        env_image=env_arrays[0], env_marginal=env_arrays[1], env_conditional=env_arrays[2],
+        env_rotation=env_arrays[3],
         camera=_camera(scene.camera, scene.film.width, scene.film.height),
         background=background,
         null_media=np.array([bool(np.any(

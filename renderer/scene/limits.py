@@ -16,6 +16,9 @@ Field              Default        Environment variable      What it bounds
 ``max_triangles``  4 000 000      ``LUCENT_MAX_TRIANGLES``  triangles over all meshes
 ``max_lights``     1 000          ``LUCENT_MAX_LIGHTS``     ``len(lights)``
 ``max_materials``  1 000          ``LUCENT_MAX_MATERIALS``  ``len(materials)``
+``max_environment  8192           ``LUCENT_MAX_ENVIRONMENT  the environment image's width and
+_side``                           _SIDE``                   height, each
+``max_texels``     67 108 864     ``LUCENT_MAX_TEXELS``     texels over all images of a scene
 =================  =============  ========================  =================================
 
 ``Limits()`` reads the environment each time it is built; ``Limits(max_spp=128)`` overrides one
@@ -68,6 +71,13 @@ class Limits(BaseSettings):
 
     max_materials: int = Field(default=1_000, ge=1)
     """The most entries in ``materials``."""
+
+    max_environment_side: int = Field(default=8192, ge=2)
+    """The widest and tallest environment image, in texels (an 8192 × 4096 latitude–longitude
+    image holds 384 MiB as float32 RGB, and its sampling tables twice that)."""
+
+    max_texels: int = Field(default=67_108_864, ge=1)
+    """The most texels over all the images a scene reads (textures and the environment)."""
 
     @classmethod
     def env_name(cls, field: str) -> str:

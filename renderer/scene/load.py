@@ -45,6 +45,9 @@ FILE = "(file)"
 MESH_KINDS = (".obj", ".ply")
 """The mesh files a scene may name."""
 
+ENVIRONMENT_KINDS = (".exr", ".pfm", ".hdr")
+"""The images an environment may be."""
+
 # How many faulty triangles of one mesh are named before the rest are only counted.
 MAX_REPORTED = 5
 
@@ -131,6 +134,8 @@ def load_scene(
             errors += _check_mesh(scene, i, obj, files)
             total_triangles += obj.num_triangles
     errors += _check_count("objects", total_triangles, limits, "max_triangles", "triangles")
+    if scene.environment is not None:
+        errors += _check_environment(scene, files, limits)
     if errors:
         raise SceneError(errors)
     return scene
@@ -510,6 +515,56 @@ def _read_mesh_file(
         return [(field, f"{label!r}: vertex coordinates must be finite numbers")]
     source = None if mesh.asset is not None else Path(label)
     return vertices, triangles.astype(np.int64, copy=False), source
+
+
+# --- Environment ---------------------------------------------------------------------------------
+
+
+def _check_environment(scene: Scene, files: FileSource, limits: Limits) -> list[tuple[str, str]]:
+    """Read the environment image and check it: exclusive with ``background``, a float image of
+    3 colour channels within the size limits, every texel finite and ≥ 0."""
+    env = scene.environment
+    assert env is not None
+    errors = []
+    if "background" in scene.model_fields_set:
+        errors.append(("environment", "exclusive with background: give one or the other"))
+    read = files.read(env.image, "environment.image", ENVIRONMENT_KINDS)
+    if isinstance(read, list):
+        return errors + read
+    data, kind, label = read
+    field = "environment.image" + (".asset" if isinstance(env.image, AssetRef) else "")
+    try:
+        # Lazily: the image readers (and the OpenEXR library) only for scenes that use them
+        from renderer.film.image_io import decode_hdr_image
+
+        pixels = decode_hdr_image(data, kind, name=label)
+    except ValueError as exc:
+        return errors + [(field, str(exc))]
+    height, width = pixels.shape[:2]
+    side = limits.max_environment_side
+    if width > side or height > side:
+        return errors + [(field, f"{label}: {width}x{height} texels exceed the limit {side} per "
+                          f"side ({Limits.env_name('max_environment_side')})")]
+    if width * height > limits.max_texels:
+        return errors + [(field, f"{label}: {width}x{height} = {width * height} texels exceed the "
+                          f"limit {limits.max_texels} ({Limits.env_name('max_texels')})")]
+    if height < 2:
+        return errors + [(field, f"{label}: an environment image needs at least 2 rows (one "
+                          "for each pole)")]
+    bad = ~np.isfinite(pixels)
+    if bad.any():
+        y, x, c = np.argwhere(bad)[0]
+        return errors + [(field, f"{label}: {int(bad.any(axis=2).sum())} texels are not finite "
+                          f"numbers (the first at row {y}, column {x}: {pixels[y, x, c]})")]
+    negative = pixels < 0.0
+    if negative.any():
+        y, x, c = np.argwhere(negative)[0]
+        return errors + [(field, f"{label}: {int(negative.any(axis=2).sum())} texels are "
+                          f"negative (the first at row {y}, column {x}: {pixels[y, x, c]:g}); "
+                          "radiance must be ≥ 0")]
+    if not errors:
+        env._attach_pixels(pixels)
+    return errors
 
 
 # --- Mesh checks (vectorized) ---------------------------------------------------------------------

@@ -750,6 +750,35 @@ Light = Annotated[PointLight | DirectionalLight, Field(discriminator="type")]
 LIGHT_TYPES = ("point", "directional")
 
 
+# --- Environment (v1.1, "Light from an environment") ----------------------------------------------
+
+
+class Environment(SceneModel):
+    """A latitude–longitude image of linear radiance around the scene (``renderer.environment``):
+    seen by every ray that escapes and sampled as a light. ``load_scene`` reads the image."""
+
+    image: FileRef
+    """EXR, PFM or Radiance ``.hdr``: a path (the command line) or ``{"asset": "sha256:…"}``."""
+    scale: NonNegative = 1.0
+    """Multiplies the image's radiance."""
+    rotate: Rotation | None = None
+    """Turns the environment about the world origin (a world direction d looks up the image at
+    rotate⁻¹·d)."""
+
+    _check_image = field_validator("image")(check_file_ref)
+    _pixels: np.ndarray | None = PrivateAttr(default=None)
+
+    def pixels(self) -> np.ndarray:
+        """The image, float32 (H, W, 3), as ``load_scene`` read it."""
+        if self._pixels is None:
+            raise ValueError("the environment image has not been read: load the scene with "
+                             "load_scene")
+        return self._pixels
+
+    def _attach_pixels(self, pixels: np.ndarray) -> None:
+        self._pixels = pixels
+
+
 # --- Scene ----------------------------------------------------------------------------------------
 
 
@@ -761,6 +790,8 @@ class Scene(SceneModel):
     render: RenderSettings = Field(default_factory=RenderSettings)
     background: Colour = (0.0, 0.0, 0.0)
     """Constant radiance of rays that escape; it lights the scene."""
+    environment: Environment | None = None
+    """An image of the radiance around the scene instead of ``background`` (v1.1)."""
     materials: dict[str, Material]
     objects: list[Object] = Field(min_length=1)
     lights: list[Light] = Field(default_factory=list)

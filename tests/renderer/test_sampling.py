@@ -24,6 +24,7 @@ import math
 import numpy as np
 import pytest
 
+from renderer.environment import no_environment
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, intersect_prim, surface_point
 from renderer.jit import alloc_kernel
 from renderer.lights import AREA, BACKGROUND, POINT, area_light_pdf, sample_light
@@ -142,9 +143,18 @@ def _bsdf_eval_pdf_many(kind, param, wo, n, wi):
     return f, pdf
 
 
-@alloc_kernel
+NO_ENVIRONMENT = no_environment()
+
+
 def _light_sample_many(light_kind, light_prim, light_data, light_cdf, light_pmf, prim_kind,
                        prim_geo, p, u):
+    return _light_sample_env_many(light_kind, light_prim, light_data, light_cdf, light_pmf,
+                                  prim_kind, prim_geo, *NO_ENVIRONMENT, p, u)
+
+
+@alloc_kernel
+def _light_sample_env_many(light_kind, light_prim, light_data, light_cdf, light_pmf, prim_kind,
+                           prim_geo, env_image, env_marginal, env_conditional, env_rotation, p, u):
     m = u.shape[0]
     wi_out = np.empty((m, 3))
     li_out = np.empty((m, 3))
@@ -153,7 +163,9 @@ def _light_sample_many(light_kind, light_prim, light_data, light_cdf, light_pmf,
     delta = np.empty(m, np.bool_)
     for i in range(m):
         wi, li, pd, t, d = sample_light(light_kind, light_prim, light_data, light_cdf, light_pmf,
-                                        prim_kind, prim_geo, p, u[i, 0], u[i, 1], u[i, 2])
+                                        prim_kind, prim_geo, env_image, env_marginal,
+                                        env_conditional, env_rotation, p, u[i, 0], u[i, 1],
+                                        u[i, 2])
         for j in range(3):
             wi_out[i, j] = wi[j]
             li_out[i, j] = li[j]
