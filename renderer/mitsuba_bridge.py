@@ -75,6 +75,11 @@ Mapping (Lucent → Mitsuba 3)
  * - lights: point / directional / background
    - ``point`` (position, intensity), ``directional`` (direction = the way light travels,
      irradiance), ``constant`` (radiance) when the background is non-zero.
+ * - environment {image, scale, rotate}
+   - ``envmap`` with the image Lucent reads (``bitmap``: the same float pixels, whatever the
+     file's format), ``scale``, and ``to_world`` = the rotation (Mitsuba looks a world direction
+     up at to_world⁻¹·d, as Lucent does). The image is a path relative to ``base_dir`` or an
+     asset of the local asset folder.
 
 RGB values above 1 (media ``sigma_t``) are wrapped in a ``constvolume`` because Mitsuba's plain
 ``rgb`` texture rejects reflectance-like values outside [0, 1]; emitter ``rgb`` is unbounded.
@@ -526,6 +531,38 @@ def _lights(scene: dict) -> dict:
     return lights
 
 
+def _environment(mi: Any, scene: dict, base_dir: str | os.PathLike | None) -> dict:
+    """The ``envmap`` emitter of the scene's ``environment`` (empty without one)."""
+    env = scene.get("environment")
+    if env is None:
+        return {}
+    from pathlib import Path
+
+    from renderer.film.image_io import decode_hdr_image
+    from renderer.scene.files import FileSource, local_assets
+    from renderer.scene.schema import AssetRef
+
+    ref = env.get("image")
+    if isinstance(ref, dict):
+        ref = AssetRef(**ref)
+    source = FileSource(allow_paths=True, base_dir=None if base_dir is None else Path(base_dir),
+                        assets=local_assets())
+    read = source.read(ref, "environment.image", (".exr", ".pfm", ".hdr"))
+    if isinstance(read, list):
+        raise ValueError("; ".join(f"{path}: {message}" for path, message in read))
+    data, kind, label = read
+    pixels = decode_hdr_image(data, kind, name=label)
+    emitter: dict[str, Any] = {"type": "envmap", "bitmap": mi.Bitmap(pixels),
+                               "scale": float(env.get("scale", 1.0))}
+    rotate = env.get("rotate")
+    if rotate is not None:
+        r = np.eye(4)
+        r[:3, :3] = _rotation_matrix(_vec3(rotate["axis"], "environment.rotate.axis"),
+                                     float(rotate["angle"]))
+        emitter["to_world"] = mi.ScalarTransform4f(r)
+    return {"environment": emitter}
+
+
 def to_mitsuba_dict(
     scene: dict, *, variant: str | None = None, base_dir: str | os.PathLike | None = None
 ) -> dict:
@@ -585,6 +622,7 @@ def to_mitsuba_dict(
     out: dict[str, Any] = {"type": "scene", "integrator": integrator, "sensor": sensor}
     out.update(shapes)
     out.update(_lights(scene))
+    out.update(_environment(mi, scene, base_dir))
     return out
 
 

@@ -126,8 +126,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
                 if S.light_kind[env] == ENVIRONMENT:
                     u_env, v_env, _ = direction_to_uv(S.env_rotation, d)
                     le = environment_radiance(S.env_image, u_env, v_env)
-                    pdf_env = environment_pdf(S.env_marginal, S.env_conditional, S.env_rotation,
-                                              d)
+                    pdf_env = environment_pdf(S.env_image, S.env_marginal, S.env_conditional,
+                                              S.env_rotation, d)
                 else:
                     le = (S.background[0], S.background[1], S.background[2])
                     pdf_env = INV_4PI

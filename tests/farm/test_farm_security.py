@@ -177,6 +177,10 @@ def test_no_request_field_can_name_a_server_path():
     assert scene_fields == {
         "Mesh.path",  # refused by the API (test below); the CLI alone reads mesh files
         "Mesh.asset",  # "sha256:" and 64 hex digits (pattern-checked), a content address
+        "AssetRef.asset",  # the same content address, in a file reference
+        # a file reference: a path is refused without allow_paths, by name
+        # (tests/renderer/scene/test_environment_load.py)
+        "Environment.image",
         "Mesh.material", "Sphere.material", "Quad.material", "Box.material",  # names in
         "Scene.materials.*",  # `materials`, looked up there, never opened
     }

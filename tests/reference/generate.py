@@ -47,7 +47,11 @@ import numpy as np
 
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = ("cornell_box", "glass_sphere", "translucent_sphere", "backlit_slab", "dense_sphere",
-          "chromatic_wax", "chromatic_slab")
+          "chromatic_wax", "chromatic_slab", "env_diffuse_sphere", "env_rough_glass_sphere")
+# Scenes kept beside their references in tests/data/ (with the environment image they name,
+# sky_64x32.exr: ``python examples/make_sky.py tests/data/sky_64x32.exr --width 64 --height 32
+# --sun-radius 5``), already at the reference film size.
+DATA_SCENES = ("env_diffuse_sphere", "env_rough_glass_sphere")
 # Chromatic media (σt per channel): the reference is split by channel, three renders with the
 # medium made grey at each channel's σt, channel k taken from the k-th (RGB transport is
 # independent per channel). Mitsuba's RGB volpath samples a chromatic medium's flights from one
@@ -67,6 +71,8 @@ REF_SEED = 0
 
 def _reduced(name: str) -> dict:
     """The example scene at the reference film size; everything else (max_depth too) unchanged."""
+    if name in DATA_SCENES:
+        return json.loads((ROOT / "tests" / "data" / f"{name}.json").read_text())
     example = "translucent_sphere" if name == "dense_sphere" else name
     scene = json.loads((ROOT / "examples" / f"{example}.json").read_text())
     scene = copy.deepcopy(scene)
@@ -97,7 +103,8 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.scenes:
         scene = _reduced(name)
         # Warm-up: the first render of a scene JIT-compiles its kernels; keep that out of timings.
-        render_mitsuba(scene, spp=1, seed=REF_SEED, variant=variant)
+        base_dir = ROOT / "tests" / "data" if name in DATA_SCENES else None
+        render_mitsuba(scene, spp=1, seed=REF_SEED, variant=variant, base_dir=base_dir)
         jobs = [(f"{name}_ref.npy", args.ref_spp, REF_SEED)]
         if name != "dense_sphere":
             jobs += [(f"{name}_spp{args.spp}_seed{k}.npy", args.spp, k) for k in NOISY_SEEDS]
@@ -106,7 +113,8 @@ def main(argv: list[str] | None = None) -> int:
             if name in CHROMATIC:
                 img = render_mitsuba_split(scene, spp=spp, seed=seed, variant=variant)
             else:
-                img = render_mitsuba(scene, spp=spp, seed=seed, variant=variant)
+                img = render_mitsuba(scene, spp=spp, seed=seed, variant=variant,
+                                     base_dir=base_dir)
             seconds = time.perf_counter() - start
             if not np.all(np.isfinite(img)):
                 raise RuntimeError(f"{filename}: non-finite pixels")

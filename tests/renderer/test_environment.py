@@ -8,8 +8,6 @@ furnace images are means over ~1000 pixels × 64 spp whose standard error is bel
 
 from __future__ import annotations
 
-import math
-
 import numpy as np
 import pytest
 
@@ -50,19 +48,19 @@ def _sample_many(image, marginal, conditional, rot, u):
     le = np.empty((m, 3))
     pdf = np.empty(m)
     for i in range(m):
-        w, l, p = environment_sample(image, marginal, conditional, rot, u[i, 0], u[i, 1])
+        w, radiance, p = environment_sample(image, marginal, conditional, rot, u[i, 0], u[i, 1])
         for j in range(3):
             wi[i, j] = w[j] if p > 0.0 else np.nan
-            le[i, j] = l[j]
+            le[i, j] = radiance[j]
         pdf[i] = p
     return wi, le, pdf
 
 
 @alloc_kernel
-def _pdf_many(marginal, conditional, rot, d):
+def _pdf_many(image, marginal, conditional, rot, d):
     out = np.empty(d.shape[0])
     for i in range(d.shape[0]):
-        out[i] = environment_pdf(marginal, conditional, rot, (d[i, 0], d[i, 1], d[i, 2]))
+        out[i] = environment_pdf(image, marginal, conditional, rot, (d[i, 0], d[i, 1], d[i, 2]))
     return out
 
 
@@ -119,7 +117,8 @@ def test_environment_sampling_chi2_uv(rng, chi2_points, env):
     def pdf(x):
         th, ph = np.pi * x[:, 1], 2 * np.pi * x[:, 0]
         local = np.stack([np.sin(ph) * np.sin(th), np.cos(th), -np.cos(ph) * np.sin(th)], axis=1)
-        return _pdf_many(marginal, conditional, rot, local @ rot.T) * 2 * np.pi**2 * np.sin(th)
+        p = _pdf_many(image, marginal, conditional, rot, local @ rot.T)
+        return p * 2 * np.pi**2 * np.sin(th)
 
     chi2_points(sampler, pdf, N, shape=(2 * w, h - 1), sub=4, what="environment_sample (u, v)")
 
@@ -133,8 +132,8 @@ def test_environment_sampling_chi2_directions(rng, chi2_directions):
     image, marginal, conditional, rot, _ = build_environment(img, 1.0, ROTATIONS["tilted"])
     chi2_directions(lambda n: _sample_many(image, marginal, conditional, rot,
                                            rng.random((n, 2)))[0],
-                    lambda w: _pdf_many(marginal, conditional, rot, w), N, n_cos=30, n_phi=40,
-                    sub=16, what="environment_sample")
+                    lambda w: _pdf_many(image, marginal, conditional, rot, w), N, n_cos=30,
+                    n_phi=40, sub=16, what="environment_sample")
 
 
 def test_sampled_pdf_and_radiance_agree_with_the_lookups(rng, env):
@@ -142,18 +141,18 @@ def test_sampled_pdf_and_radiance_agree_with_the_lookups(rng, env):
     wi, le, pdf = _sample_many(image, marginal, conditional, rot, rng.random((20_000, 2)))
     ok = pdf > 0.0
     assert ok.mean() > 0.999
-    np.testing.assert_allclose(pdf[ok], _pdf_many(marginal, conditional, rot, wi[ok]),
+    np.testing.assert_allclose(pdf[ok], _pdf_many(image, marginal, conditional, rot, wi[ok]),
                                rtol=1e-6)
     np.testing.assert_allclose(le[ok], _radiance_many(image, rot, wi[ok]), rtol=1e-5,
                                atol=1e-6)
 
 
 def test_pdf_integrates_to_one(rng, env):
-    _, marginal, conditional, rot = env
+    image, marginal, conditional, rot = env
     # Monte Carlo over uniform directions: E[4π p(ω)] = ∫ p dω. 2·10⁶ samples of a density whose
     # largest value (the sun's cell) is ~40 times its mean: standard error < 0.5 %.
     d = uniform_directions(rng, 2_000_000)
-    integral = 4.0 * np.pi * _pdf_many(marginal, conditional, rot, d).mean()
+    integral = 4.0 * np.pi * _pdf_many(image, marginal, conditional, rot, d).mean()
     assert integral == pytest.approx(1.0, abs=0.015)
     # And exactly, on a grid of (u, v) midpoints that every cell holds a whole number of
     h, w = 12, 24
@@ -163,7 +162,7 @@ def test_pdf_integrates_to_one(rng, env):
     uu, vv = np.meshgrid(u, v)
     th, ph = np.pi * vv.ravel(), 2 * np.pi * uu.ravel()
     local = np.stack([np.sin(ph) * np.sin(th), np.cos(th), -np.cos(ph) * np.sin(th)], axis=1)
-    p = _pdf_many(marginal, conditional, rot, local @ rot.T)
+    p = _pdf_many(image, marginal, conditional, rot, local @ rot.T)
     # dω = 2π² sin θ du dv
     assert np.sum(p * 2 * np.pi**2 * np.sin(th)) / uu.size == pytest.approx(1.0, rel=1e-9)
 
@@ -180,12 +179,26 @@ def test_light_sampling_estimate_is_unbiased(rng, env):
     np.testing.assert_allclose(estimate, quadrature, rtol=0.02)
 
 
-def test_cell_weights_cover_the_bilinear_support():
-    # A cell is weighted wherever one of its four corners is bright
+@pytest.mark.parametrize("k", [1, 2, 3])
+def test_cell_weights_are_the_bilinear_means(k):
+    # A part of a cell is weighted wherever the bilinear radiance is > 0 in it, by its mean there
+    # (checked against a fine quadrature of the lookup, with sin θ at the part's centre)
     img = np.zeros((5, 8, 3), np.float32)
     img[2, 7] = 1.0
-    f = cell_weights(img)
-    assert set(zip(*np.nonzero(f), strict=True)) == {(1, 6), (1, 7), (2, 6), (2, 7)}
+    img[4, 0] = 0.5
+    f = cell_weights(img, k)
+    assert f.shape == (4 * k, 8 * k)
+    m = 8 * k
+    frac = (np.arange(m) + 0.5) / m
+    for r, c in [(1 * k, 6 * k), (2 * k - 1, 8 * k - 1), (3 * k, 7 * k), (0, 0), (0, 3 * k)]:
+        # Lookup coordinates inside the part (midpoints: exact for a bilinear function)
+        x, y = np.meshgrid((c + frac) / k, (r + frac) / k)
+        u, v = ((x + 0.5) / 8 % 1.0).ravel(), (y / 4).ravel()
+        vals = np.array([environment_radiance(img, ui, vi)[0]
+                         for ui, vi in zip(u, v, strict=True)])
+        lum = vals.mean() * np.sin(np.pi * (r + 0.5) / (4 * k))  # R = G = B: luminance = R
+        assert f[r, c] == pytest.approx(lum, rel=1e-9, abs=1e-12), (r, c)
+    assert f[k, 6 * k] > 0 and f[2 * k - 1, 8 * k - 1] > 0 and f[0, 3 * k] == 0
 
 
 # --- orientation ----------------------------------------------------------------------------------
