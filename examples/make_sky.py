@@ -14,7 +14,8 @@ The image follows the scene format's mapping (u = atan2(x, −z)/2π to the righ
 - ground: below the horizon, a diffuse ground of albedo ``--ground`` lit by the sun and the sky
   (its radiance ρ/π times the irradiance on a horizontal surface), fading into a soft horizon.
 
-Linear radiance, float32 RGB, ZIP-compressed. Each texel holds the radiance at its direction (the
+Linear radiance, RGB, ZIP-compressed, HALF (16-bit float: 3 significant digits, up to 65504, as
+HDRI sites ship them; ``--pixel-type FLOAT`` for 32-bit). Each texel holds the radiance at its direction (the
 environment looks up texels at column centres (i + ½)/W and rows j/(H − 1) from pole to pole).
 """
 
@@ -99,6 +100,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sky-brightness", type=float, default=1.0)
     parser.add_argument("--ground", type=float, nargs=3, default=(0.35, 0.3, 0.25),
                         help="the ground's albedo (RGB)")
+    parser.add_argument("--pixel-type", choices=("HALF", "FLOAT"), default="HALF")
     args = parser.parse_args(argv)
     if args.width < 2 or args.height < 2:
         parser.error("--width and --height must be at least 2")
@@ -107,7 +109,10 @@ def main(argv: list[str] | None = None) -> int:
                      sun_irradiance=args.sun_irradiance, sky_brightness=args.sky_brightness,
                      ground=args.ground)
     args.out.parent.mkdir(parents=True, exist_ok=True)
-    args.out.write_bytes(encode_exr(image, compression="ZIP"))
+    if args.pixel_type == "HALF" and image.max() > 65504.0:
+        parser.error(f"the sun's radiance {image.max():.4g} exceeds HALF's range: --pixel-type "
+                     "FLOAT, or a larger --sun-radius")
+    args.out.write_bytes(encode_exr(image, compression="ZIP", pixel_type=args.pixel_type))
     print(f"{args.out}: {args.width}x{args.height}, radiance {image.min():.3g}..{image.max():.3g}")
     return 0
 
