@@ -2,6 +2,8 @@
 
     .venv/bin/python -m bench.equal_error [--scenes cornell_box translucent_sphere backlit_slab]
                                           [--ladder 4 16 64 256 1024] [--target-spp 256]
+    .venv/bin/python -m bench.equal_error --scenes env_diffuse_sphere env_rough_glass_sphere \
+                                          env_wax_sphere   # lit by an environment image
 
 Each scene is drawn at the resolution of its converged reference in ``tests/data/<name>_ref.npy``
 (Mitsuba 3, 16384 spp, 64×48) by every renderer at a ladder of spp; each rung is timed (warm: the
@@ -44,8 +46,14 @@ DATA = ROOT / "tests" / "data"
 def scene_at_reference(name: str, ref: np.ndarray, method: str | None = None,
                        sampler: str | None = None) -> dict:
     """The example at the reference's resolution; ``method`` replaces every translucent method,
-    ``sampler`` sets ``render.sampler``."""
-    scene = json.loads((ROOT / "examples" / f"{name}.json").read_text())
+    ``sampler`` sets ``render.sampler``. A scene kept beside its reference in tests/data/ (the
+    environment-lit ``env_*``) is taken from there, its environment image's path made absolute."""
+    data_scene = DATA / f"{name}.json"
+    folder = DATA if data_scene.exists() else ROOT / "examples"
+    scene = json.loads((folder / f"{name}.json").read_text())
+    env = scene.get("environment")
+    if env is not None and isinstance(env.get("image"), str):
+        env["image"] = str((folder / env["image"]).resolve())
     scene["film"] = {"width": ref.shape[1], "height": ref.shape[0]}
     if sampler is not None:
         scene["render"]["sampler"] = sampler
@@ -62,7 +70,7 @@ def ladder_lucent(scene: dict, ladder: list[int]) -> list[tuple[int, float, np.n
     from renderer.scene import load_scene
     from renderer.scene.compile import compile_scene
 
-    compiled = compile_scene(load_scene(copy.deepcopy(scene)))
+    compiled = compile_scene(load_scene(copy.deepcopy(scene), allow_paths=True))
     render(compiled, 1)  # loads the kernels (numba cache) outside the timing
     rungs = []
     for k, spp in enumerate(ladder):
