@@ -9,6 +9,7 @@ from celery import Celery
 from fastapi import Depends, HTTPException, Request, status
 
 from services.farm.blobs import BlobStore
+from services.farm.records import Records
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 
@@ -37,6 +38,13 @@ async def get_blobs(request: Request) -> BlobStore:
 
 
 BlobsDep = Annotated[BlobStore, Depends(get_blobs)]
+
+
+async def get_records(request: Request) -> Records:
+    return request.app.state.records
+
+
+RecordsDep = Annotated[Records, Depends(get_records)]
 
 
 async def require_token(request: Request, settings: SettingsDep) -> None:

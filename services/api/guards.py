@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import itertools
+import logging
 import math
 from collections.abc import Iterable
 from typing import Any
@@ -29,6 +30,8 @@ from fastapi.responses import JSONResponse
 from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.farm.availability import RETRY_AFTER, unavailable_detail
+
+log = logging.getLogger(__name__)
 
 
 def _too_large(size: str, limit: int) -> str:
@@ -167,3 +170,12 @@ async def store_unavailable(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse(status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
                         headers={"Retry-After": str(RETRY_AFTER)},
                         content={"detail": unavailable_detail(exc)})
+
+
+async def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """503 for a route whose job database (``services.farm.records``) does not answer now."""
+    log.warning("the job database is unavailable: %s", exc)
+    return JSONResponse(status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
+                        headers={"Retry-After": str(RETRY_AFTER)},
+                        content={"detail": "the farm's job database is unavailable; try again "
+                                           "shortly"})

@@ -144,6 +144,15 @@ class Settings(BaseSettings):
         os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share") / "lucent")
     """The farm's data folder (the service's; workers write nothing there)."""
 
+    database_url: str | None = Field(
+        default=None, validation_alias=AliasChoices("DATABASE_URL", "LUCENT_DATABASE_URL"))
+    """The job records' database (a SQLAlchemy URL): ``postgresql://user@host/db`` for a
+    deployment (psycopg 3); unset, SQLite in ``data_dir`` (``lucent.db``: nothing to install)."""
+
+    database_schema: str | None = Field(default=None, pattern=r"^[a-z_][a-z0-9_]{0,62}$")
+    """PostgreSQL only: the schema of the farm's tables (created if missing), so that two farms
+    (or test runs) can share one database, as ``key_prefix`` separates them in Redis."""
+
     blob_dir: Path | None = None
     """The blob store's folder, where done jobs' images are kept; default ``blobs`` in
     ``data_dir``. Every API process of one farm must see the same folder (a shared volume)."""
@@ -156,6 +165,11 @@ class Settings(BaseSettings):
     keep_days: float | None = Field(default=None, gt=0)
     """Days a finished (done, failed, cancelled) job is kept before the sweeper deletes it, keys
     and image; unset (the default): kept until ``DELETE /api/jobs/{id}``."""
+
+    @property
+    def database(self) -> str:
+        """The job database's URL: ``DATABASE_URL``, else SQLite in the data folder."""
+        return self.database_url or f"sqlite:///{self.data_dir / 'lucent.db'}"
 
     @property
     def blob_path(self) -> Path:
