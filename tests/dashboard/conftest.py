@@ -63,6 +63,8 @@ def start_api(redis_url: str, prefix: str, port: int, log) -> subprocess.Popen:
     env = {**os.environ, "REDIS_URL": redis_url, "LUCENT_KEY_PREFIX": prefix,
            "LUCENT_HEARTBEAT_INTERVAL": str(HEARTBEAT), "LUCENT_API_TOKEN": "",
            "PYTHONUNBUFFERED": "1"}
+    if os.environ.get("DATABASE_URL"):  # a schema of its own (tests/conftest.py, farm_state)
+        env["LUCENT_DATABASE_SCHEMA"] = prefix.replace("-", "_")
     return subprocess.Popen(
         [sys.executable, "-m", "uvicorn", "services.api.main:app", "--host", "127.0.0.1",
          "--port", str(port), "--log-level", "warning"],
