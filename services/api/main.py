@@ -18,7 +18,7 @@ from services.api.guards import (
     validation_error,
 )
 from services.api.intake import Intake
-from services.api.routes import dashboard, health, jobs, workers
+from services.api.routes import assets, dashboard, health, jobs, workers
 from services.farm.archive import chores, keep_records
 from services.farm.availability import UNAVAILABLE
 from services.farm.blobs import FileBlobStore
@@ -61,12 +61,14 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     app = FastAPI(title="Lucent", version="0.1.0", lifespan=lifespan,
                   description="A render farm for physically based images of translucent things.")
     app.state.settings = settings
-    app.state.intake = Intake(settings.intake_inline_bytes, settings.intake_processes)
+    app.state.intake = Intake(settings.intake_inline_bytes, settings.intake_processes,
+                              settings.blob_path)
     # Read-only allow-lists for the dashboard, built once: requests name entries, never paths.
     app.state.examples = dashboard.find_examples()
     app.state.figures = dashboard.find_figures()
 
-    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes)
+    app.add_middleware(BodyLimit, max_bytes=settings.max_body_bytes,
+                       paths={"/api/assets": settings.max_asset_bytes})
     app.add_exception_handler(RequestValidationError, validation_error)
     for unavailable in UNAVAILABLE:
         app.add_exception_handler(unavailable, store_unavailable)
@@ -83,6 +85,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
     api_deps = [Depends(require_token)]
     app.include_router(jobs.router, prefix="/api", dependencies=api_deps)
     app.include_router(workers.router, prefix="/api", dependencies=api_deps)
+    app.include_router(assets.router, prefix="/api", dependencies=api_deps)
     app.include_router(dashboard.api_router, prefix="/api", dependencies=api_deps)
     app.include_router(health.router)
     app.include_router(health.metrics_router, dependencies=api_deps)

@@ -22,12 +22,14 @@ import re
 import time
 import uuid
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from celery import Celery
 
 from renderer.materials.auto import auto_choices
 from renderer.scene import Limits, SceneError, load_scene
+from services.farm.blobs import FileBlobStore, asset_reader
 from services.farm.cost import check_cost
 from services.farm.planner import Plan
 from services.farm.queue import enqueue
@@ -81,10 +83,14 @@ class CheckedScene:
     scene_json: bytes  # the scene as submitted, as the store keeps it (workers re-fetch it)
 
 
-def check_scene(scene: Any, limits: Limits) -> CheckedScene | Refusal:
-    """Validate a scene document with ``limits`` (the farm's, read where the request came in)."""
+def check_scene(scene: Any, limits: Limits,
+                blob_root: Path | None = None) -> CheckedScene | Refusal:
+    """Validate a scene document with ``limits`` (the farm's, read where the request came in).
+    Its asset references (``{"asset": "sha256:…"}``) are read from the blob store in
+    ``blob_root``: an unknown one is refused by its field; without a blob store, every one is."""
+    assets = asset_reader(FileBlobStore(blob_root)) if blob_root is not None else None
     try:
-        parsed = load_scene(scene, limits=limits)  # mesh paths are refused
+        parsed = load_scene(scene, limits=limits, assets=assets)  # mesh paths are refused
     except SceneError as err:
         return Refusal(422, [(scene_loc(p), m, "scene") for p, m in err.errors])
     # What `auto` picks for each material (the workers compile the same choice)

@@ -75,6 +75,14 @@ class Settings(BaseSettings):
     max_body_bytes: int = Field(default=64 * 1024 * 1024, ge=1024)
     """The largest request body (HTTP 413 above it): inline meshes make scenes big."""
 
+    max_asset_bytes: int = Field(default=512 * 1024 * 1024, ge=1024)
+    """The largest asset ``POST /api/assets`` takes (HTTP 413 above it): a 1-million-triangle
+    mesh is ~20 MB as binary PLY, ~60 MB as OBJ."""
+
+    asset_cache_bytes: int = Field(default=2 * 1024**3, ge=0)
+    """Workers: bytes of assets each keeps in its on-disk cache (``LUCENT_CACHE_DIR/assets``),
+    least recently used removed first; 0: no cache (read from the blob store every time)."""
+
     intake_inline_bytes: int = Field(default=1024 * 1024, ge=0)
     """Submissions up to this size are parsed and checked in the API's thread pool; larger ones
     in a process of their own, so that parsing (which holds the GIL) never stalls the other
