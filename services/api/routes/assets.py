@@ -64,17 +64,22 @@ async def upload_asset(request: Request, blobs: BlobsDep, settings: SettingsDep,
     return {"asset": key, "bytes": len(data), "kind": kind.lstrip(".")}
 
 
-@router.api_route("/{name}", methods=["GET", "HEAD"], responses={
-    200: {"content": {"application/octet-stream": {}}}, 404: {"description": "no such asset"}})
-def get_asset(name: Annotated[str, Path(description="sha256:<hex> or <hex>")], request: Request,
-              blobs: BlobsDep) -> Response:
+AssetName = Annotated[str, Path(description="sha256:<hex> or <hex>")]
+
+
+@router.head("/{name}", responses={404: {"description": "no such asset"}})
+def has_asset(name: AssetName, blobs: BlobsDep) -> Response:
+    """200 when the farm has the asset (a client uploads only what it lacks), else 404."""
     key = _key(name)
-    if request.method == "HEAD":
-        if not blobs.exists(key):
-            raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no asset {key}")
-        return Response(status_code=status.HTTP_200_OK,
-                        headers={"Content-Length": str(blobs.path(key).stat().st_size)}
-                        if hasattr(blobs, "path") else None)
+    if not blobs.exists(key):
+        raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no asset {key}")
+    return Response(status_code=status.HTTP_200_OK)
+
+
+@router.get("/{name}", responses={
+    200: {"content": {"application/octet-stream": {}}}, 404: {"description": "no such asset"}})
+def get_asset(name: AssetName, blobs: BlobsDep) -> Response:
+    key = _key(name)
     data = blobs.get(key)
     if data is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no asset {key}")
