@@ -4,12 +4,14 @@ job names them, read by the workers through the blob store and their on-disk cac
 from __future__ import annotations
 
 import hashlib
+import json
 import os
 from pathlib import Path
 
 from fastapi.testclient import TestClient
 
 from services.api.main import create_app
+from services.client import Client, scene_for_upload
 from services.farm.blobs import AssetCache, FileBlobStore
 
 # A square of two triangles in front of the camera, 0.5 units wide.
@@ -66,16 +68,29 @@ def test_the_worker_cache_is_bounded(tmp_path):
 
 
 def test_a_mesh_asset_renders_on_the_farm(farm, tiny_scene, tmp_path, wait_for_job):
-    """A mesh uploaded as an asset and named by a scene: the job is accepted and the workers
-    (reading the blob store the API wrote) render it; the quad shows in the image."""
+    """A scene file naming a mesh by path, as ``lucent submit`` sends it: the mesh uploaded as
+    an asset (once: a second submission only asks whether the farm has it), the reference
+    rewritten; the job is accepted and the workers (reading the blob store the API wrote) render
+    it; the quad shows in the image."""
     # the session's workers read LUCENT_DATA_DIR's blob store: the API writes there too
     blob_dir = Path(os.environ["LUCENT_DATA_DIR"]) / "blobs"
     settings = farm.settings.model_copy(update={"data_dir": tmp_path, "blob_dir": blob_dir})
+    (tmp_path / "quad.obj").write_bytes(QUAD_OBJ + os.urandom(8).hex().encode() + b"\n")
+    material = next(iter(tiny_scene["materials"]))
+    scene_file = tmp_path / "scene.json"
+    scene_file.write_text(json.dumps({**tiny_scene, "objects": [*tiny_scene["objects"], {
+        "type": "mesh", "path": "quad.obj", "material": material}]}))
     with TestClient(create_app(settings)) as client:
-        name = client.post("/api/assets", content=QUAD_OBJ).json()["asset"]
-        material = next(iter(tiny_scene["materials"]))
-        scene = {**tiny_scene, "objects": [*tiny_scene["objects"], {
-            "type": "mesh", "asset": name, "material": material}]}
+        cli = Client("http://testserver")
+        cli.http = client  # the client's requests, to this app
+        sent: list[str] = []
+        client.event_hooks["request"].append(lambda req: sent.append(req.method))
+        scene = scene_for_upload(scene_file, cli)
+        assert sent == ["HEAD", "POST"]
+        assert scene_for_upload(scene_file, cli) == scene and sent == ["HEAD", "POST", "HEAD"]
+        name = scene["objects"][-1]["asset"]
+        assert "path" not in scene["objects"][-1]
+        assert client.get(f"/api/assets/{name}").content == (tmp_path / "quad.obj").read_bytes()
         r = client.post("/api/jobs", json={"scene": scene, "tile_size": 16})
         assert r.status_code == 201, r.text
         job = wait_for_job(client, r.json()["id"])
