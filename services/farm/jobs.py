@@ -101,7 +101,8 @@ def check_scene(scene: Any, limits: Limits,
 
 
 def queue_job(store: JobStore, records: Records, celery: Celery, settings: Settings,
-              options: JobOptions, scene: CheckedScene) -> JobMeta | Refusal:
+              options: JobOptions, scene: CheckedScene,
+              submitter: str | None = None) -> JobMeta | Refusal:
     """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal."""
     first = min(options.spp_per_pass or settings.default_spp_per_pass, scene.spp)
     # The largest pass: as asked, else the default but never below the first pass
@@ -129,11 +130,11 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     # The record first: with the database away, nothing is queued (503) and the job is not run
     # unrecorded; with Redis away after it, the record goes again (the sweeper would fail it).
     created = JobMeta.new(job_id, options.name, options.priority, plan, scene.methods,
-                          time.time())
+                          time.time(), submitter)
     records.create(created)
     try:
         meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
-                                scene.methods, created.created_at)
+                                scene.methods, created.created_at, submitter)
     except Exception:
         with contextlib.suppress(RecordsUnavailable):
             records.delete(job_id)

@@ -17,6 +17,7 @@ plan summary           ``width``, ``height``, ``spp``, ``tile_size``, ``spp_per_
 counters               ``tasks_merged``, ``samples_merged``, ``dropped``, ``version`` (merges)
 timings                ``created_at``, ``started_at``, ``finished_at`` (Unix seconds)
 ``error``, ``methods`` the reason a job failed; what ``auto`` chose for each material (JSON)
+``submitter``          the name of the API token it came with (``LUCENT_API_TOKENS``), if any
 ``tiles``              once archived: per tile samples per pixel and last error (JSON)
 ``image_exr/_png``     once archived: the image's blob keys (``sha256:…``)
 ``archived_at``        when its Redis keys were removed; NULL while Redis holds the job
@@ -88,6 +89,7 @@ jobs = Table(
     Column("name", String(200), nullable=False),
     Column("status", String(16), nullable=False),
     Column("priority", Integer, nullable=False),
+    Column("submitter", String(200)),
     *(Column(name, Integer, nullable=False)
       for name in ("width", "height", "spp", "tile_size", "spp_per_pass", "max_spp_per_pass",
                    "tasks_total", "tasks_merged")),
@@ -369,6 +371,7 @@ def _tracked(meta: JobMeta) -> Tracked:
 def _row(meta: JobMeta) -> dict[str, Any]:
     plan = meta.plan
     row = {"id": meta.id, "name": meta.name, "priority": meta.priority,
+           "submitter": meta.submitter,
            "width": plan.width, "height": plan.height, "spp": plan.spp,
            "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
            "max_spp_per_pass": plan.max_spp_per_pass, "tasks_total": plan.n_tasks,
@@ -398,4 +401,4 @@ def _meta(row: Any) -> JobMeta:
         dropped=row["dropped"], version=row["version"], created_at=row["created_at"],
         started_at=row["started_at"], finished_at=row["finished_at"], error=row["error"],
         methods=json.loads(row["methods"]), images=images,
-        tiles_final=json.loads(tiles) if tiles else {})
+        tiles_final=json.loads(tiles) if tiles else {}, submitter=row["submitter"])

@@ -53,6 +53,10 @@ class Settings(BaseSettings):
     api_token: str | None = None
     """When set, every ``/api`` route and ``/metrics`` need ``Authorization: Bearer <token>``."""
 
+    api_tokens: Annotated[dict[str, str], NoDecode] = Field(default_factory=dict)
+    """Named tokens, ``name:token`` comma-separated (``alice:s3cret,bob:0th3r``): each is accepted
+    as ``LUCENT_API_TOKEN`` is, and a job submitted with one records its name as the submitter."""
+
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     """Origins (``https://farm.example.org``) whose pages may call the API from a browser,
     comma-separated; empty (the default): no CORS headers, so only same-origin pages can."""
@@ -183,6 +187,17 @@ class Settings(BaseSettings):
     def blob_path(self) -> Path:
         return self.blob_dir if self.blob_dir is not None else self.data_dir / "blobs"
 
+    @field_validator("api_tokens", mode="before")
+    @classmethod
+    def _split_tokens(cls, value: object) -> object:
+        # LUCENT_API_TOKENS="alice:s3cret,bob:0th3r"
+        if isinstance(value, str):
+            pairs = [p.strip().partition(":") for p in value.split(",") if p.strip()]
+            if any(not name.strip() or not token.strip() for name, _, token in pairs):
+                raise ValueError("LUCENT_API_TOKENS is name:token, comma-separated")
+            return {name.strip(): token.strip() for name, _, token in pairs}
+        return value
+
     @field_validator("cors_origins", mode="before")
     @classmethod
     def _split_origins(cls, value: object) -> object:
@@ -193,7 +208,7 @@ class Settings(BaseSettings):
 
     @model_validator(mode="after")
     def _check(self) -> Settings:
-        if self.environment != "development" and not self.api_token:
+        if self.environment != "development" and not (self.api_token or self.api_tokens):
             raise ValueError("LUCENT_API_TOKEN must be set outside development")
         if not self.task_soft_time_limit < self.task_time_limit < self.visibility_timeout:
             raise ValueError(

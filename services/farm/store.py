@@ -176,15 +176,16 @@ class JobMeta:
     methods: dict[str, str]
     images: dict[str, str]  # format -> blob key, once the image is in the blob store
     tiles_final: dict[str, Any]  # {"samples": [per tile], "errors": {tile: error}}, archived
+    submitter: str | None = None  # the name of the API token it was submitted with
 
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
-            created_at: float) -> JobMeta:
+            created_at: float, submitter: str | None = None) -> JobMeta:
         """A job just submitted: queued, nothing merged (what ``create_job`` stores)."""
         return cls(id=job_id, name=name, status="queued", priority=priority, plan=plan,
                    tasks_merged=0, samples_merged=0, dropped=0, version=0,
                    created_at=created_at, started_at=None, finished_at=None, error=None,
-                   methods=methods, images={}, tiles_final={})
+                   methods=methods, images={}, tiles_final={}, submitter=submitter)
 
     @property
     def samples_planned(self) -> int:
@@ -216,6 +217,7 @@ class JobMeta:
             methods=json.loads(d.get("methods") or "{}"),
             images=json.loads(d.get("images") or "{}"),
             tiles_final=json.loads(d.get("tiles_final") or "{}"),
+            submitter=d.get("submitter") or None,
         )
 
 
@@ -264,7 +266,7 @@ class JobStore:
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
                    scene_json: str | bytes, methods: dict[str, str] | None = None,
-                   created_at: float | None = None) -> JobMeta:
+                   created_at: float | None = None, submitter: str | None = None) -> JobMeta:
         now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -274,6 +276,7 @@ class JobStore:
             "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
+            "submitter": submitter or "",
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)

@@ -107,6 +107,26 @@ def test_listing_pages_and_filters_in_the_database(client, settings):
     assert 'lucent_jobs{status="done"} 16' in text and 'lucent_jobs{status="failed"} 9' in text
 
 
+def test_a_named_token_is_recorded_as_the_submitter(redis_base_url, tmp_path, tiny_scene):
+    prefix = f"lucent-test-{uuid.uuid4().hex[:10]}"
+    settings = Settings(redis_url=redis_base_url, key_prefix=prefix,
+                        api_tokens="alice:a-s3cret,bob:b-s3cret",
+                        **farm_state(prefix, tmp_path / "data"))
+    try:
+        with TestClient(create_app(settings)) as c:
+            assert c.get("/api/jobs").status_code == 401
+            assert c.get("/api/jobs", headers={"Authorization": "Bearer bob"}).status_code == 401
+            r = c.post("/api/jobs", json={"scene": tiny_scene},
+                       headers={"Authorization": "Bearer b-s3cret"})
+            assert r.status_code == 201, r.text
+            assert r.json()["submitter"] == "bob"
+            listed = c.get("/api/jobs", headers={"Authorization": "Bearer a-s3cret"}).json()
+            assert [j["submitter"] for j in listed["data"]] == ["bob"]
+        assert records_of(settings).get(r.json()["id"]).submitter == "bob"
+    finally:
+        drop_farm_state(settings)
+
+
 def test_a_job_whose_state_redis_lost_is_marked_failed(settings, store):
     """A record queued or running whose job Redis no longer holds (Redis restarted without its
     data) is failed by the sweeper, saying why; one just submitted is left alone."""

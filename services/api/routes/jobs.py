@@ -13,7 +13,14 @@ from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Res
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from services.api.deps import BlobsDep, CeleryDep, RecordsDep, SettingsDep, StoreDep
+from services.api.deps import (
+    BlobsDep,
+    CeleryDep,
+    RecordsDep,
+    SettingsDep,
+    StoreDep,
+    SubmitterDep,
+)
 from services.api.guards import echo_text, error_content
 from services.api.intake import Rejection
 from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
@@ -51,6 +58,7 @@ def to_public(meta: JobMeta) -> JobPublic:
         samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
         created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
         error=meta.error, image_version=meta.version, methods=meta.methods,
+        submitter=meta.submitter,
     )
 
 
@@ -90,7 +98,7 @@ _JOB_CREATE_BODY = {"requestBody": {"required": True, "content": {
                                       "`loc` names the field"},
                  429: {"description": "the farm's backlog is full (LUCENT_MAX_QUEUED_SAMPLES)"}})
 async def create_job(request: Request, store: StoreDep, records: RecordsDep, celery: CeleryDep,
-                     settings: SettingsDep):
+                     settings: SettingsDep, submitter: SubmitterDep):
     """Validate the request and its scene (``JobCreate``), plan tiles × passes and queue them.
     Nothing is queued if the scene is invalid or over a limit."""
     read = await request.app.state.intake.read(await request.body(),
@@ -98,7 +106,7 @@ async def create_job(request: Request, store: StoreDep, records: RecordsDep, cel
     if isinstance(read, Rejection):
         return JSONResponse(status_code=read.status, content=read.content)
     answer = await run_in_threadpool(queue_job, store, records, celery, settings, read.options,
-                                     read.scene)
+                                     read.scene, submitter)
     if isinstance(answer, Refusal):
         return JSONResponse(status_code=answer.status, headers=answer.headers,
                             content=error_content({"loc": loc, "msg": msg, "type": kind}

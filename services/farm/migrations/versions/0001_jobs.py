@@ -21,6 +21,7 @@ def upgrade() -> None:
         sa.Column("name", sa.String(200), nullable=False),
         sa.Column("status", sa.String(16), nullable=False),
         sa.Column("priority", sa.Integer, nullable=False),
+        sa.Column("submitter", sa.String(200)),
         *(sa.Column(name, sa.Integer, nullable=False)
           for name in ("width", "height", "spp", "tile_size", "spp_per_pass",
                        "max_spp_per_pass", "tasks_total", "tasks_merged")),
