@@ -14,6 +14,8 @@
   record, and its blobs when no other job's image is the same bytes.
 - ``expire_finished`` (the sweeper, with ``LUCENT_KEEP_DAYS``): the same for jobs finished longer
   ago than that.
+- ``cap_images`` (the sweeper, with ``LUCENT_MAX_IMAGE_BYTES``): the images of the oldest finished
+  jobs removed until the rest fit; their records stay.
 
 Archiving and deleting are safe against each other and against a second sweeper: the record is
 written only if it still exists (a deletion meanwhile: the archive removes what it wrote), the
@@ -77,7 +79,7 @@ def archive_job(store: JobStore, records: Records, blobs: BlobStore, job_id: str
     data = {"exr": encode_image(image, "exr"), "png": encode_image(image, "png")}
     images = {fmt: put_content(blobs, b) for fmt, b in data.items()}
     tiles = store.tiles_final(job_id, meta.plan.n_tiles)
-    if not records.archive(meta, images, tiles):  # deleted meanwhile
+    if not records.archive(meta, images, tiles, sum(map(len, data.values()))):  # deleted
         for key in images.values():  # written for nothing, unless another job's image
             if not records.blob_in_use(key):
                 blobs.delete(key)
@@ -155,6 +157,19 @@ def delete_finished(store: JobStore, records: Records, blobs: BlobStore, job_id:
     return True
 
 
+def cap_images(records: Records, blobs: BlobStore, cap: int) -> int:
+    """Remove the images of the oldest finished jobs until the rest fit in ``cap`` bytes (their
+    records stay; their image routes answer 410); returns how many."""
+    removed = 0
+    for job_id in records.images_over(cap)[:EXPIRE_BATCH]:
+        keys = records.remove_image(job_id)
+        for key in keys.values():
+            if not records.blob_in_use(key):
+                blobs.delete(key)
+        removed += bool(keys)
+    return removed
+
+
 def expire_finished(store: JobStore, records: Records, blobs: BlobStore, keep_days: float,
                     now: float | None = None) -> int:
     """Delete the jobs that finished more than ``keep_days`` ago (``EXPIRE_BATCH`` at most);
@@ -165,7 +180,8 @@ def expire_finished(store: JobStore, records: Records, blobs: BlobStore, keep_da
 
 
 def chores(store: JobStore, records: Records, blobs: BlobStore, archive: bool,
-           keep_days: float | None) -> list[Callable[[], object]]:
+           keep_days: float | None,
+           max_image_bytes: int | None = None) -> list[Callable[[], object]]:
     """What the sweeper does after each sweep: the job records up to date; with ``archive``, the
     done jobs' images to the blob store and their keys out of Redis; with ``keep_days``, delete
     the jobs finished longer ago."""
@@ -174,4 +190,6 @@ def chores(store: JobStore, records: Records, blobs: BlobStore, archive: bool,
         out.append(lambda: archive_done(store, records, blobs))
     if keep_days is not None:
         out.append(lambda: expire_finished(store, records, blobs, keep_days))
+    if max_image_bytes is not None:
+        out.append(lambda: cap_images(records, blobs, max_image_bytes))
     return out

@@ -21,6 +21,8 @@ timings                ``created_at``, ``started_at``, ``finished_at`` (Unix sec
 ``tiles``              once archived: per tile samples per pixel and last error (JSON)
 ``image_exr/_png``     once archived: the image's blob keys (``sha256:…``)
 ``archived_at``        when its Redis keys were removed; NULL while Redis holds the job
+``image_bytes``        bytes of its image in the blob store (EXR + PNG)
+``image_removed_at``   when the cap on stored images (``LUCENT_MAX_IMAGE_BYTES``) removed it
 =====================  ========================================================================
 
 ``job_counts`` holds the number of jobs of each status, kept by triggers on ``jobs`` (a listing's
@@ -105,6 +107,8 @@ jobs = Table(
     Column("image_exr", String(71)),
     Column("image_png", String(71)),
     Column("archived_at", Double),
+    Column("image_bytes", BigInteger, nullable=False, server_default="0"),
+    Column("image_removed_at", Double),
     Index("jobs_created_at", "created_at", "id"),
     Index("jobs_status_created_at", "status", "created_at", "id"),
     Index("jobs_finished_at", "finished_at"),
@@ -341,11 +345,13 @@ class Records:
                                         finished_at=time.time())).rowcount
 
     # --- archived jobs --------------------------------------------------------------------------
-    def archive(self, meta: JobMeta, images: dict[str, str], tiles: dict[str, Any]) -> bool:
+    def archive(self, meta: JobMeta, images: dict[str, str], tiles: dict[str, Any],
+                image_bytes: int = 0) -> bool:
         """The done job's last state, its image's blob keys and its tiles' summary; False if it
         has no row (deleted meanwhile: the caller removes what it stored)."""
         values = {**_progress(meta), "tiles": json.dumps(tiles), "archived_at": time.time(),
-                  "image_exr": images.get("exr"), "image_png": images.get("png")}
+                  "image_exr": images.get("exr"), "image_png": images.get("png"),
+                  "image_bytes": image_bytes}
         with self._begin() as conn:
             return conn.execute(update(jobs).where(jobs.c.id == meta.id)
                                 .values(**values)).rowcount > 0
@@ -357,6 +363,43 @@ class Records:
             return list(conn.scalars(
                 select(jobs.c.id).where(jobs.c.status.in_(FINAL), jobs.c.finished_at < when)
                 .order_by(jobs.c.finished_at).limit(limit)))
+
+    def images_over(self, cap: int) -> list[str]:
+        """The jobs, oldest finished first, whose images must go for the rest to fit in ``cap``
+        bytes."""
+        with self._begin() as conn:
+            excess = int(conn.scalar(select(func.coalesce(func.sum(jobs.c.image_bytes), 0)))
+                         or 0) - cap
+            out: list[str] = []
+            if excess <= 0:
+                return out
+            rows = conn.execute(select(jobs.c.id, jobs.c.image_bytes)
+                                .where(jobs.c.image_bytes > 0)
+                                .order_by(jobs.c.finished_at, jobs.c.id))
+            for job_id, size in rows:
+                out.append(job_id)
+                excess -= int(size)
+                if excess <= 0:
+                    break
+            return out
+
+    def remove_image(self, job_id: str) -> dict[str, str]:
+        """Forget the job's image (its record stays, ``image_removed_at`` set); the blob keys it
+        named (the caller deletes those no other record names), {} when it had none."""
+        with self._begin() as conn:
+            row = conn.execute(select(jobs.c.image_exr, jobs.c.image_png)
+                               .where(jobs.c.id == job_id, jobs.c.image_bytes > 0)).first()
+            if row is None:
+                return {}
+            # only if it still names those blobs (a second sweeper, a deletion meanwhile)
+            done = conn.execute(update(jobs).where(jobs.c.id == job_id,
+                                                   jobs.c.image_exr == row[0],
+                                                   jobs.c.image_bytes > 0)
+                                .values(image_exr=None, image_png=None, image_bytes=0,
+                                        image_removed_at=time.time())).rowcount
+        if not done:
+            return {}
+        return {fmt: key for fmt, key in zip(("exr", "png"), row, strict=True) if key}
 
     def set_finished_at(self, job_id: str, when: float) -> None:
         """Move a finished job's finishing time (an import, or a test of retention)."""
@@ -401,4 +444,5 @@ def _meta(row: Any) -> JobMeta:
         dropped=row["dropped"], version=row["version"], created_at=row["created_at"],
         started_at=row["started_at"], finished_at=row["finished_at"], error=row["error"],
         methods=json.loads(row["methods"]), images=images,
-        tiles_final=json.loads(tiles) if tiles else {}, submitter=row["submitter"])
+        tiles_final=json.loads(tiles) if tiles else {}, submitter=row["submitter"],
+        image_removed=row["image_removed_at"] is not None)

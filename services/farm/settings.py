@@ -178,6 +178,11 @@ class Settings(BaseSettings):
     """Days a finished (done, failed, cancelled) job is kept before the sweeper deletes it, keys
     and image; unset (the default): kept until ``DELETE /api/jobs/{id}``."""
 
+    max_image_bytes: int | None = Field(default=None, ge=0)
+    """The most bytes of finished jobs' images (EXR + PNG each) the blob store keeps; over it the
+    sweeper removes the oldest (their records stay, their image routes answer 410). Unset: no
+    cap."""
+
     @property
     def database(self) -> str:
         """The job database's URL: ``DATABASE_URL``, else SQLite in the data folder."""

@@ -177,6 +177,7 @@ class JobMeta:
     images: dict[str, str]  # format -> blob key, once the image is in the blob store
     tiles_final: dict[str, Any]  # {"samples": [per tile], "errors": {tile: error}}, archived
     submitter: str | None = None  # the name of the API token it was submitted with
+    image_removed: bool = False  # its image removed by the cap on stored images (a record's)
 
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],

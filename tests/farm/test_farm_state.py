@@ -21,7 +21,8 @@ from fastapi.testclient import TestClient
 from sqlalchemy import inspect
 
 from services.api.main import create_app
-from services.farm.archive import keep_records
+from services.farm.archive import cap_images, keep_records
+from services.farm.blobs import FileBlobStore, put_content
 from services.farm.planner import Plan
 from services.farm.records import LOST_AFTER, Records
 from services.farm.settings import Settings
@@ -105,6 +106,29 @@ def test_listing_pages_and_filters_in_the_database(client, settings):
     assert client.get(f"/api/jobs/{metas[4].id}").json()["name"] == "job 4"
     text = client.get("/metrics").text
     assert 'lucent_jobs{status="done"} 16' in text and 'lucent_jobs{status="failed"} 9' in text
+
+
+def test_the_image_cap_removes_the_oldest_images_and_keeps_the_records(client, settings):
+    """Over ``LUCENT_MAX_IMAGE_BYTES`` the oldest finished jobs' images go (blobs no other job
+    names deleted); their records stay, and their image routes answer 410 saying why."""
+    records = records_of(settings)
+    blobs = FileBlobStore(settings.blob_path)
+    t0 = time.time() - 1000
+    metas = [_meta(t0 + i, "done", f"job {i}") for i in range(3)]
+    records.create_many(metas)
+    for i, meta in enumerate(metas):
+        images = {fmt: put_content(blobs, f"{fmt} of job {i}".encode() * 100)
+                  for fmt in ("exr", "png")}
+        assert records.archive(meta, images, {"samples": [], "errors": {}}, 1000)
+    assert cap_images(records, blobs, 1500) == 2  # 3000 bytes: the two oldest go
+    assert cap_images(records, blobs, 1500) == 0
+    assert len([p for p in settings.blob_path.rglob("*") if p.is_file()]) == 2
+    for meta in metas[:2]:
+        r = client.get(f"/api/jobs/{meta.id}/image.png")
+        assert r.status_code == 410 and "LUCENT_MAX_IMAGE_BYTES" in r.json()["detail"]
+        assert client.get(f"/api/jobs/{meta.id}").json()["status"] == "done"
+    assert client.get(f"/api/jobs/{metas[2].id}/image.png").content == b"png of job 2" * 100
+    assert client.get("/api/jobs").json()["count"] == 3
 
 
 def test_a_named_token_is_recorded_as_the_submitter(redis_base_url, tmp_path, tiny_scene):

@@ -231,6 +231,10 @@ def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request
     store, the same bytes). ``ETag`` changes with every merge; send it back in
     ``If-None-Match`` to get 304 when nothing changed."""
     meta = _get_or_404(store, records, job_id)
+    if meta.image_removed:
+        raise HTTPException(status.HTTP_410_GONE,
+                            detail=f"the image of job {job_id!r} was removed to keep the stored "
+                                   "images under LUCENT_MAX_IMAGE_BYTES")
     etag = f'"{job_id}-{meta.version}-{fmt}-{exposure:g}-{tonemap}"'
     headers = {"ETag": etag, "Cache-Control": "no-cache"}
     if etag_matches(request, etag):

@@ -37,6 +37,8 @@ def upgrade() -> None:
         sa.Column("image_exr", sa.String(71)),
         sa.Column("image_png", sa.String(71)),
         sa.Column("archived_at", sa.Double),
+        sa.Column("image_bytes", sa.BigInteger, nullable=False, server_default="0"),
+        sa.Column("image_removed_at", sa.Double),
     )
     # newest first, whole list and by status (the id breaks ties: a stable page order)
     op.create_index("jobs_created_at", "jobs", ["created_at", "id"])
