@@ -527,7 +527,10 @@ class JobStore:
         with r.pipeline() as pipe:
             while True:
                 try:
-                    pipe.watch(acc_key, merged_key)
+                    # and the scene, written once and deleted with the job: a job deleted or
+                    # archived between the status read below and EXEC aborts the merge, which
+                    # would otherwise write its keys (its hash too) back
+                    pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
                     if pipe.sismember(merged_key, member):
                         pipe.unwatch()
                         r.delete(pass_key)
