@@ -4,11 +4,13 @@ job names them, read by the workers through the blob store and their on-disk cac
 from __future__ import annotations
 
 import hashlib
+import io
 import json
 import os
 from pathlib import Path
 
 from fastapi.testclient import TestClient
+from PIL import Image
 
 from services.api.main import create_app
 from services.client import Client, scene_for_upload
@@ -47,6 +49,21 @@ def test_upload_head_get_and_bad_uploads(settings):
         # over the limit
         r = client.post("/api/assets", content=QUAD_OBJ * 100)
         assert r.status_code == 413
+
+
+def test_a_scene_naming_an_asset_of_the_wrong_kind_is_422(client, tiny_scene):
+    """An image uploaded, then named as a mesh: refused at submission, naming the field."""
+    png = io.BytesIO()
+    Image.new("RGB", (2, 2)).save(png, format="PNG")
+    name = client.post("/api/assets", content=png.getvalue()).json()["asset"]
+    material = next(iter(tiny_scene["materials"]))
+    scene = {**tiny_scene, "objects": [*tiny_scene["objects"], {
+        "type": "mesh", "asset": name, "material": material}]}
+    r = client.post("/api/jobs", json={"scene": scene})
+    assert r.status_code == 422, r.text
+    (error,) = r.json()["detail"]
+    assert error["loc"] == ["body", "scene", "objects", len(scene["objects"]) - 1, "asset"]
+    assert "PNG" in error["msg"] and "OBJ" in error["msg"]
 
 
 def test_the_worker_cache_is_bounded(tmp_path):
