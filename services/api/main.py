@@ -48,7 +48,8 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.blobs = FileBlobStore(settings.blob_path)
         sweeper = Sweeper(store, settings.sweep_interval, stall,
                           chores(store, records, app.state.blobs, settings.archive_done,
-                                 settings.keep_days, settings.max_image_bytes))
+                                 settings.keep_days, settings.max_image_bytes,
+                                 settings.park_after))
         sweeper.start()  # merges what a previous run or a lost worker left behind
         try:
             yield

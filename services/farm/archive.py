@@ -14,6 +14,9 @@
   record, and its blobs when no other job's image is the same bytes.
 - ``expire_finished`` (the sweeper, with ``LUCENT_KEEP_DAYS``): the same for jobs finished longer
   ago than that.
+- ``park_finished`` (the sweeper, ``LUCENT_PARK_AFTER`` after they ended): failed and cancelled
+  jobs out of Redis too, their tiles' state as one blob and their record; ``unpark_job`` brings
+  one back for a retry.
 - ``cap_images`` (the sweeper, with ``LUCENT_MAX_IMAGE_BYTES``): the images of the oldest finished
   jobs removed until the rest fit; their records stay.
 
@@ -32,11 +35,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from renderer.film.buffer import SampleBuffer
 from renderer.film.image_io import decode_exr, encode_exr
 from services.farm.blobs import BlobStore, put_content
 from services.farm.merge import assemble
 from services.farm.records import LOST_AFTER, Records
-from services.farm.store import ACTIVE, JobMeta, JobStore
+from services.farm.store import ACTIVE, JobMeta, JobSnapshot, JobStore
 
 log = logging.getLogger(__name__)
 
@@ -102,6 +106,73 @@ def archive_done(store: JobStore, records: Records, blobs: BlobStore) -> int:
         except OSError:  # a full or missing blob folder: the job stays in Redis, tried again
             log.exception("cannot write the image of job %s to the blob store", job_id)
     return archived
+
+
+def park_job(store: JobStore, records: Records, blobs: BlobStore, job_id: str) -> bool:
+    """Move a failed or cancelled job out of Redis: its tiles' accumulations, samples, errors,
+    merged passes and scene as one blob (``JobSnapshot``), its last state to its record, then
+    its keys deleted. A retry brings it back (``unpark_job``). True if this call parked it."""
+    snap = store.snapshot(job_id)
+    if snap is None or snap.meta.status not in ("failed", "cancelled"):
+        return False
+    state = put_content(blobs, snap.to_bytes())
+    tiles = {"states": {str(t): s for t, s in snap.tile_states.items()},
+             "samples": [snap.tile_samples.get(t, 0) for t in range(snap.meta.plan.n_tiles)],
+             "errors": {str(t): e for t, e in snap.tile_errors.items()}}
+    if not records.park(snap.meta, state, tiles):  # deleted meanwhile
+        if not records.blob_in_use(state):
+            blobs.delete(state)
+        return False
+    if not store.delete_job(job_id, (snap.meta.status,)):
+        # retried (or changed) since the snapshot: it stays in Redis, its record follows it
+        records.unpark(job_id)
+        if not records.blob_in_use(state):
+            blobs.delete(state)
+        return False
+    return True
+
+
+def park_finished(store: JobStore, records: Records, blobs: BlobStore, after: float,
+                  now: float | None = None) -> int:
+    """Park the failed and cancelled jobs that finished more than ``after`` seconds ago
+    (``EXPIRE_BATCH`` at most); returns how many."""
+    now = time.time() if now is None else now
+    parked = 0
+    for job_id in store.finished_in_redis(now - after, EXPIRE_BATCH):
+        try:
+            parked += park_job(store, records, blobs, job_id)
+        except OSError:
+            log.exception("cannot write the state of job %s to the blob store", job_id)
+    return parked
+
+
+def unpark_job(store: JobStore, records: Records, blobs: BlobStore, meta: JobMeta) -> bool:
+    """Bring a parked job back into Redis as it was parked (for a retry); False when it is not
+    parked or its blob is missing."""
+    if not meta.parked:
+        return False
+    data = blobs.get(meta.parked)
+    if data is None:
+        return False
+    store.restore_job(JobSnapshot.from_bytes(data))
+    state = records.unpark(meta.id)
+    if state and not records.blob_in_use(state):
+        blobs.delete(state)
+    return True
+
+
+def assemble_parked(blobs: BlobStore, meta: JobMeta) -> tuple[SampleBuffer, int] | None:
+    """A parked job's frame as it stood when it was parked, and its ``version``."""
+    data = blobs.get(meta.parked) if meta.parked else None
+    if data is None:
+        return None
+    snap = JobSnapshot.from_bytes(data)
+    plan = snap.meta.plan
+    frame = SampleBuffer.empty(0, 0, plan.width, plan.height)
+    for buf in snap.tile_buffers:
+        if buf is not None:
+            frame.add(SampleBuffer.from_bytes(buf))
+    return frame, snap.meta.version
 
 
 def keep_records(store: JobStore, records: Records, now: float | None = None,
@@ -180,8 +251,8 @@ def expire_finished(store: JobStore, records: Records, blobs: BlobStore, keep_da
 
 
 def chores(store: JobStore, records: Records, blobs: BlobStore, archive: bool,
-           keep_days: float | None,
-           max_image_bytes: int | None = None) -> list[Callable[[], object]]:
+           keep_days: float | None, max_image_bytes: int | None = None,
+           park_after: float | None = None) -> list[Callable[[], object]]:
     """What the sweeper does after each sweep: the job records up to date; with ``archive``, the
     done jobs' images to the blob store and their keys out of Redis; with ``keep_days``, delete
     the jobs finished longer ago."""
@@ -192,4 +263,6 @@ def chores(store: JobStore, records: Records, blobs: BlobStore, archive: bool,
         out.append(lambda: expire_finished(store, records, blobs, keep_days))
     if max_image_bytes is not None:
         out.append(lambda: cap_images(records, blobs, max_image_bytes))
+    if park_after is not None:
+        out.append(lambda: park_finished(store, records, blobs, park_after))
     return out

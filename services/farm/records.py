@@ -23,6 +23,8 @@ timings                ``created_at``, ``started_at``, ``finished_at`` (Unix sec
 ``archived_at``        when its Redis keys were removed; NULL while Redis holds the job
 ``image_bytes``        bytes of its image in the blob store (EXR + PNG)
 ``image_removed_at``   when the cap on stored images (``LUCENT_MAX_IMAGE_BYTES``) removed it
+``state_blob``         a failed or cancelled job parked out of Redis: the blob of its tiles'
+                       accumulations (``JobSnapshot``), what a retry goes on from
 =====================  ========================================================================
 
 ``job_counts`` holds the number of jobs of each status, kept by triggers on ``jobs`` (a listing's
@@ -109,11 +111,13 @@ jobs = Table(
     Column("archived_at", Double),
     Column("image_bytes", BigInteger, nullable=False, server_default="0"),
     Column("image_removed_at", Double),
+    Column("state_blob", String(71)),
     Index("jobs_created_at", "created_at", "id"),
     Index("jobs_status_created_at", "status", "created_at", "id"),
     Index("jobs_finished_at", "finished_at"),
     Index("jobs_image_exr", "image_exr"),
     Index("jobs_image_png", "image_png"),
+    Index("jobs_state_blob", "state_blob"),
 )
 
 # Jobs by status, kept by triggers on ``jobs`` (migration 0002).
@@ -268,22 +272,26 @@ class Records:
         return _meta(row) if row is not None else None
 
     def delete(self, job_id: str) -> dict[str, str] | None:
-        """Delete the row; the blob keys of its image (format -> key), or None when there was no
-        row. The keys are those of the row deleted: an archive that landed meanwhile is seen."""
+        """Delete the row; the blob keys it named (``exr``, ``png``, ``state`` -> key), or None
+        when there was no row. The keys are those of the row deleted: an archive that landed
+        meanwhile is seen."""
         with self._begin() as conn:
             row = conn.execute(delete(jobs).where(jobs.c.id == job_id)
-                               .returning(jobs.c.image_exr, jobs.c.image_png)).first()
+                               .returning(jobs.c.image_exr, jobs.c.image_png,
+                                          jobs.c.state_blob)).first()
         with self._lock:
             self._synced.pop(job_id, None)
         if row is None:
             return None
-        return {fmt: key for fmt, key in zip(("exr", "png"), row, strict=True) if key}
+        return {name: key for name, key in zip(("exr", "png", "state"), row, strict=True)
+                if key}
 
     def blob_in_use(self, key: str) -> bool:
         """Whether a job's image is this blob."""
         with self._begin() as conn:
             return conn.scalar(select(jobs.c.id).where(
-                or_(jobs.c.image_exr == key, jobs.c.image_png == key)).limit(1)) is not None
+                or_(jobs.c.image_exr == key, jobs.c.image_png == key,
+                    jobs.c.state_blob == key)).limit(1)) is not None
 
     # --- listing --------------------------------------------------------------------------------
     def page(self, status: str | None = None, offset: int = 0,
@@ -355,6 +363,26 @@ class Records:
         with self._begin() as conn:
             return conn.execute(update(jobs).where(jobs.c.id == meta.id)
                                 .values(**values)).rowcount > 0
+
+    # --- failed and cancelled jobs out of Redis -------------------------------------------------
+    def park(self, meta: JobMeta, state: str, tiles: dict[str, Any]) -> bool:
+        """A failed or cancelled job's last state and the blob of its tiles (``state``); False
+        if it has no row (deleted meanwhile)."""
+        values = {**_progress(meta), "tiles": json.dumps(tiles), "archived_at": time.time(),
+                  "state_blob": state}
+        with self._begin() as conn:
+            return conn.execute(update(jobs).where(jobs.c.id == meta.id)
+                                .values(**values)).rowcount > 0
+
+    def unpark(self, job_id: str) -> str | None:
+        """The job is back in Redis: its row follows it again. The state blob it named."""
+        with self._begin() as conn:
+            state = conn.scalar(select(jobs.c.state_blob).where(jobs.c.id == job_id))
+            conn.execute(update(jobs).where(jobs.c.id == job_id)
+                         .values(archived_at=None, state_blob=None, tiles=None))
+        with self._lock:
+            self._synced.pop(job_id, None)
+        return state
 
     # --- retention ------------------------------------------------------------------------------
     def finished_before(self, when: float, limit: int = 100) -> list[str]:
@@ -445,4 +473,4 @@ def _meta(row: Any) -> JobMeta:
         started_at=row["started_at"], finished_at=row["finished_at"], error=row["error"],
         methods=json.loads(row["methods"]), images=images,
         tiles_final=json.loads(tiles) if tiles else {}, submitter=row["submitter"],
-        image_removed=row["image_removed_at"] is not None)
+        image_removed=row["image_removed_at"] is not None, parked=row.get("state_blob"))

@@ -178,6 +178,11 @@ class Settings(BaseSettings):
     """Days a finished (done, failed, cancelled) job is kept before the sweeper deletes it, keys
     and image; unset (the default): kept until ``DELETE /api/jobs/{id}``."""
 
+    park_after: float | None = Field(default=600.0, ge=0)
+    """Seconds after a job failed or was cancelled before the sweeper moves it out of Redis (its
+    tiles' accumulations to the blob store, what a retry goes on from; its record keeps the
+    rest). Unset: failed and cancelled jobs stay in Redis until deleted."""
+
     max_image_bytes: int | None = Field(default=None, ge=0)
     """The most bytes of finished jobs' images (EXR + PNG each) the blob store keeps; over it the
     sweeper removes the oldest (their records stay, their image routes answer 410). Unset: no

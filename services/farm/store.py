@@ -178,6 +178,7 @@ class JobMeta:
     tiles_final: dict[str, Any]  # {"samples": [per tile], "errors": {tile: error}}, archived
     submitter: str | None = None  # the name of the API token it was submitted with
     image_removed: bool = False  # its image removed by the cap on stored images (a record's)
+    parked: str | None = None  # a record's: the blob of a failed or cancelled job's tiles
 
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
@@ -220,6 +221,52 @@ class JobMeta:
             tiles_final=json.loads(d.get("tiles_final") or "{}"),
             submitter=d.get("submitter") or None,
         )
+
+
+@dataclass(frozen=True)
+class JobSnapshot:
+    """A job as Redis holds it at one instant (``JobStore.snapshot``)."""
+
+    meta: JobMeta
+    scene_json: bytes
+    tile_states: dict[int, str]
+    tile_samples: dict[int, int]
+    tile_errors: dict[int, str]
+    merged: list[str]  # ``tile:pass``
+    tile_buffers: list[bytes | None]  # by tile; None before its first merge
+
+    def to_bytes(self) -> bytes:
+        """The snapshot as one blob: a JSON line (the job, its scene, its tiles), then the
+        tiles' buffers one after the other."""
+        m = self.meta
+        head = {"meta": {**{k: getattr(m, k) for k in (
+                    "id", "name", "status", "priority", "tasks_merged", "samples_merged",
+                    "dropped", "version", "created_at", "started_at", "finished_at", "error",
+                    "methods", "submitter")},
+                    "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
+                             m.plan.spp_per_pass, m.plan.max_spp_per_pass]},
+                "scene": self.scene_json.decode(),
+                "tile_states": self.tile_states, "tile_samples": self.tile_samples,
+                "tile_errors": self.tile_errors, "merged": self.merged,
+                "buffers": [-1 if b is None else len(b) for b in self.tile_buffers]}
+        return json.dumps(head).encode() + b"\n" + b"".join(
+            b for b in self.tile_buffers if b is not None)
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> JobSnapshot:
+        line, _, rest = data.partition(b"\n")
+        head = json.loads(line)
+        d = head["meta"]
+        meta = JobMeta(plan=Plan(*d.pop("plan")), images={}, tiles_final={}, **d)
+        buffers: list[bytes | None] = []
+        pos = 0
+        for n in head["buffers"]:
+            buffers.append(None if n < 0 else rest[pos:pos + n])
+            pos += max(n, 0)
+        return cls(meta, head["scene"].encode(),
+                   {int(k): v for k, v in head["tile_states"].items()},
+                   {int(k): v for k, v in head["tile_samples"].items()},
+                   {int(k): v for k, v in head["tile_errors"].items()}, head["merged"], buffers)
 
 
 class JobStore:
@@ -410,6 +457,72 @@ class JobStore:
     def jobs_to_archive(self) -> list[str]:
         """Done jobs whose image is not in the blob store yet."""
         return [i.decode() for i in self.r.smembers(self.k("to_archive"))]
+
+    def finished_in_redis(self, before: float, limit: int = 100) -> list[str]:
+        """Up to ``limit`` jobs Redis holds that finished (done, failed, cancelled) before
+        ``before``, oldest first."""
+        return [i.decode() for i in self.r.zrangebyscore(self.k("finished"), "-inf",
+                                                          f"({before}", start=0, num=limit)]
+
+    def snapshot(self, job_id: str) -> JobSnapshot | None:
+        """What Redis holds of a job, read in one MULTI/EXEC (no merge lands between its parts):
+        what a failed or cancelled job needs to go on after a retry."""
+        meta = self.get_job(job_id)
+        if meta is None:
+            return None
+        pipe = self.r.pipeline(transaction=True)
+        pipe.hgetall(self.job_key(job_id))
+        pipe.get(self.k("job", job_id, "scene"))
+        for name in ("tile_state", "tile_samples", "tile_error"):
+            pipe.hgetall(self.k("job", job_id, name))
+        pipe.smembers(self.k("job", job_id, "merged"))
+        for t in range(meta.plan.n_tiles):
+            pipe.get(self.acc_key(job_id, t))
+        h, scene, states, samples, errors, merged, *buffers = pipe.execute()
+        if not h or scene is None:
+            return None
+        return JobSnapshot(
+            JobMeta.from_hash(h), scene, {int(k): v.decode() for k, v in states.items()},
+            {int(k): int(v) for k, v in samples.items()},
+            {int(k): v.decode() for k, v in errors.items()}, sorted(m.decode() for m in merged),
+            buffers)
+
+    def restore_job(self, snap: JobSnapshot) -> None:
+        """Put a parked job back in Redis as it was when it was parked (its status, counters,
+        scene, tiles and accumulations), ready for ``reopen_job``."""
+        meta = snap.meta
+        plan = meta.plan
+        fields: dict[str, Any] = {
+            "id": meta.id, "name": meta.name, "status": meta.status, "priority": meta.priority,
+            "width": plan.width, "height": plan.height, "spp": plan.spp,
+            "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
+            "max_spp_per_pass": plan.max_spp_per_pass, "tasks_total": plan.n_tasks,
+            "tasks_merged": meta.tasks_merged, "samples_merged": meta.samples_merged,
+            "dropped": meta.dropped, "version": meta.version, "status_version": 0,
+            "created_at": meta.created_at, "started_at": meta.started_at or "",
+            "finished_at": meta.finished_at or "", "error": meta.error or "",
+            "methods": json.dumps(meta.methods), "submitter": meta.submitter or "",
+        }
+        pipe = self.r.pipeline()
+        pipe.hset(self.job_key(meta.id), mapping=fields)
+        pipe.set(self.k("job", meta.id, "scene"), snap.scene_json)
+        pipe.hset(self.k("job", meta.id, "tile_state"),
+                  mapping={str(t): snap.tile_states.get(t, "queued")
+                           for t in range(plan.n_tiles)})
+        if snap.tile_samples:
+            pipe.hset(self.k("job", meta.id, "tile_samples"),
+                      mapping={str(t): n for t, n in snap.tile_samples.items()})
+        if snap.tile_errors:
+            pipe.hset(self.k("job", meta.id, "tile_error"),
+                      mapping={str(t): e for t, e in snap.tile_errors.items()})
+        for t, data in enumerate(snap.tile_buffers):
+            if data is not None:
+                pipe.set(self.acc_key(meta.id, t), data)
+        if snap.merged:
+            pipe.sadd(self.k("job", meta.id, "merged"), *snap.merged)
+        pipe.zadd(self.k("jobs"), {meta.id: meta.created_at})
+        pipe.zadd(self.k("finished"), {meta.id: meta.finished_at or time.time()})
+        pipe.execute()
 
     def forget_archive(self, job_id: str) -> None:
         """Take the job off the list of those to archive."""

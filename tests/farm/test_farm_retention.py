@@ -155,6 +155,49 @@ def test_retention_removes_old_finished_jobs(farm, tiny_scene, tmp_path, wait_fo
         assert client.get(f"/api/jobs/{new}/image.exr").status_code == 200
 
 
+def test_a_cancelled_job_leaves_redis_and_a_retry_brings_it_back(farm, tiny_scene, tmp_path,
+                                                                 wait_for_job):
+    """A cancelled job is parked (``LUCENT_PARK_AFTER``): its tiles to the blob store, nothing of
+    it left in Redis, its status, tiles and partial image still served; a retry brings it back
+    as it was and it finishes with every pass merged once; then its state blob is gone."""
+    settings = farm.settings.model_copy(update={"data_dir": tmp_path, "park_after": 0.0,
+                                                "sweep_interval": 0.2})
+    store = farm.store()
+    records = records_of(settings)
+    scene = own_scene(tiny_scene)
+    scene["render"]["spp"] = 32
+    with TestClient(create_app(settings)) as client:
+        job_id = client.post("/api/jobs", json={"scene": scene, "tile_size": 16,
+                                                "spp_per_pass": 1, "max_spp_per_pass": 1}
+                             ).json()["id"]
+        wait_until(lambda: client.get(f"/api/jobs/{job_id}").json()["tasks_merged"] > 2, 60,
+                   "passes merging")
+        assert client.delete(f"/api/jobs/{job_id}").json()["status"] == "cancelled"
+        wait_until(lambda: not job_keys(store, job_id), 30, "the cancelled job out of Redis")
+        record = records.get(job_id)
+        assert record.status == "cancelled" and record.parked
+        state = record.parked
+        assert FileBlobStore(settings.blob_path).exists(state)
+        detail = client.get(f"/api/jobs/{job_id}").json()
+        assert detail["status"] == "cancelled"
+        assert sum(t["samples"] for t in detail["tile_states"]) > 0
+        assert client.get(f"/api/jobs/{job_id}/image.png").status_code == 200
+        assert job_id in listed_ids(client)
+
+        r = client.post(f"/api/jobs/{job_id}/retry")
+        assert r.status_code == 200, r.text
+        done = wait_for_job(client, job_id)
+        assert done["status"] == "done", done
+        wait_until(lambda: bool(records.get(job_id).images), 30, "the image archived")
+        final = records.get(job_id)
+        plan = final.plan
+        assert final.tasks_merged == plan.n_tasks  # every pass once, none lost or doubled
+        assert final.samples_merged + final.dropped == plan.width * plan.height * plan.spp
+        assert final.parked is None and not records.blob_in_use(state)
+        assert not FileBlobStore(settings.blob_path).exists(state)
+        assert job_keys(store, job_id) == set()
+
+
 def test_the_file_blob_store_is_content_addressed(tmp_path):
     blobs = FileBlobStore(tmp_path)
     key = content_key(b"pixels")

@@ -24,7 +24,13 @@ from services.api.deps import (
 from services.api.guards import echo_text, error_content
 from services.api.intake import Rejection
 from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
-from services.farm.archive import delete_finished, encode_image, final_image
+from services.farm.archive import (
+    assemble_parked,
+    delete_finished,
+    encode_image,
+    final_image,
+    unpark_job,
+)
 from services.farm.jobs import Refusal, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
@@ -131,10 +137,12 @@ def list_jobs(store: StoreDep, records: RecordsDep,
 
 def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
                errors: dict[int, str]) -> JobDetail:
-    if meta.images:  # archived: its tile keys are gone, their summary is in the job's hash
-        states = dict.fromkeys(range(meta.plan.n_tiles), "done")
-        samples = dict(enumerate(meta.tiles_final.get("samples", [])))
-        errors = {int(t): e for t, e in meta.tiles_final.get("errors", {}).items()}
+    if meta.tiles_final:  # out of Redis: its tiles' summary is in its record
+        final = meta.tiles_final
+        states = ({int(t): s for t, s in final["states"].items()} if "states" in final
+                  else dict.fromkeys(range(meta.plan.n_tiles), "done"))
+        samples = dict(enumerate(final.get("samples", [])))
+        errors = {int(t): e for t, e in final.get("errors", {}).items()}
     tiles = []
     for t in range(meta.plan.n_tiles):
         x0, y0, w, h = meta.plan.tile_rect(t)
@@ -247,6 +255,8 @@ def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request
                                        "store")
         # The buffers are read after the version: the image is never older than its ETag says.
         assembled = assemble(store, job_id)
+        if assembled is None and meta.parked:  # out of Redis: its tiles are in the blob store
+            assembled = assemble_parked(blobs, meta)
         if assembled is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
         content = encode_image(assembled[0].mean(), fmt, exposure, tonemap)
@@ -268,9 +278,12 @@ def cancel_job(job_id: JobId, store: StoreDep, records: RecordsDep, blobs: Blobs
 
 
 @router.post("/{job_id}/retry", response_model=JobPublic)
-def retry_job(job_id: JobId, store: StoreDep, records: RecordsDep, celery: CeleryDep):
+def retry_job(job_id: JobId, store: StoreDep, records: RecordsDep, blobs: BlobsDep,
+              celery: CeleryDep):
     """Requeue every pass not merged yet of a failed or cancelled job (tries counted afresh)."""
     meta = _get_or_404(store, records, job_id)
+    if store.get_status(job_id) is None and unpark_job(store, records, blobs, meta):
+        meta = _get_or_404(store, records, job_id)  # back in Redis, as it was parked
     if store.get_status(job_id) is None:
         raise HTTPException(status.HTTP_409_CONFLICT,
                             detail=f"job {job_id} is {meta.status} and its passes are no longer "

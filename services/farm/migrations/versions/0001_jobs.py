@@ -39,6 +39,7 @@ def upgrade() -> None:
         sa.Column("archived_at", sa.Double),
         sa.Column("image_bytes", sa.BigInteger, nullable=False, server_default="0"),
         sa.Column("image_removed_at", sa.Double),
+        sa.Column("state_blob", sa.String(71)),
     )
     # newest first, whole list and by status (the id breaks ties: a stable page order)
     op.create_index("jobs_created_at", "jobs", ["created_at", "id"])
@@ -48,6 +49,7 @@ def upgrade() -> None:
     # whether another job's image is the same blob, before the blob is deleted
     op.create_index("jobs_image_exr", "jobs", ["image_exr"])
     op.create_index("jobs_image_png", "jobs", ["image_png"])
+    op.create_index("jobs_state_blob", "jobs", ["state_blob"])
 
 
 def downgrade() -> None:
