@@ -39,8 +39,9 @@ def scene_for_upload(path: str | Path, client: Client) -> dict[str, Any]:
 
 
 class JobLost(RuntimeError):
-    """The server no longer knows a job it accepted: its Redis lost it (restarted without
-    persistence, or flushed). Nothing of the job survives; submit it again."""
+    """The server no longer knows a job it accepted: it was deleted (``DELETE``, or the
+    retention settings). A job whose in-flight state Redis lost is answered, failed with the
+    reason."""
 
 
 class Unavailable(RuntimeError):
@@ -121,8 +122,7 @@ class Client:
     def job(self, job_id: str) -> dict:
         r = self._request("GET", f"/api/jobs/{job_id}")
         if r.status_code == 404:
-            raise JobLost(f"job {job_id} is gone from the server (was its Redis restarted "
-                          "without persistence?)")
+            raise JobLost(f"job {job_id} is gone from the server (deleted)")
         r.raise_for_status()
         return r.json()
 

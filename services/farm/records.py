@@ -139,8 +139,10 @@ _MIGRATION_LOCK = 0x4C7563656E74
 
 # A row queued or running whose job Redis does not hold, this long after it was created, is a
 # job whose in-flight state Redis lost (a restart without persistence): it is marked failed. The
-# delay covers a submission between its row's insert and its Redis keys.
-LOST_AFTER = 60.0
+# delay covers a submission between its row's insert and its Redis keys (milliseconds; should
+# Redis take longer, the row follows the job again at the next sweep: rows not archived are
+# brought up to date from Redis).
+LOST_AFTER = 10.0
 
 
 class RecordsUnavailable(RuntimeError):
