@@ -520,8 +520,8 @@ class JobStore:
                 pipe.set(self.acc_key(meta.id, t), data)
         if snap.merged:
             pipe.sadd(self.k("job", meta.id, "merged"), *snap.merged)
+        # not back in ``finished``: the sweeper would park it again before the retry reopens it
         pipe.zadd(self.k("jobs"), {meta.id: meta.created_at})
-        pipe.zadd(self.k("finished"), {meta.id: meta.finished_at or time.time()})
         pipe.execute()
 
     def forget_archive(self, job_id: str) -> None:
