@@ -50,7 +50,9 @@ def main() -> None:
             "LUCENT_KEY_PREFIX": prefix, "LUCENT_API_TOKEN": ""})
         try:
             with TestClient(create_app(settings)) as client:
-                before = r.info("memory")["used_memory"]
+                info = r.info("memory")
+                before, before_data = info["used_memory"], info["used_memory_dataset"]
+                keys_before = sorted(k.decode() for k in r.keys("*"))
                 ids = [client.post("/api/jobs", json={"scene": {
                     **scene, "render": {**scene["render"], "seed": i + 1}}}).json()["id"]
                     for i in range(args.jobs)]
@@ -60,14 +62,19 @@ def main() -> None:
                     assert time.monotonic() < deadline, "jobs did not finish"
                     time.sleep(0.5)
                 time.sleep(5 * settings.sweep_interval)  # the sweeper archives
-                after = r.info("memory")["used_memory"]
-                keys = r.dbsize()
+                info = r.info("memory")
+                after, after_data = info["used_memory"], info["used_memory_dataset"]
+                keys_after = sorted(k.decode() for k in r.keys("*"))
+                keys = len(keys_after)
         finally:
             terminate(worker, 30.0)
             server.stop()
     print(f"{args.jobs} jobs of {width}x{height} at {args.spp} spp, archive "
           f"{'off' if args.no_archive else 'on'}: used_memory {before} -> {after} bytes "
-          f"(+{after - before}, {(after - before) / args.jobs:.0f} a job), {keys} keys")
+          f"(+{after - before}, {(after - before) / args.jobs:.0f} a job), {keys} keys; "
+          f"used_memory_dataset {before_data} -> {after_data} (+{after_data - before_data})")
+    print(f"keys before the first job: {keys_before}")
+    print(f"keys after the last: {keys_after}")
 
 
 if __name__ == "__main__":

@@ -10,6 +10,7 @@ a 500 is a bug, and a 4xx will not change by asking again.
 
 from __future__ import annotations
 
+import hashlib
 import json
 import sys
 import time
@@ -22,27 +23,25 @@ import httpx
 IMAGE_TYPES = {".exr": "exr", ".png": "png", ".npy": "npy"}
 
 
-def scene_for_upload(path: str | Path) -> dict[str, Any]:
-    """Read a scene file; meshes given by ``path`` are read here and sent inline (the server never
-    reads a path)."""
+def scene_for_upload(path: str | Path, client: Client) -> dict[str, Any]:
+    """Read a scene file; each mesh file it names by ``path`` (relative to the scene's folder)
+    is uploaded to the farm as an asset, unless the farm has it already (``HEAD`` first), and
+    the reference rewritten to ``{"asset": "sha256:…"}`` (the server never reads a path)."""
     path = Path(path)
     data = json.loads(path.read_text())
     for obj in data.get("objects", []):
         if isinstance(obj, dict) and obj.get("type") == "mesh" and obj.get("path"):
-            from renderer.geometry.meshio import read_mesh
-
             mesh_path = Path(obj.pop("path")).expanduser()
             if not mesh_path.is_absolute():
                 mesh_path = path.resolve().parent / mesh_path
-            vertices, triangles = read_mesh(mesh_path)
-            obj["vertices"] = vertices.tolist()
-            obj["triangles"] = triangles.tolist()
+            obj["asset"] = client.upload_asset(mesh_path.read_bytes())
     return data
 
 
 class JobLost(RuntimeError):
-    """The server no longer knows a job it accepted: its Redis lost it (restarted without
-    persistence, or flushed). Nothing of the job survives; submit it again."""
+    """The server no longer knows a job it accepted: it was deleted (``DELETE``, or the
+    retention settings). A job whose in-flight state Redis lost is answered, failed with the
+    reason."""
 
 
 class Unavailable(RuntimeError):
@@ -99,6 +98,18 @@ class Client:
             time.sleep(delay)
             tries += 1
 
+    def upload_asset(self, data: bytes) -> str:
+        """The asset name of ``data`` on the farm, uploading it only if the farm lacks it."""
+        digest = hashlib.sha256(data).hexdigest()
+        if self._request("HEAD", f"/api/assets/{digest}").status_code == 200:
+            return f"sha256:{digest}"
+        r = self._request("POST", "/api/assets", content=data, params={"sha256": digest},
+                          headers={"Content-Type": "application/octet-stream"})
+        if r.status_code in (413, 422):
+            raise ValueError(f"asset upload refused: {_detail(r)}")
+        r.raise_for_status()
+        return str(r.json()["asset"])
+
     def submit(self, scene: dict, **options: Any) -> dict:
         r = self._request("POST", "/api/jobs", json={"scene": scene, **options})
         if r.status_code == 422:
@@ -111,8 +122,7 @@ class Client:
     def job(self, job_id: str) -> dict:
         r = self._request("GET", f"/api/jobs/{job_id}")
         if r.status_code == 404:
-            raise JobLost(f"job {job_id} is gone from the server (was its Redis restarted "
-                          "without persistence?)")
+            raise JobLost(f"job {job_id} is gone from the server (deleted)")
         r.raise_for_status()
         return r.json()
 
@@ -172,7 +182,7 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
             return 2
     client = Client(server, token)
     try:
-        job = client.submit(scene_for_upload(scene_path), **(options or {}))
+        job = client.submit(scene_for_upload(scene_path, client), **(options or {}))
     except ValueError as err:
         print(f"{scene_path}: the server refused it:\n{err}", file=sys.stderr)
         return 1

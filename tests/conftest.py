@@ -22,6 +22,7 @@ from __future__ import annotations
 
 import math
 import os
+import tempfile
 import time
 import zlib
 from collections.abc import Callable, Iterator
@@ -29,6 +30,10 @@ from collections.abc import Callable, Iterator
 import numpy as np
 import pytest
 from scipy import stats
+
+# A service a test starts keeps its job records (SQLite) and blobs here, never in the user's data
+# folder (LUCENT_DATA_DIR's default); fixtures that start farms give each its own folder.
+os.environ.setdefault("LUCENT_DATA_DIR", tempfile.mkdtemp(prefix="lucent-test-data-"))
 
 # Significance, Bonferroni-corrected: the suite runs at most CHI2_TESTS chi² checks (27 today, in
 # tests/renderer/test_sampling.py and test_rng.py; raise CHI2_TESTS if new tests take the count

@@ -18,6 +18,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
+from services.farm.blobs import AssetCache, FileBlobStore
 from services.farm.settings import get_settings
 from services.farm.store import JobStore
 
@@ -97,6 +98,7 @@ class WorkerState:
         self.settings = get_settings()
         self._store: JobStore | None = None
         self._compiled: OrderedDict[str, Any] = OrderedDict()
+        self._assets: AssetCache | None = None
         self.worker_id = f"{socket.gethostname()}:{os.getpid()}"
         self.state = "starting"
         self.current_task = ""
@@ -107,6 +109,18 @@ class WorkerState:
         self._lock = threading.Lock()
         self._stop = threading.Event()
         self._beat: threading.Thread | None = None
+
+    @property
+    def assets(self) -> AssetCache:
+        """The assets scenes reference: the blob store (the service's data folder, a volume the
+        workers share), through this process's on-disk cache (``LUCENT_ASSET_CACHE_BYTES``)."""
+        if self._assets is None:
+            base = os.environ.get("LUCENT_CACHE_DIR") or Path(
+                os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "lucent"
+            self._assets = AssetCache(FileBlobStore(self.settings.blob_path),
+                                      Path(base) / "assets",
+                                      self.settings.asset_cache_bytes)
+        return self._assets
 
     @property
     def store(self) -> JobStore:
@@ -134,7 +148,7 @@ class WorkerState:
         from renderer.scene import load_scene
         from renderer.scene.compile import compile_scene
 
-        compiled = compile_scene(load_scene(scene_json))
+        compiled = compile_scene(load_scene(scene_json, assets=self.assets.read))
         with self._lock:
             self._compiled[job_id] = compiled
             while len(self._compiled) > self.settings.compiled_cache_size:

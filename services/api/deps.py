@@ -9,6 +9,7 @@ from celery import Celery
 from fastapi import Depends, HTTPException, Request, status
 
 from services.farm.blobs import BlobStore
+from services.farm.records import Records
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 
@@ -39,15 +40,34 @@ async def get_blobs(request: Request) -> BlobStore:
 BlobsDep = Annotated[BlobStore, Depends(get_blobs)]
 
 
+async def get_records(request: Request) -> Records:
+    return request.app.state.records
+
+
+RecordsDep = Annotated[Records, Depends(get_records)]
+
+
+async def get_submitter(request: Request) -> str | None:
+    """The name of the API token the request came with (``LUCENT_API_TOKENS``), if any."""
+    return getattr(request.state, "token_name", None)
+
+
+SubmitterDep = Annotated[str | None, Depends(get_submitter)]
+
+
 async def require_token(request: Request, settings: SettingsDep) -> None:
-    """With ``LUCENT_API_TOKEN`` set, ``Authorization: Bearer <token>`` (compared in constant
-    time); without it, the API is open (development on one machine)."""
-    if not settings.api_token:
+    """With ``LUCENT_API_TOKEN`` or ``LUCENT_API_TOKENS`` set, ``Authorization: Bearer <token>``
+    (compared in constant time with every token; a named one's name is kept on the request);
+    without either, the API is open (development on one machine)."""
+    tokens = {**settings.api_tokens, "": settings.api_token or ""}
+    if not any(tokens.values()):
         return
     scheme, _, given = request.headers.get("authorization", "").partition(" ")
-    if scheme.lower() != "bearer" or not secrets.compare_digest(
-        given.strip().encode(), settings.api_token.encode()
-    ):
+    matches = [name for name, token in tokens.items()
+               if token and secrets.compare_digest(given.strip().encode(), token.encode())]
+    if scheme.lower() == "bearer" and matches:
+        request.state.token_name = matches[0] or None
+    else:
         raise HTTPException(
             status.HTTP_401_UNAUTHORIZED,
             detail="missing or wrong API token (Authorization: Bearer <LUCENT_API_TOKEN>)",

@@ -19,6 +19,7 @@
 from __future__ import annotations
 
 import itertools
+import logging
 import math
 from collections.abc import Iterable
 from typing import Any
@@ -30,6 +31,8 @@ from starlette.types import ASGIApp, Message, Receive, Scope, Send
 
 from services.farm.availability import RETRY_AFTER, unavailable_detail
 
+log = logging.getLogger(__name__)
+
 
 def _too_large(size: str, limit: int) -> str:
     return f"request body of {size} bytes exceeds the limit {limit} (LUCENT_MAX_BODY_BYTES)"
@@ -38,19 +41,22 @@ def _too_large(size: str, limit: int) -> str:
 class BodyLimit:
     """ASGI middleware: 413 for a request body over ``max_bytes``."""
 
-    def __init__(self, app: ASGIApp, max_bytes: int) -> None:
+    def __init__(self, app: ASGIApp, max_bytes: int,
+                 paths: dict[str, int] | None = None) -> None:
         self.app = app
-        self.max_bytes = max_bytes
+        self.default_bytes = max_bytes
+        self.paths = paths or {}  # a limit of their own for these paths (uploads)
 
     async def __call__(self, scope: Scope, receive: Receive, send: Send) -> None:
         if scope["type"] != "http":
             await self.app(scope, receive, send)
             return
+        max_bytes = self.paths.get(scope.get("path", ""), self.default_bytes)
         headers = dict(scope["headers"])
         length = headers.get(b"content-length", b"").decode("latin-1")
-        if length.isdigit() and int(length) > self.max_bytes:
+        if length.isdigit() and int(length) > max_bytes:
             await JSONResponse(status_code=status.HTTP_413_CONTENT_TOO_LARGE,
-                               content={"detail": _too_large(length, self.max_bytes)}
+                               content={"detail": _too_large(length, max_bytes)}
                                )(scope, receive, send)
             return
 
@@ -61,12 +67,11 @@ class BodyLimit:
             message = await receive()
             if message["type"] == "http.request":
                 received += len(message.get("body", b""))
-                if received > self.max_bytes:
+                if received > max_bytes:
                     # FastAPI re-raises an HTTPException met while reading the body; its handler
                     # answers 413 (and so does the fallback below for any other reader).
                     raise HTTPException(status.HTTP_413_CONTENT_TOO_LARGE,
-                                        detail=_too_large(f"more than {self.max_bytes}",
-                                                          self.max_bytes))
+                                        detail=_too_large(f"more than {max_bytes}", max_bytes))
             return message
 
         started = False
@@ -167,3 +172,12 @@ async def store_unavailable(request: Request, exc: Exception) -> JSONResponse:
     return JSONResponse(status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
                         headers={"Retry-After": str(RETRY_AFTER)},
                         content={"detail": unavailable_detail(exc)})
+
+
+async def database_unavailable(request: Request, exc: Exception) -> JSONResponse:
+    """503 for a route whose job database (``services.farm.records``) does not answer now."""
+    log.warning("the job database is unavailable: %s", exc)
+    return JSONResponse(status_code=status.HTTP_503_SERVICE_UNAVAILABLE,
+                        headers={"Retry-After": str(RETRY_AFTER)},
+                        content={"detail": "the farm's job database is unavailable; try again "
+                                           "shortly"})

@@ -29,6 +29,7 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from email.message import Message
+from pathlib import Path
 from typing import Any
 
 from fastapi import status
@@ -67,8 +68,8 @@ def _is_json(content_type: str | None) -> bool:
     return main == "application" and (sub == "json" or sub.endswith("+json"))
 
 
-def read_submission(body: bytes, content_type: str | None,
-                    limits: Limits) -> Submission | Rejection:
+def read_submission(body: bytes, content_type: str | None, limits: Limits,
+                    blob_root: Path | None = None) -> Submission | Rejection:
     """Parse and check a ``POST /api/jobs`` body: JSON, then ``JobCreate``, then the scene."""
     # Parse
     if not body:
@@ -95,7 +96,7 @@ def read_submission(body: bytes, content_type: str | None,
         return Rejection(status.HTTP_422_UNPROCESSABLE_CONTENT, error_content(
             {**e, "loc": ("body", *e["loc"])} for e in err.errors(include_url=False)))
     # The scene
-    checked = check_scene(create.scene, limits)
+    checked = check_scene(create.scene, limits, blob_root)
     if isinstance(checked, Refusal):
         return Rejection(checked.status, error_content(
             {"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in checked.errors))
@@ -110,15 +111,17 @@ class Intake:
     else ``processes`` processes of its own, started on first use (spawned: the service's
     threads and connections stay behind)."""
 
-    def __init__(self, inline_bytes: int, processes: int):
+    def __init__(self, inline_bytes: int, processes: int, blob_root: Path | None = None):
         self.inline_bytes = inline_bytes
         self.processes = processes
+        self.blob_root = blob_root  # where the assets that scenes reference are read
         self._pool: ProcessPoolExecutor | None = None
 
     async def read(self, body: bytes, content_type: str | None) -> Submission | Rejection:
         limits = Limits()  # read here: the environment of the service, not of a child
         if len(body) <= self.inline_bytes:
-            return await run_in_threadpool(read_submission, body, content_type, limits)
+            return await run_in_threadpool(read_submission, body, content_type, limits,
+                                           self.blob_root)
         if self._pool is None:
             self._pool = ProcessPoolExecutor(self.processes,
                                              mp_context=multiprocessing.get_context("spawn"))
@@ -126,7 +129,7 @@ class Intake:
         try:
             # Submitted from a thread: the first submission spawns the process
             future = await run_in_threadpool(pool.submit, read_submission, body, content_type,
-                                             limits)
+                                             limits, self.blob_root)
             return await asyncio.wrap_future(future)
         except BrokenProcessPool:
             # The process died (killed for memory?): the next large body starts a new one.

@@ -72,6 +72,8 @@ class JobPublic(BaseModel):
     image_version: int = Field(description="merges so far: the preview's ETag")
     methods: dict[str, str] = Field(default_factory=dict,
                                     description="for translucent 'auto': the method chosen")
+    submitter: str | None = Field(default=None, description="the name of the API token it was "
+                                                            "submitted with (LUCENT_API_TOKENS)")
 
 
 class JobDetail(JobPublic):

@@ -1,5 +1,5 @@
 // A job: progressive preview (fetched only when its ETag changed), exposure, downloads, the tile
-// grid coloured by state or by samples, errors, the methods `auto` chose, cancel and retry.
+// grid coloured by state or by samples, errors, the methods `auto` chose, cancel, retry, delete.
 
 import {
   FINAL, api, authHeaders, elapsed, fmtDuration, fmtRate, fmtTime, h, poll, progressBar,
@@ -39,6 +39,7 @@ export function renderJob(view, jobId) {
   const badge = h("span", { id: "job-status" });
   const cancelBtn = h("button", { id: "job-cancel", type: "button" }, "Cancel");
   const retryBtn = h("button", { id: "job-retry", type: "button" }, "Retry");
+  const deleteBtn = h("button", { id: "job-delete", type: "button" }, "Delete");
   const facts = h("dl", { class: "facts", id: "job-facts" });
   const bar = h("div", { id: "job-progress" });
   const img = h("img", { id: "preview", alt: "the image as merged so far" });
@@ -62,7 +63,7 @@ export function renderJob(view, jobId) {
   view.append(
     h("p", { class: "crumbs" }, h("a", { href: "#/jobs" }, "← Jobs")),
     h("div", { class: "toolbar" }, title, badge, h("span", { class: "spacer" }),
-      h("span", { class: "group" }, cancelBtn, retryBtn)),
+      h("span", { class: "group" }, cancelBtn, retryBtn, deleteBtn)),
     bar,
     h("div", { class: "job-layout" },
       h("section", { class: "panel preview-panel" },
@@ -182,6 +183,7 @@ export function renderJob(view, jobId) {
     bar.replaceChildren(progressBar(job.progress, job.status));
     cancelBtn.disabled = FINAL.includes(job.status);
     retryBtn.disabled = !["failed", "cancelled"].includes(job.status);
+    deleteBtn.disabled = !FINAL.includes(job.status);
     const rows = [
       ["Size", `${job.width}×${job.height}, ${job.spp} spp`],
       ["Tiles × passes", `${job.tiles} × ${job.passes} (${job.tile_size} px, `
@@ -221,6 +223,16 @@ export function renderJob(view, jobId) {
 
   cancelBtn.addEventListener("click", () => act("DELETE", `/api/jobs/${jobId}`, "cancelled"));
   retryBtn.addEventListener("click", () => act("POST", `/api/jobs/${jobId}/retry`, "retried"));
+  // A finished job: its record, image and scene go; back to the list.
+  deleteBtn.addEventListener("click", async () => {
+    try {
+      await api(`/api/jobs/${jobId}`, { method: "DELETE" });
+      showNotice("Job deleted");
+      location.hash = "#/jobs";
+    } catch (err) {
+      showNotice(err.message, "error");
+    }
+  });
   const onView = () => {
     exposureOut.textContent = `${Number(exposure.value) > 0 ? "+" : ""}${exposure.value} EV`;
     refreshPreview();

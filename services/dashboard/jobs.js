@@ -1,7 +1,8 @@
-// The Jobs page: every job with its progress, a status filter, bulk cancel and retry.
+// The Jobs page: every job with its progress, a status filter, bulk cancel, retry and delete.
 
 import {
-  api, elapsed, fmtDuration, fmtRate, fmtTime, h, poll, progressBar, showNotice, statusBadge,
+  FINAL, api, elapsed, fmtDuration, fmtRate, fmtTime, h, poll, progressBar, showNotice,
+  statusBadge,
 } from "./api.js";
 
 const STATUSES = ["queued", "running", "done", "failed", "cancelled"];
@@ -16,6 +17,7 @@ export function renderJobs(view) {
   filter.value = sessionStorage.getItem("lucent-filter") || "";
   const cancelBtn = h("button", { id: "bulk-cancel", type: "button", disabled: true }, "Cancel");
   const retryBtn = h("button", { id: "bulk-retry", type: "button", disabled: true }, "Retry");
+  const deleteBtn = h("button", { id: "bulk-delete", type: "button", disabled: true }, "Delete");
   const count = h("span", { class: "muted", id: "jobs-count" });
   const selectAll = h("input", { type: "checkbox", id: "select-all", "aria-label": "select all" });
   const tbody = h("tbody");
@@ -36,14 +38,14 @@ export function renderJobs(view) {
       h("h1", {}, "Jobs"), count,
       h("span", { class: "spacer" }),
       h("label", {}, "Show ", filter),
-      h("span", { class: "group" }, selCount, cancelBtn, retryBtn)),
+      h("span", { class: "group" }, selCount, cancelBtn, retryBtn, deleteBtn)),
     table,
     empty);
 
   function updateButtons() {
     const n = selected.size;
     selCount.textContent = n ? `${n} selected` : "";
-    cancelBtn.disabled = retryBtn.disabled = n === 0;
+    cancelBtn.disabled = retryBtn.disabled = deleteBtn.disabled = n === 0;
     selectAll.checked = n > 0 && jobs.every((j) => selected.has(j.id));
   }
 
@@ -102,12 +104,16 @@ export function renderJobs(view) {
   }
 
   async function bulk(action) {
-    const ids = [...selected];
-    const results = await Promise.allSettled(ids.map((id) => action === "cancel"
-      ? api(`/api/jobs/${id}`, { method: "DELETE" })
-      : api(`/api/jobs/${id}/retry`, { method: "POST" })));
+    // DELETE cancels a queued or running job and deletes a finished one: each button sends it
+    // only to the jobs it names.
+    const status = new Map(jobs.map((j) => [j.id, j.status]));
+    const ids = [...selected].filter((id) => action === "retry"
+      || (action === "delete") === FINAL.includes(status.get(id)));
+    const results = await Promise.allSettled(ids.map((id) => action === "retry"
+      ? api(`/api/jobs/${id}/retry`, { method: "POST" })
+      : api(`/api/jobs/${id}`, { method: "DELETE" })));
     const failed = results.filter((r) => r.status === "rejected");
-    const verb = action === "cancel" ? "cancelled" : "retried";
+    const verb = { cancel: "cancelled", retry: "retried", delete: "deleted" }[action];
     const ok = ids.length - failed.length;
     if (failed.length) {
       showNotice(`${ok} ${verb}; ${failed.length} not: ${failed[0].reason.message}`, "error");
@@ -130,5 +136,6 @@ export function renderJobs(view) {
   });
   cancelBtn.addEventListener("click", () => bulk("cancel"));
   retryBtn.addEventListener("click", () => bulk("retry"));
+  deleteBtn.addEventListener("click", () => bulk("delete"));
   poll(refresh, POLL_MS);
 }

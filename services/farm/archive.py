@@ -2,21 +2,28 @@
 
 - ``archive_done`` (the sweeper, every ``sweep_interval``): each job that became done has its
   image written once to the blob store, the EXR and the PNG at the default exposure exactly as
-  ``GET /api/jobs/{id}/image.exr`` / ``.png`` served them from Redis, and then its tile
-  accumulations and other tile keys are deleted from Redis (``JobStore.archive_job``). Redis holds
-  what is in flight; the job's hash and scene stay there (job records move to a database later,
-  issue #20), so the job still lists.
+  ``GET /api/jobs/{id}/image.exr`` / ``.png`` served them from Redis, its last state and its
+  tiles' summary written to its record (``services.farm.records``), and then every key of it is
+  deleted from Redis: Redis holds what is in flight, the record the rest.
+- ``keep_records`` (the sweeper, every sweep): the records of the jobs Redis holds brought up to
+  date; jobs queued or running whose state Redis lost are marked failed.
 - ``final_image``: what the image routes serve for an archived job: the stored bytes, or for the
   PNG at another exposure or tone map and for ``.npy``, the stored EXR decoded (float32,
   lossless) and encoded again.
-- ``delete_finished``: ``DELETE /api/jobs/{id}`` of a done, failed or cancelled job: its keys, and
-  its blobs when no other job's image is the same bytes.
+- ``delete_finished``: ``DELETE /api/jobs/{id}`` of a done, failed or cancelled job: its keys, its
+  record, and its blobs when no other job's image is the same bytes.
 - ``expire_finished`` (the sweeper, with ``LUCENT_KEEP_DAYS``): the same for jobs finished longer
   ago than that.
+- ``park_finished`` (the sweeper, ``LUCENT_PARK_AFTER`` after they ended): failed and cancelled
+  jobs out of Redis too, their tiles' state as one blob and their record; ``unpark_job`` brings
+  one back for a retry.
+- ``cap_images`` (the sweeper, with ``LUCENT_MAX_IMAGE_BYTES``): the images of the oldest finished
+  jobs removed until the rest fit; their records stay.
 
-Archiving and deleting are safe against each other and against a second sweeper: ``archive_job``
-takes its references on the blobs in the same Redis script that checks the job is still done and
-not archived; a blob is deleted only when the script that dropped its last reference says so.
+Archiving and deleting are safe against each other and against a second sweeper: the record is
+written only if it still exists (a deletion meanwhile: the archive removes what it wrote), the
+deletion reads the blob keys from the row it deletes, and a blob is deleted only when no record
+names it.
 """
 
 from __future__ import annotations
@@ -28,10 +35,12 @@ from collections.abc import Callable
 
 import numpy as np
 
+from renderer.film.buffer import SampleBuffer
 from renderer.film.image_io import decode_exr, encode_exr
 from services.farm.blobs import BlobStore, put_content
 from services.farm.merge import assemble
-from services.farm.store import JobMeta, JobStore
+from services.farm.records import LOST_AFTER, Records
+from services.farm.store import ACTIVE, JobMeta, JobSnapshot, JobStore
 
 log = logging.getLogger(__name__)
 
@@ -61,37 +70,129 @@ def encode_image(image: np.ndarray, fmt: str, exposure: float = DEFAULT_EXPOSURE
     return out.getvalue()
 
 
-def archive_job(store: JobStore, blobs: BlobStore, job_id: str) -> bool:
-    """Write a done job's image to the blob store and drop its tile keys from Redis. True if this
-    call archived it; False if the job is gone, not done, or archived already."""
-    assembled = assemble(store, job_id)
-    if assembled is None:
-        store.archive_job(job_id, {})  # gone: only takes it off the list to archive
+def archive_job(store: JobStore, records: Records, blobs: BlobStore, job_id: str) -> bool:
+    """Write a done job's image to the blob store and its last state to its record, then delete
+    its keys from Redis. True if this call archived it; False if the job is gone from Redis or
+    not done, or its record was deleted meanwhile (what was written for it is removed)."""
+    meta = store.get_job(job_id)
+    assembled = assemble(store, job_id) if meta is not None and meta.status == "done" else None
+    if meta is None or assembled is None:
+        store.forget_archive(job_id)  # gone or retried: only takes it off the list to archive
         return False
     image = assembled[0].mean()
     data = {"exr": encode_image(image, "exr"), "png": encode_image(image, "png")}
     images = {fmt: put_content(blobs, b) for fmt, b in data.items()}
-    if not store.archive_job(job_id, images):
+    tiles = store.tiles_final(job_id, meta.plan.n_tiles)
+    if not records.archive(meta, images, tiles, sum(map(len, data.values()))):  # deleted
         for key in images.values():  # written for nothing, unless another job's image
-            if not store.blob_in_use(key):
+            if not records.blob_in_use(key):
                 blobs.delete(key)
+        store.forget_archive(job_id)
         return False
-    # A job with the same image deleted between our write and our reference removed the blob
+    # A job with the same image deleted between our write and our record removed the blob
     for fmt, key in images.items():
         if not blobs.exists(key):
             blobs.put(key, data[fmt])
+    store.delete_job(job_id, ("done",))
     return True
 
 
-def archive_done(store: JobStore, blobs: BlobStore) -> int:
+def archive_done(store: JobStore, records: Records, blobs: BlobStore) -> int:
     """Archive every done job not archived yet; returns how many this call archived."""
     archived = 0
     for job_id in store.jobs_to_archive():
         try:
-            archived += archive_job(store, blobs, job_id)
+            archived += archive_job(store, records, blobs, job_id)
         except OSError:  # a full or missing blob folder: the job stays in Redis, tried again
             log.exception("cannot write the image of job %s to the blob store", job_id)
     return archived
+
+
+def park_job(store: JobStore, records: Records, blobs: BlobStore, job_id: str) -> bool:
+    """Move a failed or cancelled job out of Redis: its tiles' accumulations, samples, errors,
+    merged passes and scene as one blob (``JobSnapshot``), its last state to its record, then
+    its keys deleted. A retry brings it back (``unpark_job``). True if this call parked it."""
+    snap = store.snapshot(job_id)
+    if snap is None or snap.meta.status not in ("failed", "cancelled"):
+        return False
+    state = put_content(blobs, snap.to_bytes())
+    tiles = {"states": {str(t): s for t, s in snap.tile_states.items()},
+             "samples": [snap.tile_samples.get(t, 0) for t in range(snap.meta.plan.n_tiles)],
+             "errors": {str(t): e for t, e in snap.tile_errors.items()}}
+    if not records.park(snap.meta, state, tiles):  # deleted meanwhile
+        if not records.blob_in_use(state):
+            blobs.delete(state)
+        return False
+    if not store.delete_job(job_id, (snap.meta.status,)):
+        # retried (or changed) since the snapshot: it stays in Redis, its record follows it
+        records.unpark(job_id)
+        if not records.blob_in_use(state):
+            blobs.delete(state)
+        return False
+    return True
+
+
+def park_finished(store: JobStore, records: Records, blobs: BlobStore, after: float,
+                  now: float | None = None) -> int:
+    """Park the failed and cancelled jobs that finished more than ``after`` seconds ago
+    (``EXPIRE_BATCH`` at most); returns how many."""
+    now = time.time() if now is None else now
+    parked = 0
+    for job_id in store.finished_in_redis(now - after, EXPIRE_BATCH):
+        try:
+            parked += park_job(store, records, blobs, job_id)
+        except OSError:
+            log.exception("cannot write the state of job %s to the blob store", job_id)
+    return parked
+
+
+def unpark_job(store: JobStore, records: Records, blobs: BlobStore, meta: JobMeta) -> bool:
+    """Bring a parked job back into Redis as it was parked (for a retry); False when it is not
+    parked or its blob is missing."""
+    if not meta.parked:
+        return False
+    data = blobs.get(meta.parked)
+    if data is None:
+        return False
+    store.restore_job(JobSnapshot.from_bytes(data))
+    state = records.unpark(meta.id)
+    if state and not records.blob_in_use(state):
+        blobs.delete(state)
+    return True
+
+
+def assemble_parked(blobs: BlobStore, meta: JobMeta) -> tuple[SampleBuffer, int] | None:
+    """A parked job's frame as it stood when it was parked, and its ``version``."""
+    data = blobs.get(meta.parked) if meta.parked else None
+    if data is None:
+        return None
+    snap = JobSnapshot.from_bytes(data)
+    plan = snap.meta.plan
+    frame = SampleBuffer.empty(0, 0, plan.width, plan.height)
+    for buf in snap.tile_buffers:
+        if buf is not None:
+            frame.add(SampleBuffer.from_bytes(buf))
+    return frame, snap.meta.version
+
+
+def keep_records(store: JobStore, records: Records, now: float | None = None,
+                 adopt: bool = False) -> int:
+    """Bring the records of the jobs Redis holds up to date (``Records.sync``); move the jobs
+    that a farm from before the records archived (their hash holds the blob keys) to the records
+    alone (``adopt``: at start-up, with rows made for the jobs that have none); fail the records
+    of jobs queued or running whose state Redis lost. Returns the rows written."""
+    now = time.time() if now is None else now
+    metas = store.jobs_in_flight()
+    written = records.sync(metas, adopt)
+    for meta in metas:
+        if meta.images:
+            store.delete_job(meta.id, ("done",))
+    held = {m.id for m in metas}
+    lost = [j for j in records.active_ids(now - LOST_AFTER) if j not in held]
+    # read again: a job submitted or retried since the first read is not lost
+    lost = [j for j in lost if store.get_status(j) is None]
+    return written + records.mark_lost(
+        lost, "Redis lost this job's in-flight state (it restarted without its data)")
 
 
 def final_image(blobs: BlobStore, meta: JobMeta, fmt: str, exposure: float,
@@ -108,31 +209,60 @@ def final_image(blobs: BlobStore, meta: JobMeta, fmt: str, exposure: float,
     return exr if fmt == "exr" else encode_image(decode_exr(exr), fmt, exposure, tonemap)
 
 
-def delete_finished(store: JobStore, blobs: BlobStore, job_id: str) -> bool:
-    """Delete a done, failed or cancelled job: its Redis keys and the blobs only it used. False
-    (nothing deleted) when it is gone or still queued or running."""
-    unused = store.delete_job(job_id)
-    if unused is None:
+def delete_finished(store: JobStore, records: Records, blobs: BlobStore, job_id: str) -> bool:
+    """Delete a done, failed or cancelled job: its Redis keys, its record and the blobs no
+    other job's image is. False (nothing deleted) when it is unknown or still queued or running."""
+    status = store.get_status(job_id)
+    if status is not None and not store.delete_job(job_id):
+        return False  # queued or running
+    if status is None:
+        record = records.get(job_id)
+        if record is None or record.status in ACTIVE:
+            return False  # unknown, or lost by Redis and not marked yet: the sweeper will
+    images = records.delete(job_id)
+    if images is None and status is None:
         return False
-    for key in unused:
-        blobs.delete(key)
+    for key in (images or {}).values():
+        if not records.blob_in_use(key):
+            blobs.delete(key)
     return True
 
 
-def expire_finished(store: JobStore, blobs: BlobStore, keep_days: float,
+def cap_images(records: Records, blobs: BlobStore, cap: int) -> int:
+    """Remove the images of the oldest finished jobs until the rest fit in ``cap`` bytes (their
+    records stay; their image routes answer 410); returns how many."""
+    removed = 0
+    for job_id in records.images_over(cap)[:EXPIRE_BATCH]:
+        keys = records.remove_image(job_id)
+        for key in keys.values():
+            if not records.blob_in_use(key):
+                blobs.delete(key)
+        removed += bool(keys)
+    return removed
+
+
+def expire_finished(store: JobStore, records: Records, blobs: BlobStore, keep_days: float,
                     now: float | None = None) -> int:
     """Delete the jobs that finished more than ``keep_days`` ago (``EXPIRE_BATCH`` at most);
     returns how many."""
     now = time.time() if now is None else now
-    return sum(delete_finished(store, blobs, job_id)
-               for job_id in store.finished_before(now - keep_days * 86400.0, EXPIRE_BATCH))
+    return sum(delete_finished(store, records, blobs, job_id)
+               for job_id in records.finished_before(now - keep_days * 86400.0, EXPIRE_BATCH))
 
 
-def chores(store: JobStore, blobs: BlobStore, archive: bool,
-           keep_days: float | None) -> list[Callable[[], object]]:
-    """What the sweeper does for finished jobs after each sweep: with ``archive``, the done
-    ones' images to the blob store; with ``keep_days``, delete those finished longer ago."""
-    out: list[Callable[[], object]] = [lambda: archive_done(store, blobs)] if archive else []
+def chores(store: JobStore, records: Records, blobs: BlobStore, archive: bool,
+           keep_days: float | None, max_image_bytes: int | None = None,
+           park_after: float | None = None) -> list[Callable[[], object]]:
+    """What the sweeper does after each sweep: the job records up to date; with ``archive``, the
+    done jobs' images to the blob store and their keys out of Redis; with ``keep_days``, delete
+    the jobs finished longer ago."""
+    out: list[Callable[[], object]] = [lambda: keep_records(store, records)]
+    if archive:
+        out.append(lambda: archive_done(store, records, blobs))
     if keep_days is not None:
-        out.append(lambda: expire_finished(store, blobs, keep_days))
+        out.append(lambda: expire_finished(store, records, blobs, keep_days))
+    if max_image_bytes is not None:
+        out.append(lambda: cap_images(records, blobs, max_image_bytes))
+    if park_after is not None:
+        out.append(lambda: park_finished(store, records, blobs, park_after))
     return out

@@ -1,5 +1,5 @@
 """The blob store: bytes by key, for what is too large or too final for Redis (a finished job's
-image, the EXR and the PNG at default exposure).
+image, the EXR and the PNG at default exposure; the assets scenes reference, ``POST /api/assets``).
 
 ``BlobStore`` is the interface (``put``, ``get``, ``delete``, ``exists`` by key); ``FileBlobStore``
 is the one implementation, a folder (``LUCENT_BLOB_DIR``, by default ``blobs/`` in the farm's data
@@ -19,6 +19,7 @@ import hashlib
 import os
 import re
 import tempfile
+from collections.abc import Callable
 from pathlib import Path
 from typing import Protocol
 
@@ -40,6 +41,19 @@ class BlobStore(Protocol):
         """Remove ``key``; nothing happens when it is absent."""
 
     def exists(self, key: str) -> bool: ...
+
+
+def asset_reader(blobs: BlobStore) -> Callable[[str], bytes]:
+    """``renderer.scene.files.AssetReader`` on the blob store: the bytes of an uploaded asset
+    (``POST /api/assets``), ``KeyError`` for one not there."""
+
+    def read(name: str) -> bytes:
+        data = blobs.get(name) if KEY.fullmatch(name) else None
+        if data is None:
+            raise KeyError(name)
+        return data
+
+    return read
 
 
 def put_content(blobs: BlobStore, data: bytes) -> str:
@@ -88,3 +102,55 @@ class FileBlobStore:
 
     def exists(self, key: str) -> bool:
         return self.path(key).is_file()
+
+
+class AssetCache:
+    """A worker's on-disk cache of assets in front of the blob store (a shared volume that may be
+    a network filesystem): an asset is fetched once, kept in ``folder`` and read from there
+    after; the least recently used are removed once the cache holds more than ``max_bytes``.
+    The bytes are checked against their name wherever they come from (``load_scene`` does)."""
+
+    def __init__(self, blobs: BlobStore, folder: str | os.PathLike, max_bytes: int):
+        self.blobs = blobs
+        self.folder = Path(folder)
+        self.max_bytes = max_bytes
+        self.fetched = 0  # assets read from the blob store (not the cache) by this process
+
+    def read(self, name: str) -> bytes:
+        m = KEY.fullmatch(name)
+        if m is None:
+            raise KeyError(name)
+        cached = self.folder / m.group(1)
+        try:
+            data = cached.read_bytes()
+            os.utime(cached)  # recently used
+            return data
+        except FileNotFoundError:
+            pass
+        data = asset_reader(self.blobs)(name)
+        self.fetched += 1
+        if 0 < len(data) <= self.max_bytes:
+            self.folder.mkdir(parents=True, exist_ok=True)
+            fd, tmp = tempfile.mkstemp(dir=self.folder, prefix=".put-")
+            try:
+                with os.fdopen(fd, "wb") as f:
+                    f.write(data)
+                os.replace(tmp, cached)  # a reader never sees half an asset
+            except BaseException:
+                Path(tmp).unlink(missing_ok=True)
+                raise
+            self._trim()
+        return data
+
+    def _trim(self) -> None:
+        files = []
+        for p in self.folder.iterdir():
+            if p.is_file() and not p.name.startswith("."):
+                st = p.stat()
+                files.append((st.st_mtime, st.st_size, p))
+        total = sum(size for _, size, _ in files)
+        for _, size, path in sorted(files):
+            if total <= self.max_bytes:
+                break
+            path.unlink(missing_ok=True)
+            total -= size

@@ -8,26 +8,32 @@ of its own for large bodies).
 ``queue_job`` takes a checked scene: chooses the passes (the first pass as asked or the default,
 never more than the scene's spp; the largest pass as asked, else the default but never below the
 first), plans tiles × passes, refuses a plan over the task limit or the cost limits
-(``services.farm.cost``), creates the job in the store and queues its passes.
+(``services.farm.cost``), writes the job's record (``services.farm.records``), creates the job in
+the store and queues its passes.
 
 The route (``services/api/routes/jobs.py``) only turns a ``Refusal`` into its HTTP answer.
 """
 
 from __future__ import annotations
 
+import contextlib
 import json
 import re
+import time
 import uuid
 from dataclasses import dataclass, field
+from pathlib import Path
 from typing import Any
 
 from celery import Celery
 
 from renderer.materials.auto import auto_choices
 from renderer.scene import Limits, SceneError, load_scene
+from services.farm.blobs import FileBlobStore, asset_reader
 from services.farm.cost import check_cost
 from services.farm.planner import Plan
 from services.farm.queue import enqueue
+from services.farm.records import Records, RecordsUnavailable
 from services.farm.settings import Settings
 from services.farm.store import JobMeta, JobStore
 
@@ -77,10 +83,14 @@ class CheckedScene:
     scene_json: bytes  # the scene as submitted, as the store keeps it (workers re-fetch it)
 
 
-def check_scene(scene: Any, limits: Limits) -> CheckedScene | Refusal:
-    """Validate a scene document with ``limits`` (the farm's, read where the request came in)."""
+def check_scene(scene: Any, limits: Limits,
+                blob_root: Path | None = None) -> CheckedScene | Refusal:
+    """Validate a scene document with ``limits`` (the farm's, read where the request came in).
+    Its asset references (``{"asset": "sha256:…"}``) are read from the blob store in
+    ``blob_root``: an unknown one is refused by its field; without a blob store, every one is."""
+    assets = asset_reader(FileBlobStore(blob_root)) if blob_root is not None else None
     try:
-        parsed = load_scene(scene, limits=limits)  # mesh paths are refused
+        parsed = load_scene(scene, limits=limits, assets=assets)  # mesh paths are refused
     except SceneError as err:
         return Refusal(422, [(scene_loc(p), m, "scene") for p, m in err.errors])
     # What `auto` picks for each material (the workers compile the same choice)
@@ -90,8 +100,9 @@ def check_scene(scene: Any, limits: Limits) -> CheckedScene | Refusal:
                         json.dumps(scene).encode())
 
 
-def queue_job(store: JobStore, celery: Celery, settings: Settings, options: JobOptions,
-              scene: CheckedScene) -> JobMeta | Refusal:
+def queue_job(store: JobStore, records: Records, celery: Celery, settings: Settings,
+              options: JobOptions, scene: CheckedScene,
+              submitter: str | None = None) -> JobMeta | Refusal:
     """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal."""
     first = min(options.spp_per_pass or settings.default_spp_per_pass, scene.spp)
     # The largest pass: as asked, else the default but never below the first pass
@@ -116,8 +127,18 @@ def queue_job(store: JobStore, celery: Celery, settings: Settings, options: JobO
                        [(list(loc), refused.msg, "limit") for loc in refused.locs],
                        {"Retry-After": "60"} if refused.status == 429 else None)
     job_id = uuid.uuid4().hex  # store.JOB_ID's form
-    meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
-                            scene.methods)
+    # The record first: with the database away, nothing is queued (503) and the job is not run
+    # unrecorded; with Redis away after it, the record goes again (the sweeper would fail it).
+    created = JobMeta.new(job_id, options.name, options.priority, plan, scene.methods,
+                          time.time(), submitter)
+    records.create(created)
+    try:
+        meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
+                                scene.methods, created.created_at, submitter)
+    except Exception:
+        with contextlib.suppress(RecordsUnavailable):
+            records.delete(job_id)
+        raise
     enqueue(celery, job_id, plan.order(), options.priority)
     return meta
 

@@ -53,6 +53,10 @@ class Settings(BaseSettings):
     api_token: str | None = None
     """When set, every ``/api`` route and ``/metrics`` need ``Authorization: Bearer <token>``."""
 
+    api_tokens: Annotated[dict[str, str], NoDecode] = Field(default_factory=dict)
+    """Named tokens, ``name:token`` comma-separated (``alice:s3cret,bob:0th3r``): each is accepted
+    as ``LUCENT_API_TOKEN`` is, and a job submitted with one records its name as the submitter."""
+
     cors_origins: Annotated[list[str], NoDecode] = Field(default_factory=list)
     """Origins (``https://farm.example.org``) whose pages may call the API from a browser,
     comma-separated; empty (the default): no CORS headers, so only same-origin pages can."""
@@ -74,6 +78,14 @@ class Settings(BaseSettings):
 
     max_body_bytes: int = Field(default=64 * 1024 * 1024, ge=1024)
     """The largest request body (HTTP 413 above it): inline meshes make scenes big."""
+
+    max_asset_bytes: int = Field(default=512 * 1024 * 1024, ge=1024)
+    """The largest asset ``POST /api/assets`` takes (HTTP 413 above it): a 1-million-triangle
+    mesh is ~20 MB as binary PLY, ~60 MB as OBJ."""
+
+    asset_cache_bytes: int = Field(default=2 * 1024**3, ge=0)
+    """Workers: bytes of assets each keeps in its on-disk cache (``LUCENT_CACHE_DIR/assets``),
+    least recently used removed first; 0: no cache (read from the blob store every time)."""
 
     intake_inline_bytes: int = Field(default=1024 * 1024, ge=0)
     """Submissions up to this size are parsed and checked in the API's thread pool; larger ones
@@ -144,6 +156,15 @@ class Settings(BaseSettings):
         os.environ.get("XDG_DATA_HOME") or Path.home() / ".local" / "share") / "lucent")
     """The farm's data folder (the service's; workers write nothing there)."""
 
+    database_url: str | None = Field(
+        default=None, validation_alias=AliasChoices("DATABASE_URL", "LUCENT_DATABASE_URL"))
+    """The job records' database (a SQLAlchemy URL): ``postgresql://user@host/db`` for a
+    deployment (psycopg 3); unset, SQLite in ``data_dir`` (``lucent.db``: nothing to install)."""
+
+    database_schema: str | None = Field(default=None, pattern=r"^[a-z_][a-z0-9_]{0,62}$")
+    """PostgreSQL only: the schema of the farm's tables (created if missing), so that two farms
+    (or test runs) can share one database, as ``key_prefix`` separates them in Redis."""
+
     blob_dir: Path | None = None
     """The blob store's folder, where done jobs' images are kept; default ``blobs`` in
     ``data_dir``. Every API process of one farm must see the same folder (a shared volume)."""
@@ -157,9 +178,35 @@ class Settings(BaseSettings):
     """Days a finished (done, failed, cancelled) job is kept before the sweeper deletes it, keys
     and image; unset (the default): kept until ``DELETE /api/jobs/{id}``."""
 
+    park_after: float | None = Field(default=600.0, ge=0)
+    """Seconds after a job failed or was cancelled before the sweeper moves it out of Redis (its
+    tiles' accumulations to the blob store, what a retry goes on from; its record keeps the
+    rest). Unset: failed and cancelled jobs stay in Redis until deleted."""
+
+    max_image_bytes: int | None = Field(default=None, ge=0)
+    """The most bytes of finished jobs' images (EXR + PNG each) the blob store keeps; over it the
+    sweeper removes the oldest (their records stay, their image routes answer 410). Unset: no
+    cap."""
+
+    @property
+    def database(self) -> str:
+        """The job database's URL: ``DATABASE_URL``, else SQLite in the data folder."""
+        return self.database_url or f"sqlite:///{self.data_dir / 'lucent.db'}"
+
     @property
     def blob_path(self) -> Path:
         return self.blob_dir if self.blob_dir is not None else self.data_dir / "blobs"
+
+    @field_validator("api_tokens", mode="before")
+    @classmethod
+    def _split_tokens(cls, value: object) -> object:
+        # LUCENT_API_TOKENS="alice:s3cret,bob:0th3r"
+        if isinstance(value, str):
+            pairs = [p.strip().partition(":") for p in value.split(",") if p.strip()]
+            if any(not name.strip() or not token.strip() for name, _, token in pairs):
+                raise ValueError("LUCENT_API_TOKENS is name:token, comma-separated")
+            return {name.strip(): token.strip() for name, _, token in pairs}
+        return value
 
     @field_validator("cors_origins", mode="before")
     @classmethod
@@ -171,7 +218,7 @@ class Settings(BaseSettings):
 
     @model_validator(mode="after")
     def _check(self) -> Settings:
-        if self.environment != "development" and not self.api_token:
+        if self.environment != "development" and not (self.api_token or self.api_tokens):
             raise ValueError("LUCENT_API_TOKEN must be set outside development")
         if not self.task_soft_time_limit < self.task_time_limit < self.visibility_timeout:
             raise ValueError(

@@ -1,13 +1,12 @@
-"""The job store: everything the farm knows lives in Redis, under ``{prefix}:`` keys.
+"""The job store: what the farm has in flight lives in Redis, under ``{prefix}:`` keys (the jobs'
+history, archived jobs included, is in SQL: ``services.farm.records``).
 
 =================================  ======  =================================================
 Key                                Type    What
 =================================  ======  =================================================
-``{p}:jobs``                       zset    job id -> submission time (the job list)
+``{p}:jobs``                       zset    job id -> submission time (the jobs in Redis)
 ``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``,
-                                           ``active_at``, ``stalls`` (the stall re-queues);
-                                           once archived ``images`` (blob keys) and
-                                           ``tiles_final`` (per-tile samples and errors)
+                                           ``active_at``, ``stalls`` (the stall re-queues)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
 ``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass renders) / done / failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
@@ -19,7 +18,6 @@ Key                                Type    What
 ``{p}:pending``                    set     pass keys written and not merged (the sweeper's)
 ``{p}:finished``                   zset    job id -> finished time, for done/failed/cancelled
 ``{p}:to_archive``                 set     done jobs whose image is not in the blob store yet
-``{p}:blob_refs``                  hash    blob key -> jobs whose image it is
 ``{p}:workers``                    zset    worker id -> last heartbeat time
 ``{p}:worker:{id}``                hash    the last heartbeat (expires after 3 intervals)
 ``{p}:holding``                    hash    worker id -> ``job tile pass attempt`` it renders
@@ -28,10 +26,11 @@ Key                                Type    What
 
 Memory is bounded by what is in flight: one accumulation per tile of each job not archived, plus
 at most one pass buffer per task in flight. Once a job is done, the sweeper writes its image to the
-blob store (``services.farm.archive``) and ``archive_job`` deletes its tile keys (``tile_state``,
-``tile_samples``, ``tile_error``, ``attempts``, ``merged``, ``acc:*``): the hash and the scene stay,
-so the job still lists. Failed and cancelled jobs keep theirs (a retry goes on from them) until
-they are deleted (``delete_job``). ``version`` counts merges and is the preview image's ETag.
+blob store and its last state to its record (``services.farm.archive``), then deletes every key of
+it (``delete_job``): a done job leaves Redis. Failed and cancelled jobs keep theirs (a retry goes
+on from them) until they are deleted. ``version`` counts merges and is the preview image's ETag.
+Hashes that a farm from before the job records archived keep ``images`` and ``tiles_final``: the
+first sweep moves them to the records.
 """
 
 from __future__ import annotations
@@ -76,50 +75,24 @@ end
 return 0
 """
 
-# A done job's image is in the blob store: keep its hash and scene, drop its tile keys.
-# KEYS[1] job hash, KEYS[2] to_archive, KEYS[3] blob_refs, KEYS[4] pending, KEYS[5..] the keys
-# to delete; ARGV[1] job id, ARGV[2] images (JSON), ARGV[3] tiles (JSON), ARGV[4..] blob keys.
-# Returns 1, or 0 (no reference taken) when the job is gone, not done or archived already.
-_ARCHIVE = """
-redis.call('SREM', KEYS[2], ARGV[1])
-local h = redis.call('HMGET', KEYS[1], 'status', 'images')
-if h[1] ~= 'done' or (h[2] and h[2] ~= '') then return 0 end
-redis.call('HSET', KEYS[1], 'images', ARGV[2], 'tiles_final', ARGV[3])
-for i = 4, #ARGV do redis.call('HINCRBY', KEYS[3], ARGV[i], 1) end
-for i = 5, #KEYS do
-  redis.call('DEL', KEYS[i])
-  redis.call('SREM', KEYS[4], KEYS[i])
-end
-return 1
-"""
-
-# Delete a finished job. KEYS[1] job hash, KEYS[2] jobs, KEYS[3] finished, KEYS[4] to_archive,
-# KEYS[5] blob_refs, KEYS[6] pending, KEYS[7..] the job's other keys; ARGV[1] job id, ARGV[2..]
-# final statuses. Returns false when the job is gone or not final, else {blob keys no job uses
-# any more} (the caller deletes those blobs).
+# Delete a job whose status is one of those given. KEYS[1] job hash, KEYS[2] jobs, KEYS[3]
+# finished, KEYS[4] to_archive, KEYS[5] pending, KEYS[6..] the job's other keys; ARGV[1] job id,
+# ARGV[2..] the statuses it may have. Returns 1, or 0 (nothing deleted) when the job is gone or
+# has another status.
 _DELETE = """
-local h = redis.call('HMGET', KEYS[1], 'status', 'images')
-local final = false
-for i = 2, #ARGV do if h[1] == ARGV[i] then final = true end end
-if not final then return false end
-local unused = {}
-if h[2] and h[2] ~= '' then
-  for _, blob in pairs(cjson.decode(h[2])) do
-    if redis.call('HINCRBY', KEYS[5], blob, -1) <= 0 then
-      redis.call('HDEL', KEYS[5], blob)
-      table.insert(unused, blob)
-    end
-  end
-end
+local status = redis.call('HGET', KEYS[1], 'status')
+local allowed = false
+for i = 2, #ARGV do if status == ARGV[i] then allowed = true end end
+if not allowed then return 0 end
 redis.call('DEL', KEYS[1])
 redis.call('ZREM', KEYS[2], ARGV[1])
 redis.call('ZREM', KEYS[3], ARGV[1])
 redis.call('SREM', KEYS[4], ARGV[1])
-for i = 7, #KEYS do
+for i = 6, #KEYS do
   redis.call('DEL', KEYS[i])
-  redis.call('SREM', KEYS[6], KEYS[i])
+  redis.call('SREM', KEYS[5], KEYS[i])
 end
-return unused
+return 1
 """
 
 # Claim a stall re-queue of a job (atomic, so that two sweepers never re-queue it twice).
@@ -203,6 +176,18 @@ class JobMeta:
     methods: dict[str, str]
     images: dict[str, str]  # format -> blob key, once the image is in the blob store
     tiles_final: dict[str, Any]  # {"samples": [per tile], "errors": {tile: error}}, archived
+    submitter: str | None = None  # the name of the API token it was submitted with
+    image_removed: bool = False  # its image removed by the cap on stored images (a record's)
+    parked: str | None = None  # a record's: the blob of a failed or cancelled job's tiles
+
+    @classmethod
+    def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
+            created_at: float, submitter: str | None = None) -> JobMeta:
+        """A job just submitted: queued, nothing merged (what ``create_job`` stores)."""
+        return cls(id=job_id, name=name, status="queued", priority=priority, plan=plan,
+                   tasks_merged=0, samples_merged=0, dropped=0, version=0,
+                   created_at=created_at, started_at=None, finished_at=None, error=None,
+                   methods=methods, images={}, tiles_final={}, submitter=submitter)
 
     @property
     def samples_planned(self) -> int:
@@ -234,7 +219,54 @@ class JobMeta:
             methods=json.loads(d.get("methods") or "{}"),
             images=json.loads(d.get("images") or "{}"),
             tiles_final=json.loads(d.get("tiles_final") or "{}"),
+            submitter=d.get("submitter") or None,
         )
+
+
+@dataclass(frozen=True)
+class JobSnapshot:
+    """A job as Redis holds it at one instant (``JobStore.snapshot``)."""
+
+    meta: JobMeta
+    scene_json: bytes
+    tile_states: dict[int, str]
+    tile_samples: dict[int, int]
+    tile_errors: dict[int, str]
+    merged: list[str]  # ``tile:pass``
+    tile_buffers: list[bytes | None]  # by tile; None before its first merge
+
+    def to_bytes(self) -> bytes:
+        """The snapshot as one blob: a JSON line (the job, its scene, its tiles), then the
+        tiles' buffers one after the other."""
+        m = self.meta
+        head = {"meta": {**{k: getattr(m, k) for k in (
+                    "id", "name", "status", "priority", "tasks_merged", "samples_merged",
+                    "dropped", "version", "created_at", "started_at", "finished_at", "error",
+                    "methods", "submitter")},
+                    "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
+                             m.plan.spp_per_pass, m.plan.max_spp_per_pass]},
+                "scene": self.scene_json.decode(),
+                "tile_states": self.tile_states, "tile_samples": self.tile_samples,
+                "tile_errors": self.tile_errors, "merged": self.merged,
+                "buffers": [-1 if b is None else len(b) for b in self.tile_buffers]}
+        return json.dumps(head).encode() + b"\n" + b"".join(
+            b for b in self.tile_buffers if b is not None)
+
+    @classmethod
+    def from_bytes(cls, data: bytes) -> JobSnapshot:
+        line, _, rest = data.partition(b"\n")
+        head = json.loads(line)
+        d = head["meta"]
+        meta = JobMeta(plan=Plan(*d.pop("plan")), images={}, tiles_final={}, **d)
+        buffers: list[bytes | None] = []
+        pos = 0
+        for n in head["buffers"]:
+            buffers.append(None if n < 0 else rest[pos:pos + n])
+            pos += max(n, 0)
+        return cls(meta, head["scene"].encode(),
+                   {int(k): v for k, v in head["tile_states"].items()},
+                   {int(k): v for k, v in head["tile_samples"].items()},
+                   {int(k): v for k, v in head["tile_errors"].items()}, head["merged"], buffers)
 
 
 class JobStore:
@@ -249,7 +281,6 @@ class JobStore:
         self._claim_stall = client.register_script(_CLAIM_STALL)
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
-        self._archive = client.register_script(_ARCHIVE)
         self._delete = client.register_script(_DELETE)
 
     @classmethod
@@ -282,8 +313,9 @@ class JobStore:
 
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
-                   scene_json: str | bytes, methods: dict[str, str] | None = None) -> JobMeta:
-        now = time.time()
+                   scene_json: str | bytes, methods: dict[str, str] | None = None,
+                   created_at: float | None = None, submitter: str | None = None) -> JobMeta:
+        now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
             "width": plan.width, "height": plan.height, "spp": plan.spp,
@@ -292,6 +324,7 @@ class JobStore:
             "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
+            "submitter": submitter or "",
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
@@ -315,17 +348,19 @@ class JobStore:
         raw = self.r.get(self.k("job", job_id, "scene"))
         return json.loads(raw) if raw is not None else None
 
-    def list_jobs(self, status: str | None = None, offset: int = 0,
-                  limit: int = 50) -> tuple[list[JobMeta], int]:
-        """Jobs newest first, filtered by status; returns (page, total matching)."""
-        ids = [i.decode() for i in self.r.zrevrange(self.k("jobs"), 0, -1)]
+    def get_jobs(self, job_ids: list[str]) -> dict[str, JobMeta]:
+        """Those of the jobs that Redis holds, by id (one round trip)."""
         pipe = self.r.pipeline()
-        for job_id in ids:
+        for job_id in job_ids:
             pipe.hgetall(self.job_key(job_id))
-        metas = [JobMeta.from_hash(h) for h in pipe.execute() if h]
-        if status is not None:
-            metas = [m for m in metas if m.status == status]
-        return metas[offset:offset + limit], len(metas)
+        return {j: JobMeta.from_hash(h)
+                for j, h in zip(job_ids, pipe.execute(), strict=True) if h}
+
+    def jobs_in_flight(self) -> list[JobMeta]:
+        """Every job Redis holds: queued, running, done and not archived yet, failed or
+        cancelled (kept for a retry until deleted). Archived jobs are in the job records only."""
+        return list(self.get_jobs([i.decode() for i in self.r.zrange(self.k("jobs"), 0, -1)])
+                    .values())
 
     def active_samples_left(self) -> list[int]:
         """Pixel-samples that each queued or running job has still to render."""
@@ -423,53 +458,96 @@ class JobStore:
         """Done jobs whose image is not in the blob store yet."""
         return [i.decode() for i in self.r.smembers(self.k("to_archive"))]
 
-    def archive_job(self, job_id: str, images: dict[str, str]) -> bool:
-        """Once the job's image is in the blob store under ``images`` (format -> blob key):
-        record the keys, count a use of each blob, keep the tiles' samples and errors in the hash
-        and delete the tile keys and any pass buffer left, atomically. True if this call
-        archived it; False (no use counted) if the job is gone, not done or archived already."""
-        meta = self.get_job(job_id)
-        if meta is None:
-            self.r.srem(self.k("to_archive"), job_id)
-            return False
-        samples = self.tile_samples(job_id)
-        tiles = {"samples": [samples.get(t, 0) for t in range(meta.plan.n_tiles)],
-                 "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
-        keys = self.tile_keys(job_id, meta.plan.n_tiles) + self.pending_passes_of(job_id)
-        return bool(self._archive(
-            keys=[self.job_key(job_id), self.k("to_archive"), self.k("blob_refs"),
-                  self.k("pending"), *keys],
-            args=[job_id, json.dumps(images), json.dumps(tiles), *images.values()]))
+    def finished_in_redis(self, before: float, limit: int = 100) -> list[str]:
+        """Up to ``limit`` jobs Redis holds that finished (done, failed, cancelled) before
+        ``before``, oldest first."""
+        return [i.decode() for i in self.r.zrangebyscore(self.k("finished"), "-inf",
+                                                          f"({before}", start=0, num=limit)]
 
-    def delete_job(self, job_id: str) -> list[str] | None:
-        """Delete a finished (done, failed, cancelled) job: every key of it, atomically. Returns
-        the blob keys that no job uses any more (the caller deletes those blobs), or None when
-        the job is gone or still queued or running (nothing deleted)."""
+    def snapshot(self, job_id: str) -> JobSnapshot | None:
+        """What Redis holds of a job, read in one MULTI/EXEC (no merge lands between its parts):
+        what a failed or cancelled job needs to go on after a retry."""
         meta = self.get_job(job_id)
         if meta is None:
             return None
+        pipe = self.r.pipeline(transaction=True)
+        pipe.hgetall(self.job_key(job_id))
+        pipe.get(self.k("job", job_id, "scene"))
+        for name in ("tile_state", "tile_samples", "tile_error"):
+            pipe.hgetall(self.k("job", job_id, name))
+        pipe.smembers(self.k("job", job_id, "merged"))
+        for t in range(meta.plan.n_tiles):
+            pipe.get(self.acc_key(job_id, t))
+        h, scene, states, samples, errors, merged, *buffers = pipe.execute()
+        if not h or scene is None:
+            return None
+        return JobSnapshot(
+            JobMeta.from_hash(h), scene, {int(k): v.decode() for k, v in states.items()},
+            {int(k): int(v) for k, v in samples.items()},
+            {int(k): v.decode() for k, v in errors.items()}, sorted(m.decode() for m in merged),
+            buffers)
+
+    def restore_job(self, snap: JobSnapshot) -> None:
+        """Put a parked job back in Redis as it was when it was parked (its status, counters,
+        scene, tiles and accumulations), ready for ``reopen_job``."""
+        meta = snap.meta
+        plan = meta.plan
+        fields: dict[str, Any] = {
+            "id": meta.id, "name": meta.name, "status": meta.status, "priority": meta.priority,
+            "width": plan.width, "height": plan.height, "spp": plan.spp,
+            "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
+            "max_spp_per_pass": plan.max_spp_per_pass, "tasks_total": plan.n_tasks,
+            "tasks_merged": meta.tasks_merged, "samples_merged": meta.samples_merged,
+            "dropped": meta.dropped, "version": meta.version, "status_version": 0,
+            "created_at": meta.created_at, "started_at": meta.started_at or "",
+            "finished_at": meta.finished_at or "", "error": meta.error or "",
+            "methods": json.dumps(meta.methods), "submitter": meta.submitter or "",
+        }
+        pipe = self.r.pipeline()
+        pipe.hset(self.job_key(meta.id), mapping=fields)
+        pipe.set(self.k("job", meta.id, "scene"), snap.scene_json)
+        pipe.hset(self.k("job", meta.id, "tile_state"),
+                  mapping={str(t): snap.tile_states.get(t, "queued")
+                           for t in range(plan.n_tiles)})
+        if snap.tile_samples:
+            pipe.hset(self.k("job", meta.id, "tile_samples"),
+                      mapping={str(t): n for t, n in snap.tile_samples.items()})
+        if snap.tile_errors:
+            pipe.hset(self.k("job", meta.id, "tile_error"),
+                      mapping={str(t): e for t, e in snap.tile_errors.items()})
+        for t, data in enumerate(snap.tile_buffers):
+            if data is not None:
+                pipe.set(self.acc_key(meta.id, t), data)
+        if snap.merged:
+            pipe.sadd(self.k("job", meta.id, "merged"), *snap.merged)
+        # not back in ``finished``: the sweeper would park it again before the retry reopens it
+        pipe.zadd(self.k("jobs"), {meta.id: meta.created_at})
+        pipe.execute()
+
+    def forget_archive(self, job_id: str) -> None:
+        """Take the job off the list of those to archive."""
+        self.r.srem(self.k("to_archive"), job_id)
+
+    def tiles_final(self, job_id: str, n_tiles: int) -> dict[str, Any]:
+        """The tiles' summary a job's record keeps once it is archived: samples per pixel of
+        each tile, and the last error of those that had one."""
+        samples = self.tile_samples(job_id)
+        return {"samples": [samples.get(t, 0) for t in range(n_tiles)],
+                "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
+
+    def delete_job(self, job_id: str, statuses: tuple[str, ...] = FINAL) -> bool:
+        """Delete every key of the job, atomically, if its status is one of ``statuses`` (by
+        default a finished job: done, failed, cancelled); False (nothing deleted) when it is gone
+        or has another status. A done job archived leaves Redis this way."""
+        meta = self.get_job(job_id)
+        if meta is None:
+            return False
         keys = [self.k("job", job_id, "scene"), *self.tile_keys(job_id, meta.plan.n_tiles),
                 *self.pending_passes_of(job_id)]
-        unused = self._delete(
+        return bool(self._delete(
             keys=[self.job_key(job_id), self.k("jobs"), self.k("finished"),
-                  self.k("to_archive"), self.k("blob_refs"), self.k("pending"), *keys],
-            args=[job_id, *FINAL])
-        return None if unused is None else [b.decode() for b in unused]
-
-    def blob_in_use(self, key: str) -> bool:
-        return bool(self.r.hexists(self.k("blob_refs"), key))
-
-    def finished_before(self, when: float, limit: int = 100) -> list[str]:
-        """Up to ``limit`` finished jobs, oldest first, that finished before ``when``."""
-        return [i.decode() for i in self.r.zrangebyscore(self.k("finished"), "-inf", f"({when}",
-                                                          start=0, num=limit)]
-
-    def set_finished_at(self, job_id: str, when: float) -> None:
-        """Move a finished job's finishing time (an import, or a test of retention)."""
-        pipe = self.r.pipeline()
-        pipe.hset(self.job_key(job_id), "finished_at", when)
-        pipe.zadd(self.k("finished"), {job_id: when}, xx=True)
-        pipe.execute()
+                  self.k("to_archive"), self.k("pending"), *keys],
+            args=[job_id, *statuses]))
 
     # --- tiles ----------------------------------------------------------------------------------
     def job_view(self, job_id: str
@@ -562,7 +640,10 @@ class JobStore:
         with r.pipeline() as pipe:
             while True:
                 try:
-                    pipe.watch(acc_key, merged_key)
+                    # and the scene, written once and deleted with the job: a job deleted or
+                    # archived between the status read below and EXEC aborts the merge, which
+                    # would otherwise write its keys (its hash too) back
+                    pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
                     if pipe.sismember(merged_key, member):
                         pipe.unwatch()
                         r.delete(pass_key)

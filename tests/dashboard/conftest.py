@@ -59,10 +59,13 @@ class Dashboard:
 
 
 def start_api(redis_url: str, prefix: str, port: int, log) -> subprocess.Popen:
-    """``uvicorn services.api.main:app``, its own process (the app reads its settings from env)."""
+    """``uvicorn services.api.main:app``, its own process (the app reads its settings from env),
+    with a data folder of its own beside the log (its job records: no other run's jobs listed)."""
     env = {**os.environ, "REDIS_URL": redis_url, "LUCENT_KEY_PREFIX": prefix,
            "LUCENT_HEARTBEAT_INTERVAL": str(HEARTBEAT), "LUCENT_API_TOKEN": "",
-           "PYTHONUNBUFFERED": "1"}
+           "PYTHONUNBUFFERED": "1", "LUCENT_DATA_DIR": str(Path(log.name).parent / "data")}
+    if os.environ.get("DATABASE_URL"):  # a schema of its own (tests/conftest.py, farm_state)
+        env["LUCENT_DATABASE_SCHEMA"] = prefix.replace("-", "_")
     return subprocess.Popen(
         [sys.executable, "-m", "uvicorn", "services.api.main:app", "--host", "127.0.0.1",
          "--port", str(port), "--log-level", "warning"],

@@ -134,6 +134,14 @@ def test_cancel_a_second_job_from_the_jobs_page(dashboard, page, artifacts, api)
     page.click(f"tr[data-id='{job['id']}'] a.job-link")
     page.wait_for_selector("#job-status .badge.s-cancelled")
     assert page.is_disabled("#job-cancel") and page.is_enabled("#job-retry")
+
+    # A finished job can be deleted from its page: record, image and scene go, and the list
+    # shows it no more.
+    assert page.is_enabled("#job-delete")
+    page.click("#job-delete")
+    page.wait_for_selector("#jobs-count")
+    page.wait_for_selector(f"tr[data-id='{job['id']}']", state="detached")
+    assert api.get(f"/api/jobs/{job['id']}").status_code == 404
     no_page_errors(page)
 
 

@@ -282,8 +282,26 @@ def _matches(selector: dict, labels: dict) -> bool:
     return ok
 
 
+def _policy(name: str) -> dict:
+    (pol,) = [p for p in by_kind("NetworkPolicy") if p["metadata"]["name"] == name]
+    return pol
+
+
+def test_networkpolicy_lets_only_the_api_reach_postgres() -> None:
+    pol = _policy("postgres-api-only")
+    pods = {d["metadata"]["name"]: d["spec"]["template"]["metadata"]["labels"]
+            for d in by_kind("Deployment") + by_kind("StatefulSet")}
+    assert {n for n, labels in pods.items()
+            if _matches(pol["spec"]["podSelector"], labels)} == {"postgres"}
+    peers = [p for rule in pol["spec"]["ingress"] for p in rule["from"]]
+    assert all(set(p) == {"podSelector"} for p in peers)  # no other namespace, no address
+    assert {n for n, labels in pods.items()
+            if any(_matches(p["podSelector"], labels) for p in peers)} == {"api"}
+    assert [p["port"] for rule in pol["spec"]["ingress"] for p in rule["ports"]] == [5432]
+
+
 def test_networkpolicy_lets_only_api_and_workers_reach_redis() -> None:
-    (pol,) = by_kind("NetworkPolicy")
+    pol = _policy("redis-clients-only")
     pods = {d["metadata"]["name"]: d["spec"]["template"]["metadata"]["labels"]
             for d in by_kind("Deployment") + by_kind("StatefulSet")}
     selected = {n for n, labels in pods.items() if _matches(pol["spec"]["podSelector"], labels)}
@@ -326,3 +344,24 @@ def test_dockerfile_multistage_nonroot_warm_cache() -> None:
     # what the API serves from the source tree is in the image
     for path in ("examples", "services", "worker", "renderer"):
         assert any(ln.startswith(f"COPY {path} ") for ln in lines), path
+
+
+def test_the_api_keeps_records_in_postgres_and_blobs_on_a_shared_volume() -> None:
+    """Several API processes share the job database and the blob store (issue #20); the
+    workers need neither."""
+    services = compose()["services"]
+    api = services["api"]
+    assert api["environment"]["DATABASE_URL"].startswith(
+        "postgresql+psycopg://lucent:${POSTGRES_PASSWORD:?")
+    assert api["environment"]["LUCENT_DATA_DIR"] == "/data"
+    assert "lucent-data:/data" in api["volumes"]
+    assert "postgres" in api["depends_on"] and "ports" not in services["postgres"]
+    assert "DATABASE_URL" not in services["worker"]["environment"]
+    env = {e["name"]: e for e in container("api")["env"]}
+    assert "$(POSTGRES_PASSWORD)@postgres:5432/" in env["DATABASE_URL"]["value"]
+    assert "DATABASE_URL" not in {e["name"] for e in container("worker")["env"]}
+    (pvc,) = by_kind("PersistentVolumeClaim", "lucent-data")
+    assert pvc["spec"]["accessModes"] == ["ReadWriteMany"]
+    (sts,) = by_kind("StatefulSet", "postgres")
+    (c,) = sts["spec"]["template"]["spec"]["containers"]
+    assert {e["name"]: e for e in c["env"]}["POSTGRES_PASSWORD"] == env["POSTGRES_PASSWORD"]

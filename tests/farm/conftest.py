@@ -26,6 +26,7 @@ import redis
 from fastapi.testclient import TestClient
 
 from services.api.main import create_app
+from services.farm.records import Records
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 from services.launcher import start_worker, terminate
@@ -35,6 +36,10 @@ ROOT = Path(__file__).resolve().parents[2]
 
 # Settings made by a test itself keep done jobs' images here, not in the user's data folder.
 os.environ.setdefault("LUCENT_DATA_DIR", tempfile.mkdtemp(prefix="lucent-test-data-"))
+# With DATABASE_URL (PostgreSQL), their job records go to a schema of this session's, dropped at
+# its end; without, to SQLite in their data folder.
+if os.environ.get("DATABASE_URL"):
+    os.environ.setdefault("LUCENT_DATABASE_SCHEMA", f"lucent_session_{uuid.uuid4().hex[:10]}")
 
 # Generous: a cold numba cache compiles the kernels in each worker process (~15 s each on 2 cores).
 WORKER_START_TIMEOUT = 240.0
@@ -50,9 +55,44 @@ def _prefix() -> str:
     return f"lucent-test-{uuid.uuid4().hex[:10]}"
 
 
+def farm_state(prefix: str, folder: Path) -> dict:
+    """Settings that give a test farm job records and a blob store of its own: ``folder`` as its
+    data folder (SQLite there) and, when ``DATABASE_URL`` names a PostgreSQL database, a schema
+    named after its Redis key prefix (``drop_farm_state`` removes it)."""
+    state: dict = {"data_dir": folder}
+    if os.environ.get("DATABASE_URL"):
+        state["database_schema"] = prefix.replace("-", "_").lower()
+    return state
+
+
+def drop_farm_state(settings: Settings) -> None:
+    if settings.database_schema and settings.database_url:
+        from sqlalchemy import text
+
+        from services.farm.records import engine_for
+
+        engine = engine_for(settings.database_url)
+        with engine.begin() as conn:
+            conn.execute(text(f'DROP SCHEMA IF EXISTS "{settings.database_schema}" CASCADE'))
+        engine.dispose()
+
+
+@pytest.fixture(scope="session", autouse=True)
+def _drop_session_schema() -> Iterator[None]:
+    yield
+    if os.environ.get("DATABASE_URL"):
+        drop_farm_state(Settings())
+
+
 @pytest.fixture
-def settings(redis_base_url: str, tmp_path: Path) -> Settings:
-    return Settings(redis_url=redis_base_url, key_prefix=_prefix(), data_dir=tmp_path / "data")
+def settings(redis_base_url: str, tmp_path: Path) -> Iterator[Settings]:
+    """A fresh Redis key prefix, data folder and (on PostgreSQL) schema: no test sees another's
+    jobs."""
+    prefix = _prefix()
+    s = Settings(redis_url=redis_base_url, key_prefix=prefix,
+                 **farm_state(prefix, tmp_path / "data"))
+    yield s
+    drop_farm_state(s)
 
 
 @pytest.fixture
@@ -78,13 +118,23 @@ class Farm:
     def store(self) -> JobStore:
         return JobStore(redis.Redis.from_url(self.settings.redis_url), self.settings.key_prefix)
 
+    def records(self) -> Records:
+        return records_of(self.settings)
+
+
+def records_of(settings: Settings) -> Records:
+    """The job records of a farm with these settings (its data folder, or its schema)."""
+    records = Records(settings.database, settings.database_schema)
+    records.migrate()
+    return records
+
 
 @pytest.fixture(scope="session")
 def farm(redis_base_url: str, tmp_path_factory) -> Iterator[Farm]:
     prefix = _prefix()
     log_path = tmp_path_factory.mktemp("farm") / "worker.log"
     settings = Settings(redis_url=redis_base_url, key_prefix=prefix, heartbeat_interval=0.5,
-                        data_dir=log_path.parent / "data")
+                        **farm_state(prefix, log_path.parent / "data"))
     with open(log_path, "w") as log:
         proc = start_worker(
             redis_base_url, concurrency=2, threads=1, name=f"{prefix}@%h", log=log,
@@ -103,6 +153,7 @@ def farm(redis_base_url: str, tmp_path_factory) -> Iterator[Farm]:
         finally:
             terminate(proc, 30.0)
             store.r.close()
+            drop_farm_state(settings)
 
 
 @pytest.fixture

@@ -36,10 +36,11 @@ from fastapi.testclient import TestClient
 
 from renderer.render import render
 from services.api.main import create_app
-from services.client import Client, JobLost
+from services.client import Client
 from services.farm.merge import StallRule, assemble, requeue_stalled
 from services.farm.planner import Plan, celery_priority
 from services.farm.queue import TASK, celery_client
+from services.farm.records import LOST_AFTER
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 from services.launcher import EmbeddedRedis, free_port, terminate, worker_command, worker_env
@@ -592,11 +593,11 @@ def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
 
 @pytest.mark.slow
 def test_redis_restarted_without_persistence_loses_the_job_clearly(tmp_path, prefix, cornell):
-    """Without persistence a restarted Redis is empty: the job (its hash, scene, tiles,
-    accumulations) and its queued passes are gone. What documents that here: the API answers 404
-    for the job, ``lucent submit --wait``'s client stops with ``JobLost`` instead of polling
-    forever, the passes that were in flight are discarded (not left pending), and the same
-    workers render a new job."""
+    """Without persistence a restarted Redis is empty: the job's in-flight state (its hash,
+    scene, tiles, accumulations) and its queued passes are gone. What documents that here: its
+    record stays and is failed with the reason by a sweep, so the API answers it and ``lucent
+    submit --wait``'s client stops instead of polling forever; the passes that were in flight are
+    discarded (not left pending), and the same workers render a new job."""
     server = EmbeddedRedis().start()
     nodes = Nodes(server.url, prefix, tmp_path)
     store = JobStore.from_url(server.url, prefix)
@@ -607,11 +608,14 @@ def test_redis_restarted_without_persistence_loses_the_job_clearly(tmp_path, pre
         with _api(server.url, prefix) as api:
             server, job_id, _ = _restart_redis_a_third_into_a_job(server, api, store, scene,
                                                                   appendonly=False)
-            assert api.get(f"/api/jobs/{job_id}").status_code == 404
+            # Its record stays, and is failed with the reason by a sweep (LOST_AFTER after it
+            # was submitted): the API answers it, and the client's wait ends
+            lost = _until(lambda: (j := api.get(f"/api/jobs/{job_id}").json())["status"]
+                          == "failed" and j, LOST_AFTER + 30, "the job reported lost")
+            assert "Redis lost" in lost["error"], lost
             client = Client("http://testserver")
             client.http = api
-            with pytest.raises(JobLost, match="gone from the server"):
-                client.wait(job_id, progress=False)
+            assert client.wait(job_id, progress=False)["status"] == "failed"
             assert store.r.llen("celery") == 0
             _until(lambda: store.r.scard(store.k("pending")) == 0, 30,
                    "in-flight passes discarded")

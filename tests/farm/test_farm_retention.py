@@ -1,6 +1,6 @@
-"""Finished jobs: the image to the blob store and Redis bounded by what is in flight, deletion
-and retention (``services/farm/archive.py``), with the real farm (embedded Redis, Celery
-workers)."""
+"""Finished jobs: the image to the blob store, the job to its record and out of Redis (Redis
+bounded by what is in flight), deletion and retention (``services/farm/archive.py``), with the
+real farm (embedded Redis, Celery workers)."""
 
 from __future__ import annotations
 
@@ -17,6 +17,7 @@ from services.farm.blobs import FileBlobStore, content_key
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 from tests.conftest import wait_until
+from tests.farm.conftest import records_of
 
 
 def job_keys(store: JobStore, job_id: str) -> set[str]:
@@ -44,8 +45,12 @@ def listed_ids(client: TestClient) -> set[str]:
 IMAGES = ["image.exr", "image.png", "image.png?exposure=1.5&tonemap=aces", "image.npy"]
 
 
-def test_a_done_job_leaves_only_its_hash_and_scene_in_redis(farm, tiny_scene, tmp_path,
-                                                            wait_for_job):
+def archived(records, job_id: str) -> bool:
+    record = records.get(job_id)
+    return record is not None and bool(record.images)
+
+
+def test_a_done_job_leaves_redis_for_its_record(farm, tiny_scene, tmp_path, wait_for_job):
     # Only the sweep at start: the test archives by hand, between the two reads of the image.
     settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
     store = farm.store()
@@ -62,13 +67,15 @@ def test_a_done_job_leaves_only_its_hash_and_scene_in_redis(farm, tiny_scene, tm
 
         # (the farm's other tests leave done jobs of their own to archive: only ours here)
         blobs = FileBlobStore(settings.blob_path)
+        records = records_of(settings)
         assert set(ids) <= set(store.jobs_to_archive())
-        assert [archive_job(store, blobs, j) for j in ids] == [True] * 3
-        assert [archive_job(store, blobs, j) for j in ids] == [False] * 3  # once
+        assert [archive_job(store, records, blobs, j) for j in ids] == [True] * 3
+        assert [archive_job(store, records, blobs, j) for j in ids] == [False] * 3  # once
         assert not set(ids) & set(store.jobs_to_archive())
 
         for job_id in ids:
-            assert job_keys(store, job_id) == {f"job:{job_id}", f"job:{job_id}:scene"}
+            assert job_keys(store, job_id) == set()  # nothing of it left in Redis
+            assert records.get(job_id).status == "done"
         for (job_id, path), old in before.items():
             new = client.get(f"/api/jobs/{job_id}/{path}")
             assert new.status_code == 200
@@ -78,24 +85,26 @@ def test_a_done_job_leaves_only_its_hash_and_scene_in_redis(farm, tiny_scene, tm
             detail = client.get(f"/api/jobs/{job_id}").json()
             assert detail == detail_before[job_id]  # tiles done, their samples, as before
         assert set(ids) <= listed_ids(client)  # still listed
-        # The three jobs render the same scene: one EXR and one PNG in the store, used 3 times
+        # The three jobs render the same scene: one EXR and one PNG in the store, named by all
         for fmt in ("exr", "png"):
             key = content_key(before[(ids[0], f"image.{fmt}")].content)
-            assert blobs.exists(key)
-            assert store.r.hget(store.k("blob_refs"), key) == b"3"
+            assert blobs.exists(key) and records.blob_in_use(key)
+            assert {records.get(j).images[fmt] for j in ids} == {key}
+        assert len(blob_files(settings)) == 2
 
 
 def test_deleting_a_finished_job_leaves_no_key_and_no_blob(farm, tiny_scene, tmp_path,
                                                           wait_for_job):
     settings = farm.settings.model_copy(update={"data_dir": tmp_path})
     store = farm.store()
+    records = records_of(settings)
     tiny_scene = own_scene(tiny_scene)
     with TestClient(create_app(settings)) as client:
         first, second = (client.post("/api/jobs", json={"scene": tiny_scene}).json()["id"]
                          for _ in range(2))
         for job_id in (first, second):
             assert wait_for_job(client, job_id)["status"] == "done"
-            wait_until(lambda j=job_id: store.get_job(j).images, 30, "the image archived")
+            wait_until(lambda j=job_id: archived(records, j), 30, "the image archived")
         exr = client.get(f"/api/jobs/{first}/image.exr").content
 
         # Two jobs use the same image: deleting one keeps it for the other
@@ -107,7 +116,8 @@ def test_deleting_a_finished_job_leaves_no_key_and_no_blob(farm, tiny_scene, tmp
         assert job_keys(store, second) == set()
         assert blob_files(settings) == []
         assert not listed_ids(client) & {first, second}
-        assert store.r.hget(store.k("blob_refs"), content_key(exr)) is None
+        assert not records.blob_in_use(content_key(exr))
+        assert records.get(first) is None and records.get(second) is None
 
         # A running job is cancelled (200), then deleted (204) with its partial image's keys
         big = dict(tiny_scene, render={**tiny_scene["render"], "spp": 64})
@@ -124,6 +134,7 @@ def test_deleting_a_finished_job_leaves_no_key_and_no_blob(farm, tiny_scene, tmp
 def test_retention_removes_old_finished_jobs(farm, tiny_scene, tmp_path, wait_for_job):
     settings = farm.settings.model_copy(update={"data_dir": tmp_path, "keep_days": 1.0})
     store = farm.store()
+    records = records_of(settings)
     tiny_scene = own_scene(tiny_scene)
     with TestClient(create_app(settings)) as client:
         old, new = (client.post("/api/jobs", json={"scene": tiny_scene, "name": name,
@@ -131,17 +142,60 @@ def test_retention_removes_old_finished_jobs(farm, tiny_scene, tmp_path, wait_fo
                     for name in ("old", "new"))
         for job_id in (old, new):
             assert wait_for_job(client, job_id)["status"] == "done"
-            wait_until(lambda j=job_id: store.get_job(j).images, 30, "the image archived")
+            wait_until(lambda j=job_id: archived(records, j), 30, "the image archived")
         time.sleep(2 * settings.sweep_interval)  # sweeps pass: a day has not
         assert {old, new} <= listed_ids(client)
 
-        store.set_finished_at(old, time.time() - 1.5 * 86400)
+        records.set_finished_at(old, time.time() - 1.5 * 86400)
         wait_until(lambda: client.get(f"/api/jobs/{old}").status_code == 404, 30,
                    "the old job deleted by the sweeper")
-        assert job_keys(store, old) == set()
+        assert job_keys(store, old) == set() and records.get(old) is None
         assert listed_ids(client) & {old, new} == {new}
         assert len(blob_files(settings)) == 2  # the new job's EXR and PNG (the same scene's)
         assert client.get(f"/api/jobs/{new}/image.exr").status_code == 200
+
+
+def test_a_cancelled_job_leaves_redis_and_a_retry_brings_it_back(farm, tiny_scene, tmp_path,
+                                                                 wait_for_job):
+    """A cancelled job is parked (``LUCENT_PARK_AFTER``): its tiles to the blob store, nothing of
+    it left in Redis, its status, tiles and partial image still served; a retry brings it back
+    as it was and it finishes with every pass merged once; then its state blob is gone."""
+    settings = farm.settings.model_copy(update={"data_dir": tmp_path, "park_after": 0.0,
+                                                "sweep_interval": 0.2})
+    store = farm.store()
+    records = records_of(settings)
+    scene = own_scene(tiny_scene)
+    scene["render"]["spp"] = 32
+    with TestClient(create_app(settings)) as client:
+        job_id = client.post("/api/jobs", json={"scene": scene, "tile_size": 16,
+                                                "spp_per_pass": 1, "max_spp_per_pass": 1}
+                             ).json()["id"]
+        wait_until(lambda: client.get(f"/api/jobs/{job_id}").json()["tasks_merged"] > 2, 60,
+                   "passes merging")
+        assert client.delete(f"/api/jobs/{job_id}").json()["status"] == "cancelled"
+        wait_until(lambda: not job_keys(store, job_id), 30, "the cancelled job out of Redis")
+        record = records.get(job_id)
+        assert record.status == "cancelled" and record.parked
+        state = record.parked
+        assert FileBlobStore(settings.blob_path).exists(state)
+        detail = client.get(f"/api/jobs/{job_id}").json()
+        assert detail["status"] == "cancelled"
+        assert sum(t["samples"] for t in detail["tile_states"]) > 0
+        assert client.get(f"/api/jobs/{job_id}/image.png").status_code == 200
+        assert job_id in listed_ids(client)
+
+        r = client.post(f"/api/jobs/{job_id}/retry")
+        assert r.status_code == 200, r.text
+        done = wait_for_job(client, job_id)
+        assert done["status"] == "done", done
+        wait_until(lambda: bool(records.get(job_id).images), 30, "the image archived")
+        final = records.get(job_id)
+        plan = final.plan
+        assert final.tasks_merged == plan.n_tasks  # every pass once, none lost or doubled
+        assert final.samples_merged + final.dropped == plan.width * plan.height * plan.spp
+        assert final.parked is None and not records.blob_in_use(state)
+        assert not FileBlobStore(settings.blob_path).exists(state)
+        assert job_keys(store, job_id) == set()
 
 
 def test_the_file_blob_store_is_content_addressed(tmp_path):

@@ -1,4 +1,5 @@
-"""``/healthz`` (the process is up), ``/readyz`` (Redis answers and a worker is alive),
+"""``/healthz`` (the process is up), ``/readyz`` (Redis and the job database answer, a worker is
+alive),
 ``/metrics`` (Prometheus).
 
 The probes are open, so they say what is wrong in general words only (no host, port or farm
@@ -8,14 +9,18 @@ the API token when one is set (Prometheus sends it with ``authorization: {creden
 
 from __future__ import annotations
 
+import logging
 from collections import Counter
 
 from fastapi import APIRouter, Response, status
 from fastapi.responses import PlainTextResponse
 
-from services.api.deps import StoreDep
+from services.api.deps import RecordsDep, StoreDep
 from services.farm.availability import readiness
+from services.farm.records import RecordsUnavailable
 from services.farm.store import STATUSES
+
+log = logging.getLogger(__name__)
 
 router = APIRouter(tags=["health"])
 metrics_router = APIRouter(tags=["health"])
@@ -28,8 +33,14 @@ def healthz() -> dict[str, str]:
 
 @router.get("/readyz", responses={503: {"description": "Redis does not answer, or no worker "
                                                      "process is alive; `reasons` says which"}})
-def readyz(store: StoreDep, response: Response) -> dict[str, str | list[str]]:
+def readyz(store: StoreDep, records: RecordsDep,
+           response: Response) -> dict[str, str | list[str]]:
     reasons = readiness(store)
+    try:
+        records.ping()
+    except RecordsUnavailable as err:
+        log.warning("%s", err)
+        reasons.append("the job database does not answer")
     if reasons:
         response.status_code = status.HTTP_503_SERVICE_UNAVAILABLE
         return {"status": "unavailable", "reasons": reasons}
@@ -37,10 +48,10 @@ def readyz(store: StoreDep, response: Response) -> dict[str, str | list[str]]:
 
 
 @metrics_router.get("/metrics", response_class=PlainTextResponse)
-def metrics(store: StoreDep) -> str:
+def metrics(store: StoreDep, records: RecordsDep) -> str:
     """Prometheus text format (version 0.0.4)."""
-    jobs, _ = store.list_jobs(limit=1_000_000)
-    by_status = Counter(m.status for m in jobs)
+    records.sync(store.jobs_in_flight())
+    by_status = records.count_by_status()
     workers = store.workers()
     live = Counter(w.get("state", "lost") for w in workers)
     counters = store.metrics()

@@ -13,14 +13,28 @@ from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Res
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
-from services.api.deps import BlobsDep, CeleryDep, SettingsDep, StoreDep
+from services.api.deps import (
+    BlobsDep,
+    CeleryDep,
+    RecordsDep,
+    SettingsDep,
+    StoreDep,
+    SubmitterDep,
+)
 from services.api.guards import echo_text, error_content
 from services.api.intake import Rejection
 from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
-from services.farm.archive import delete_finished, encode_image, final_image
+from services.farm.archive import (
+    assemble_parked,
+    delete_finished,
+    encode_image,
+    final_image,
+    unpark_job,
+)
 from services.farm.jobs import Refusal, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
+from services.farm.records import Records
 from services.farm.store import ACTIVE, JobMeta, JobStore, is_job_id
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
@@ -50,6 +64,7 @@ def to_public(meta: JobMeta) -> JobPublic:
         samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
         created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
         error=meta.error, image_version=meta.version, methods=meta.methods,
+        submitter=meta.submitter,
     )
 
 
@@ -67,8 +82,10 @@ async def valid_job_id(job_id: Annotated[str, Path(description="the id POST /api
 JobId = Annotated[str, Depends(valid_job_id)]
 
 
-def _get_or_404(store: JobStore, job_id: str) -> JobMeta:
-    meta = store.get_job(job_id)
+def _get_or_404(store: JobStore, records: Records, job_id: str) -> JobMeta:
+    """The job as Redis holds it while in flight, else its record (archived, or failed or
+    cancelled and Redis restarted)."""
+    meta = store.get_job(job_id) or records.get(job_id)
     if meta is None:
         raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
     return meta
@@ -86,15 +103,16 @@ _JOB_CREATE_BODY = {"requestBody": {"required": True, "content": {
                  422: {"description": "an invalid request or an invalid or over-limit scene; "
                                       "`loc` names the field"},
                  429: {"description": "the farm's backlog is full (LUCENT_MAX_QUEUED_SAMPLES)"}})
-async def create_job(request: Request, store: StoreDep, celery: CeleryDep,
-                     settings: SettingsDep):
+async def create_job(request: Request, store: StoreDep, records: RecordsDep, celery: CeleryDep,
+                     settings: SettingsDep, submitter: SubmitterDep):
     """Validate the request and its scene (``JobCreate``), plan tiles × passes and queue them.
     Nothing is queued if the scene is invalid or over a limit."""
     read = await request.app.state.intake.read(await request.body(),
                                                request.headers.get("content-type"))
     if isinstance(read, Rejection):
         return JSONResponse(status_code=read.status, content=read.content)
-    answer = await run_in_threadpool(queue_job, store, celery, settings, read.options, read.scene)
+    answer = await run_in_threadpool(queue_job, store, records, celery, settings, read.options,
+                                     read.scene, submitter)
     if isinstance(answer, Refusal):
         return JSONResponse(status_code=answer.status, headers=answer.headers,
                             content=error_content({"loc": loc, "msg": msg, "type": kind}
@@ -103,20 +121,28 @@ async def create_job(request: Request, store: StoreDep, celery: CeleryDep,
 
 
 @router.get("", response_model=JobsPublic)
-def list_jobs(store: StoreDep,
+def list_jobs(store: StoreDep, records: RecordsDep,
               status_: Annotated[JobStatus | None, Query(alias="status")] = None,
               offset: Annotated[int, Query(ge=0)] = 0,
               limit: Annotated[int, Query(ge=1, le=500)] = 50):
-    metas, total = store.list_jobs(status_, offset, limit)
-    return JobsPublic(data=[to_public(m) for m in metas], count=total, offset=offset, limit=limit)
+    """Jobs newest first, filtered by status, paged: read from the job records, on indexes.
+    The records of the jobs in flight are brought up to date first (only those that changed
+    are written), and a listed job Redis holds is shown as Redis has it (its progress now)."""
+    records.sync(store.jobs_in_flight())
+    metas, total = records.page(status_, offset, limit)
+    live = store.get_jobs([m.id for m in metas])
+    return JobsPublic(data=[to_public(live.get(m.id, m)) for m in metas], count=total,
+                      offset=offset, limit=limit)
 
 
 def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
                errors: dict[int, str]) -> JobDetail:
-    if meta.images:  # archived: its tile keys are gone, their summary is in the job's hash
-        states = dict.fromkeys(range(meta.plan.n_tiles), "done")
-        samples = dict(enumerate(meta.tiles_final.get("samples", [])))
-        errors = {int(t): e for t, e in meta.tiles_final.get("errors", {}).items()}
+    if meta.tiles_final:  # out of Redis: its tiles' summary is in its record
+        final = meta.tiles_final
+        states = ({int(t): s for t, s in final["states"].items()} if "states" in final
+                  else dict.fromkeys(range(meta.plan.n_tiles), "done"))
+        samples = dict(enumerate(final.get("samples", [])))
+        errors = {int(t): e for t, e in final.get("errors", {}).items()}
     tiles = []
     for t in range(meta.plan.n_tiles):
         x0, y0, w, h = meta.plan.tile_rect(t)
@@ -147,16 +173,20 @@ class StatusViews:
     running job's answer is rebuilt every time: its samples per second and ETA depend on the
     clock. At most ``size`` jobs' answers are kept (least recently asked for dropped first)."""
 
-    def __init__(self, store: JobStore, size: int = 1024):
+    def __init__(self, store: JobStore, records: Records, size: int = 1024):
         self.store = store
+        self.records = records
         self.size = size
         self._views: OrderedDict[str, StatusView] = OrderedDict()
         self._lock = threading.Lock()
 
     def get(self, job_id: str) -> StatusView | None:
         read = self.store.job_view(job_id)
-        if read is None:
-            return None
+        if read is None:  # archived (or Redis lost it): the record has it
+            record = self.records.get(job_id)
+            if record is None:
+                return None
+            read = (record, {}, {}, {})
         with self._lock:
             view = self._views.get(job_id)
             if view is not None and view.state == read:
@@ -203,12 +233,16 @@ Exposure = Annotated[float, Query(ge=-MAX_EXPOSURE, le=MAX_EXPOSURE, allow_inf_n
 @router.get("/{job_id}/image.{fmt}", responses={
     200: {"content": {m: {} for m in _MEDIA.values()}}, 304: {"description": "not modified"}})
 def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request,
-              store: StoreDep, blobs: BlobsDep, exposure: Exposure = 0.0,
+              store: StoreDep, records: RecordsDep, blobs: BlobsDep, exposure: Exposure = 0.0,
               tonemap: Literal["clamp", "reinhard", "aces"] = "clamp"):
     """The merged image as it stands (progressive while running; a done job's from the blob
     store, the same bytes). ``ETag`` changes with every merge; send it back in
     ``If-None-Match`` to get 304 when nothing changed."""
-    meta = _get_or_404(store, job_id)
+    meta = _get_or_404(store, records, job_id)
+    if meta.image_removed:
+        raise HTTPException(status.HTTP_410_GONE,
+                            detail=f"the image of job {job_id!r} was removed to keep the stored "
+                                   "images under LUCENT_MAX_IMAGE_BYTES")
     etag = f'"{job_id}-{meta.version}-{fmt}-{exposure:g}-{tonemap}"'
     headers = {"ETag": etag, "Cache-Control": "no-cache"}
     if etag_matches(request, etag):
@@ -221,6 +255,8 @@ def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request
                                        "store")
         # The buffers are read after the version: the image is never older than its ETag says.
         assembled = assemble(store, job_id)
+        if assembled is None and meta.parked:  # out of Redis: its tiles are in the blob store
+            assembled = assemble_parked(blobs, meta)
         if assembled is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
         content = encode_image(assembled[0].mean(), fmt, exposure, tonemap)
@@ -230,21 +266,29 @@ def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request
 @router.delete("/{job_id}", response_model=JobPublic, responses={
     204: {"description": "the job was finished (done, failed or cancelled): it is deleted, its "
                          "image too"}})
-def cancel_job(job_id: JobId, store: StoreDep, blobs: BlobsDep):
+def cancel_job(job_id: JobId, store: StoreDep, records: RecordsDep, blobs: BlobsDep):
     """Cancel a queued or running job (200 and the job): queued tasks do nothing when they come
     up, running ones finish their pass. Delete a finished one (204): every key of it and its
     image; it is gone from the list."""
-    meta = _get_or_404(store, job_id)
-    if meta.status not in ACTIVE and delete_finished(store, blobs, job_id):
+    meta = _get_or_404(store, records, job_id)
+    if meta.status not in ACTIVE and delete_finished(store, records, blobs, job_id):
         return Response(status_code=status.HTTP_204_NO_CONTENT)
     store.cancel_job(job_id)
-    return to_public(_get_or_404(store, job_id))
+    return to_public(_get_or_404(store, records, job_id))
 
 
 @router.post("/{job_id}/retry", response_model=JobPublic)
-def retry_job(job_id: JobId, store: StoreDep, celery: CeleryDep):
+def retry_job(job_id: JobId, store: StoreDep, records: RecordsDep, blobs: BlobsDep,
+              celery: CeleryDep):
     """Requeue every pass not merged yet of a failed or cancelled job (tries counted afresh)."""
-    refused = retry(store, celery, _get_or_404(store, job_id))
+    meta = _get_or_404(store, records, job_id)
+    if store.get_status(job_id) is None and unpark_job(store, records, blobs, meta):
+        meta = _get_or_404(store, records, job_id)  # back in Redis, as it was parked
+    if store.get_status(job_id) is None:
+        raise HTTPException(status.HTTP_409_CONFLICT,
+                            detail=f"job {job_id} is {meta.status} and its passes are no longer "
+                                   "in Redis: submit it again")
+    refused = retry(store, celery, meta)
     if refused is not None:
         raise HTTPException(status.HTTP_409_CONFLICT, detail=refused)
-    return to_public(_get_or_404(store, job_id))
+    return to_public(_get_or_404(store, records, job_id))

@@ -1,0 +1,307 @@
+"""Farm state that lasts (issue #20): job records in SQL, Redis left with what is in flight; the
+database or Redis going away.
+
+Against a real Redis and the configured database: SQLite in the test's data folder, or the
+PostgreSQL of ``DATABASE_URL`` (a schema per test: tests/farm/conftest.py ``farm_state``).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import copy
+import dataclasses
+import os
+import socket
+import socketserver
+import threading
+import time
+import uuid
+
+from fastapi.testclient import TestClient
+from sqlalchemy import inspect
+
+from services.api.main import create_app
+from services.farm.archive import cap_images, keep_records
+from services.farm.blobs import FileBlobStore, put_content
+from services.farm.planner import Plan
+from services.farm.records import LOST_AFTER, Records
+from services.farm.settings import Settings
+from services.farm.store import JobMeta
+from services.launcher import EmbeddedRedis, start_worker, terminate
+from tests.farm.conftest import (
+    WORKER_START_TIMEOUT,
+    drop_farm_state,
+    farm_state,
+    records_of,
+)
+
+
+def _meta(created_at: float, status: str = "done", name: str = "") -> JobMeta:
+    finished = created_at + 1 if status in ("done", "failed", "cancelled") else None
+    return dataclasses.replace(
+        JobMeta.new(uuid.uuid4().hex, name, 0, Plan(32, 24, 16, 16, 8), {}, created_at),
+        status=status, started_at=created_at, finished_at=finished)
+
+
+def _archived(records: Records, job_id: str) -> bool:
+    record = records.get(job_id)
+    return record is not None and bool(record.images)
+
+
+# --- job records in SQL --------------------------------------------------------------------------
+
+
+def test_migration_at_start_up_is_idempotent(settings):
+    """The schema is upgraded when the API starts, and starting again (or migrating again by
+    hand) changes nothing and keeps the rows."""
+    with TestClient(create_app(settings)) as c:
+        assert c.get("/api/jobs").json()["count"] == 0
+    records = records_of(settings)
+    assert records.revision() == "0002"
+    records.create(_meta(time.time()))
+    records.migrate()
+    with TestClient(create_app(settings)) as c:
+        assert c.get("/api/jobs").json()["count"] == 1
+    assert records.revision() == "0002"
+    indexes = {i["name"] for i in inspect(records.engine).get_indexes("jobs")}
+    assert {"jobs_created_at", "jobs_status_created_at", "jobs_finished_at", "jobs_image_exr",
+            "jobs_image_png"} <= indexes
+
+
+def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
+    """A database at the first migration, with jobs in it, upgraded: the counts by status
+    (kept by triggers from then on) start from the jobs it has."""
+    records = Records(f"sqlite:///{tmp_path}/old.db")
+    records.migrate("0001")
+    t0 = time.time()
+    for status in ("done", "done", "failed", "running"):
+        records.create(_meta(t0, status))
+    records.migrate()
+    assert records.revision() == "0002"
+    assert records.count_by_status() == {"queued": 0, "running": 1, "done": 2, "failed": 1,
+                                         "cancelled": 0}
+    first = records.page("done")[0][0]
+    assert records.sync([dataclasses.replace(first, status="failed")]) == 1
+    records.delete(records.page("running")[0][0].id)
+    assert records.count_by_status() == {"queued": 0, "running": 0, "done": 1, "failed": 2,
+                                         "cancelled": 0}
+    assert records.page()[1] == 3 and records.page("failed")[1] == 2
+
+
+def test_listing_pages_and_filters_in_the_database(client, settings):
+    """Jobs Redis does not hold (archived ones) are listed from their records: newest first,
+    paged by offset and limit, filtered by status, with the total that matches."""
+    records = records_of(settings)
+    t0 = time.time() - 1000
+    metas = [_meta(t0 + i, "done" if i % 3 else "failed", f"job {i}") for i in range(25)]
+    records.create_many(metas)
+    newest_first = [m.id for m in reversed(metas)]
+    page = client.get("/api/jobs", params={"offset": 5, "limit": 10}).json()
+    assert page["count"] == 25
+    assert [j["id"] for j in page["data"]] == newest_first[5:15]
+    failed = client.get("/api/jobs", params={"status": "failed", "limit": 500}).json()
+    assert failed["count"] == 9
+    assert [j["id"] for j in failed["data"]] == [m.id for m in reversed(metas)
+                                                  if m.status == "failed"]
+    assert client.get(f"/api/jobs/{metas[4].id}").json()["name"] == "job 4"
+    text = client.get("/metrics").text
+    assert 'lucent_jobs{status="done"} 16' in text and 'lucent_jobs{status="failed"} 9' in text
+
+
+def test_the_image_cap_removes_the_oldest_images_and_keeps_the_records(client, settings):
+    """Over ``LUCENT_MAX_IMAGE_BYTES`` the oldest finished jobs' images go (blobs no other job
+    names deleted); their records stay, and their image routes answer 410 saying why."""
+    records = records_of(settings)
+    blobs = FileBlobStore(settings.blob_path)
+    t0 = time.time() - 1000
+    metas = [_meta(t0 + i, "done", f"job {i}") for i in range(3)]
+    records.create_many(metas)
+    for i, meta in enumerate(metas):
+        images = {fmt: put_content(blobs, f"{fmt} of job {i}".encode() * 100)
+                  for fmt in ("exr", "png")}
+        assert records.archive(meta, images, {"samples": [], "errors": {}}, 1000)
+    assert cap_images(records, blobs, 1500) == 2  # 3000 bytes: the two oldest go
+    assert cap_images(records, blobs, 1500) == 0
+    assert len([p for p in settings.blob_path.rglob("*") if p.is_file()]) == 2
+    for meta in metas[:2]:
+        r = client.get(f"/api/jobs/{meta.id}/image.png")
+        assert r.status_code == 410 and "LUCENT_MAX_IMAGE_BYTES" in r.json()["detail"]
+        assert client.get(f"/api/jobs/{meta.id}").json()["status"] == "done"
+    assert client.get(f"/api/jobs/{metas[2].id}/image.png").content == b"png of job 2" * 100
+    assert client.get("/api/jobs").json()["count"] == 3
+
+
+def test_a_named_token_is_recorded_as_the_submitter(redis_base_url, tmp_path, tiny_scene):
+    prefix = f"lucent-test-{uuid.uuid4().hex[:10]}"
+    settings = Settings(redis_url=redis_base_url, key_prefix=prefix,
+                        api_tokens="alice:a-s3cret,bob:b-s3cret",
+                        **farm_state(prefix, tmp_path / "data"))
+    try:
+        with TestClient(create_app(settings)) as c:
+            assert c.get("/api/jobs").status_code == 401
+            assert c.get("/api/jobs", headers={"Authorization": "Bearer bob"}).status_code == 401
+            r = c.post("/api/jobs", json={"scene": tiny_scene},
+                       headers={"Authorization": "Bearer b-s3cret"})
+            assert r.status_code == 201, r.text
+            assert r.json()["submitter"] == "bob"
+            listed = c.get("/api/jobs", headers={"Authorization": "Bearer a-s3cret"}).json()
+            assert [j["submitter"] for j in listed["data"]] == ["bob"]
+        assert records_of(settings).get(r.json()["id"]).submitter == "bob"
+    finally:
+        drop_farm_state(settings)
+
+
+def test_a_job_whose_state_redis_lost_is_marked_failed(settings, store):
+    """A record queued or running whose job Redis no longer holds (Redis restarted without its
+    data) is failed by the sweeper, saying why; one just submitted is left alone."""
+    records = records_of(settings)
+    lost = _meta(time.time() - LOST_AFTER - 5, "running")
+    young = _meta(time.time(), "queued")
+    records.create_many([lost, young])
+    keep_records(store, records)
+    after = records.get(lost.id)
+    assert after.status == "failed" and "Redis lost" in after.error
+    assert records.get(young.id).status == "queued"
+
+
+def test_history_survives_a_redis_restart(tmp_path, tiny_scene, wait_until):
+    """Redis restarted empty (no persistence) once every job finished: nothing of the history
+    is lost, as none of it was in Redis any more."""
+    server = EmbeddedRedis().start()
+    prefix = f"lucent-test-{uuid.uuid4().hex[:10]}"
+    settings = Settings(redis_url=server.url, key_prefix=prefix, sweep_interval=0.2,
+                        **farm_state(prefix, tmp_path / "data"))
+    worker = start_worker(server.url, concurrency=1, name=f"{prefix}@%h",
+                          extra_env={"LUCENT_KEY_PREFIX": prefix, "LUCENT_API_TOKEN": ""},
+                          log=open(tmp_path / "worker.log", "w"))
+    try:
+        records = records_of(settings)
+        with TestClient(create_app(settings)) as api:
+            ids = [api.post("/api/jobs", json={"scene": tiny_scene, "name": f"n{i}"}).json()["id"]
+                   for i in range(3)]
+            for job_id in ids:
+                wait_until(lambda j=job_id: _archived(records, j), WORKER_START_TIMEOUT,
+                           "the job archived")
+            pngs = {j: api.get(f"/api/jobs/{j}/image.png").content for j in ids}
+        terminate(worker, 30.0)
+        port = server.port
+        server.stop()
+        server = EmbeddedRedis(port=port).start()  # empty
+        with TestClient(create_app(settings)) as api:
+            listed = api.get("/api/jobs").json()
+            assert listed["count"] == 3
+            assert {(j["id"], j["status"]) for j in listed["data"]} == {(j, "done") for j in ids}
+            assert {j: api.get(f"/api/jobs/{j}/image.png").content for j in ids} == pngs
+    finally:
+        terminate(worker, 30.0)
+        server.stop()
+        drop_farm_state(settings)
+
+
+# --- the database going away mid-job -------------------------------------------------------------
+
+def _pump(src: socket.socket, dst: socket.socket) -> None:
+    with contextlib.suppress(OSError):
+        while data := src.recv(65536):
+            dst.sendall(data)
+    for s in (src, dst):
+        with contextlib.suppress(OSError):
+            s.shutdown(socket.SHUT_RDWR)
+
+
+class _Forward(socketserver.BaseRequestHandler):
+    def handle(self) -> None:
+        server: _Proxy = self.server  # type: ignore[assignment]
+        if not server.up:
+            return  # refused: the connection is closed at once
+        upstream = socket.create_connection(server.target)
+        server.conns += [self.request, upstream]
+        threading.Thread(target=_pump, args=(upstream, self.request), daemon=True).start()
+        _pump(self.request, upstream)
+
+
+class _Proxy(socketserver.ThreadingTCPServer):
+    """A TCP proxy in front of PostgreSQL that can go away, as a stopped server does (every
+    connection closed, new ones closed at once), and come back on the same port."""
+
+    daemon_threads = True
+
+    def __init__(self, host: str, port: int):
+        self.target = (host, port)
+        self.up = True
+        self.conns: list[socket.socket] = []
+        super().__init__(("127.0.0.1", 0), _Forward)
+        self.port = self.server_address[1]
+        threading.Thread(target=self.serve_forever, daemon=True).start()
+
+    def cut(self) -> None:
+        self.up = False
+        for s in self.conns:
+            with contextlib.suppress(OSError):
+                s.shutdown(socket.SHUT_RDWR)
+        self.conns.clear()
+
+    def heal(self) -> None:
+        self.up = True
+
+
+
+def test_the_database_going_away_mid_job_is_503_and_loses_no_pass(farm, tmp_path, wait_until,
+                                                                 tiny_scene):
+    """The job database stops answering mid-job (PostgreSQL: its connections cut and refused;
+    SQLite: its folder gone): the routes that need it answer 503, the job goes on in Redis (its
+    status is still served), and once the database is back it is archived whole."""
+    url = os.environ.get("DATABASE_URL")
+    proxy = None
+    state = farm_state(farm.settings.key_prefix + "-db", tmp_path / "data")
+    if url:
+        from sqlalchemy.engine import make_url
+
+        u = make_url(url)
+        proxy = _Proxy(u.host or "127.0.0.1", u.port or 5432)
+        state["database_url"] = u.set(host="127.0.0.1", port=proxy.port).render_as_string(
+            hide_password=False)
+    settings = farm.settings.model_copy(update={**state, "blob_dir": tmp_path / "blobs",
+                                                "sweep_interval": 0.2})
+    scene = copy.deepcopy(tiny_scene)
+    scene["film"] = {"width": 48, "height": 32}
+    scene["render"]["spp"] = 64
+    try:
+        with TestClient(create_app(settings)) as api:
+            job_id = api.post("/api/jobs", json={"scene": scene, "tile_size": 16,
+                                                 "spp_per_pass": 4, "max_spp_per_pass": 4}
+                              ).json()["id"]
+            wait_until(lambda: api.get(f"/api/jobs/{job_id}").json()["tasks_merged"] > 0, 120,
+                       "passes merging")
+            if proxy is not None:
+                proxy.cut()
+            else:
+                (tmp_path / "data").rename(tmp_path / "away")
+            for method, path in [("GET", "/api/jobs"), ("GET", "/metrics"),
+                                 ("POST", "/api/jobs")]:
+                r = api.request(method, path, json={"scene": tiny_scene})
+                assert r.status_code == 503, (method, path, r.text)
+                assert r.json()["detail"].startswith("the farm's job database"), r.text
+            assert api.get("/readyz").status_code == 503
+            # Redis holds the job meanwhile: it is served, and it finishes
+            store = farm.store()
+            wait_until(lambda: store.get_status(job_id) == "done", 120, "the job done in Redis")
+            assert api.get(f"/api/jobs/{job_id}").json()["status"] == "done"
+            time.sleep(1.0)  # sweeps that fail to archive it
+            assert store.get_status(job_id) == "done"
+            if proxy is not None:
+                proxy.heal()
+            else:
+                (tmp_path / "away").rename(tmp_path / "data")
+            records = Records(settings.database, settings.database_schema)
+            wait_until(lambda: _archived(records, job_id), 60, "the job archived")
+            meta = records.get(job_id)
+            assert meta.status == "done" and meta.tasks_merged == meta.plan.n_tasks
+            assert meta.samples_merged + meta.dropped == 48 * 32 * 64  # no pass lost
+            assert store.get_status(job_id) is None
+            assert api.get(f"/api/jobs/{job_id}/image.png").status_code == 200
+    finally:
+        if proxy is not None:
+            proxy.shutdown()
+            proxy.server_close()
+        drop_farm_state(settings.model_copy(update={"database_url": url}) if url else settings)
