@@ -24,17 +24,25 @@ IMAGE_TYPES = {".exr": "exr", ".png": "png", ".npy": "npy"}
 
 
 def scene_for_upload(path: str | Path, client: Client) -> dict[str, Any]:
-    """Read a scene file; each mesh file it names by ``path`` (relative to the scene's folder)
-    is uploaded to the farm as an asset, unless the farm has it already (``HEAD`` first), and
-    the reference rewritten to ``{"asset": "sha256:…"}`` (the server never reads a path)."""
+    """Read a scene file; each file it names by a path (relative to the scene's folder: a mesh's
+    ``path``, the environment's ``image``) is uploaded to the farm as an asset, unless the farm
+    has it already (``HEAD`` first), and the reference rewritten to ``{"asset": "sha256:…"}``
+    (the server never reads a path)."""
     path = Path(path)
     data = json.loads(path.read_text())
+
+    def upload(file: str) -> str:
+        local = Path(file).expanduser()
+        if not local.is_absolute():
+            local = path.resolve().parent / local
+        return client.upload_asset(local.read_bytes())
+
     for obj in data.get("objects", []):
         if isinstance(obj, dict) and obj.get("type") == "mesh" and obj.get("path"):
-            mesh_path = Path(obj.pop("path")).expanduser()
-            if not mesh_path.is_absolute():
-                mesh_path = path.resolve().parent / mesh_path
-            obj["asset"] = client.upload_asset(mesh_path.read_bytes())
+            obj["asset"] = upload(obj.pop("path"))
+    env = data.get("environment")
+    if isinstance(env, dict) and isinstance(env.get("image"), str) and env["image"]:
+        env["image"] = {"asset": upload(env["image"])}
     return data
 
 

@@ -117,3 +117,27 @@ def test_a_mesh_asset_renders_on_the_farm(farm, tiny_scene, tmp_path, wait_for_j
         with_quad = client.get(f"/api/jobs/{job['id']}/image.png").content
         without = client.get(f"/api/jobs/{r.json()['id']}/image.png").content
         assert with_quad != without
+
+
+def test_submit_uploads_the_environment_image(tmp_path):
+    """``lucent submit`` sends the environment image as an asset too, and rewrites its
+    reference; an asset reference is left alone."""
+    from renderer.scene.files import digest
+
+    class Uploads:
+        def __init__(self):
+            self.sent: list[bytes] = []
+
+        def upload_asset(self, data: bytes) -> str:
+            self.sent.append(data)
+            return digest(data)
+
+    (tmp_path / "sky.exr").write_bytes(b"v/1\x01 a sky")
+    scene_file = tmp_path / "scene.json"
+    scene_file.write_text(json.dumps({"environment": {"image": "sky.exr", "scale": 2}}))
+    uploads = Uploads()
+    scene = scene_for_upload(scene_file, uploads)  # type: ignore[arg-type]
+    assert scene["environment"] == {"image": {"asset": digest(b"v/1\x01 a sky")}, "scale": 2}
+    scene_file.write_text(json.dumps(scene))
+    assert scene_for_upload(scene_file, uploads) == scene  # type: ignore[arg-type]
+    assert uploads.sent == [b"v/1\x01 a sky"]
