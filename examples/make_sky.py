@@ -15,8 +15,9 @@ The image follows the scene format's mapping (u = atan2(x, −z)/2π to the righ
   (its radiance ρ/π times the irradiance on a horizontal surface), fading into a soft horizon.
 
 Linear radiance, RGB, ZIP-compressed, HALF (16-bit float: 3 significant digits, up to 65504, as
-HDRI sites ship them; ``--pixel-type FLOAT`` for 32-bit). Each texel holds the radiance at its direction (the
-environment looks up texels at column centres (i + ½)/W and rows j/(H − 1) from pole to pole).
+HDRI sites ship them; ``--pixel-type FLOAT`` for 32-bit). Each texel holds the radiance at its
+direction (the environment looks up texels at column centres (i + ½)/W and rows j/(H − 1) from
+pole to pole).
 """
 
 from __future__ import annotations

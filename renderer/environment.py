@@ -47,7 +47,8 @@ INV_2PI2 = 1.0 / (2.0 * math.pi * math.pi)
 
 
 MAX_CELLS = 1 << 24
-"""The most cells of the sampling distribution (128 MiB of float64 CDF)."""
+"""The most cells a subdivision may make (128 MiB of float64 CDF); an image larger than that is
+sampled by its cells unsplit (an 8192 × 4096 image: 2²⁵ cells, 256 MiB)."""
 
 
 def subdivision(height: int, width: int) -> int:
