@@ -18,7 +18,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
-from services.farm.blobs import AssetCache, FileBlobStore
+from services.farm.blobs import AssetCache, open_blob_store
 from services.farm.settings import get_settings
 from services.farm.store import JobStore
 
@@ -117,7 +117,7 @@ class WorkerState:
         if self._assets is None:
             base = os.environ.get("LUCENT_CACHE_DIR") or Path(
                 os.environ.get("XDG_CACHE_HOME") or Path.home() / ".cache") / "lucent"
-            self._assets = AssetCache(FileBlobStore(self.settings.blob_path),
+            self._assets = AssetCache(open_blob_store(self.settings.blob_location),
                                       Path(base) / "assets",
                                       self.settings.asset_cache_bytes)
         return self._assets

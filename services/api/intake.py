@@ -29,7 +29,6 @@ from concurrent.futures import ProcessPoolExecutor
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from email.message import Message
-from pathlib import Path
 from typing import Any
 
 from fastapi import status
@@ -69,7 +68,7 @@ def _is_json(content_type: str | None) -> bool:
 
 
 def read_submission(body: bytes, content_type: str | None, limits: Limits,
-                    blob_root: Path | None = None) -> Submission | Rejection:
+                    blob_root: str | None = None) -> Submission | Rejection:
     """Parse and check a ``POST /api/jobs`` body: JSON, then ``JobCreate``, then the scene."""
     # Parse
     if not body:
@@ -111,7 +110,7 @@ class Intake:
     else ``processes`` processes of its own, started on first use (spawned: the service's
     threads and connections stay behind)."""
 
-    def __init__(self, inline_bytes: int, processes: int, blob_root: Path | None = None):
+    def __init__(self, inline_bytes: int, processes: int, blob_root: str | None = None):
         self.inline_bytes = inline_bytes
         self.processes = processes
         self.blob_root = blob_root  # where the assets that scenes reference are read

@@ -21,7 +21,7 @@ from services.api.intake import Intake
 from services.api.routes import assets, dashboard, health, jobs, workers
 from services.farm.archive import chores, keep_records
 from services.farm.availability import UNAVAILABLE
-from services.farm.blobs import FileBlobStore
+from services.farm.blobs import open_blob_store
 from services.farm.merge import StallRule, Sweeper
 from services.farm.queue import celery_client
 from services.farm.records import Records, RecordsUnavailable
@@ -45,7 +45,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.status_views = jobs.StatusViews(store, records)
         app.state.celery = celery_client(settings)
         stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues)
-        app.state.blobs = FileBlobStore(settings.blob_path)
+        app.state.blobs = open_blob_store(settings.blob_location)
         sweeper = Sweeper(store, settings.sweep_interval, stall,
                           chores(store, records, app.state.blobs, settings.archive_done,
                                  settings.keep_days, settings.max_image_bytes,
@@ -63,7 +63,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="A render farm for physically based images of translucent things.")
     app.state.settings = settings
     app.state.intake = Intake(settings.intake_inline_bytes, settings.intake_processes,
-                              settings.blob_path)
+                              settings.blob_location)
     # Read-only allow-lists for the dashboard, built once: requests name entries, never paths.
     app.state.examples = dashboard.find_examples()
     app.state.figures = dashboard.find_figures()

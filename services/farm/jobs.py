@@ -22,14 +22,13 @@ import re
 import time
 import uuid
 from dataclasses import dataclass, field
-from pathlib import Path
 from typing import Any
 
 from celery import Celery
 
 from renderer.materials.auto import auto_choices
 from renderer.scene import Limits, SceneError, load_scene
-from services.farm.blobs import FileBlobStore, asset_reader
+from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
 from services.farm.planner import Plan
 from services.farm.queue import enqueue
@@ -84,11 +83,12 @@ class CheckedScene:
 
 
 def check_scene(scene: Any, limits: Limits,
-                blob_root: Path | None = None) -> CheckedScene | Refusal:
+                blob_root: str | None = None) -> CheckedScene | Refusal:
     """Validate a scene document with ``limits`` (the farm's, read where the request came in).
     Its asset references (``{"asset": "sha256:…"}``) are read from the blob store in
-    ``blob_root``: an unknown one is refused by its field; without a blob store, every one is."""
-    assets = asset_reader(FileBlobStore(blob_root)) if blob_root is not None else None
+    ``blob_root`` (a folder or ``s3://bucket/prefix``): an unknown one is refused by its field;
+    without a blob store, every one is."""
+    assets = asset_reader(open_blob_store(blob_root)) if blob_root is not None else None
     try:
         parsed = load_scene(scene, limits=limits, assets=assets)  # mesh paths are refused
     except SceneError as err:

@@ -169,6 +169,11 @@ class Settings(BaseSettings):
     """The blob store's folder, where done jobs' images are kept; default ``blobs`` in
     ``data_dir``. Every API process of one farm must see the same folder (a shared volume)."""
 
+    blob_url: str | None = Field(default=None, pattern=r"^s3://")
+    """The blob store in an S3-compatible bucket instead of a folder: ``s3://bucket/prefix``
+    (boto3, the extra ``s3``; endpoint and credentials from boto3's environment,
+    ``AWS_ENDPOINT_URL_S3``, ``AWS_ACCESS_KEY_ID``, ...). Unset: the folder ``blob_dir``."""
+
     archive_done: bool = True
     """Write each done job's image to the blob store and drop its accumulations from Redis;
     off (``LUCENT_ARCHIVE_DONE=0``), a done job's per-tile sample buffers stay in Redis, as
@@ -196,6 +201,11 @@ class Settings(BaseSettings):
     @property
     def blob_path(self) -> Path:
         return self.blob_dir if self.blob_dir is not None else self.data_dir / "blobs"
+
+    @property
+    def blob_location(self) -> str:
+        """Where the blob store is, as ``open_blob_store`` takes it: the bucket, else the folder."""
+        return self.blob_url or str(self.blob_path)
 
     @field_validator("api_tokens", mode="before")
     @classmethod
