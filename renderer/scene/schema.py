@@ -556,6 +556,14 @@ class TranslucentMaterial(SceneModel):
         """Whether the channels travel different mean free paths."""
         return len(set(self.sigma_t)) > 1
 
+    @field_validator("albedo", mode="before")
+    @classmethod
+    def _no_texture(cls, value):
+        if isinstance(value, dict) and value.get("type") in TEXTURE_TYPES:
+            raise scene_error("a texture on a translucent material's albedo is not supported by "
+                              "this version (diffuse, phong, mirror and conductor colours are)")
+        return value
+
     @model_validator(mode="after")
     def _check_roughness(self) -> TranslucentMaterial:
         if self.roughness > 0.0 and self.method not in ROUGH_METHODS:
