@@ -15,18 +15,13 @@
 from __future__ import annotations
 
 import struct
-import sys
 import zlib
 from pathlib import Path
 
 import numpy as np
 
-ROOT = Path(__file__).resolve().parents[1]
-if str(ROOT) not in sys.path:  # runnable as a plain script from anywhere
-    sys.path.insert(0, str(ROOT))
-
-from renderer.film.tonemap import linear_to_srgb  # noqa: E402
-from renderer.geometry.meshgen import uv_sphere  # noqa: E402
+from renderer.film.tonemap import linear_to_srgb  # lucent installed (pip install -e .)
+from renderer.geometry.meshgen import uv_sphere
 
 TERRACOTTA = np.array([0.50, 0.20, 0.10])
 SANDSTONE = np.array([0.62, 0.52, 0.38])
