@@ -17,8 +17,8 @@ themselves, as Mitsuba gives a mesh without texture coordinates.
 
 Arrays (``SceneArrays``): ``tex_param`` (textures, ``TEX_ROW``) a row per texture (slots below);
 ``texels`` float32, every bitmap's linear texels, row by row from the top, RGB; ``mat_tex``
-(materials, 2·``MAX_BINDINGS``) per material the (slot of its row, texture) of each textured
-colour parameter, −1 where none; ``prim_uv`` (primitives, 6) the (u, v) of each triangle's three
+(materials, 3·``MAX_BINDINGS``) per material the (slot of its row, texture, factor) of each
+textured slot, −1 where none; ``prim_uv`` (primitives, 6) the (u, v) of each triangle's three
 corners, or no rows when the scene has no textures. The host packs the textures once
 (``pack_textures``); ``textured_row`` fills a copy of a material's row at a hit.
 
@@ -44,7 +44,18 @@ import numpy as np
 
 from renderer.geometry.shapes import QUAD, SPHERE
 from renderer.jit import inline_kernel, kernel
-from renderer.materials.bsdf import CONDUCTOR, DIFFUSE, MIRROR, N_PARAMS, PHONG, ROUGH_CONDUCTOR
+from renderer.materials import translucent
+from renderer.materials.bsdf import (
+    BACKLIGHT,
+    CONDUCTOR,
+    DIFFUSE,
+    DIFFUSE_ENTRY,
+    MIRROR,
+    N_PARAMS,
+    PHONG,
+    ROUGH_CONDUCTOR,
+    SINGLE_SCATTER,
+)
 from renderer.materials.conductor import SPECULAR
 from renderer.materials.diffuse import ALBEDO
 from renderer.materials.mirror import REFLECTANCE
@@ -56,12 +67,22 @@ CHECKERBOARD = 1
 KIND, OFFSET, WIDTH, HEIGHT, SU, OU, COLOR0, COLOR1 = 0, 1, 2, 3, 4, 6, 8, 11
 TEX_ROW = 14
 
-MAX_BINDINGS = 2  # textured colour parameters of one material (phong's diffuse and specular)
+MAX_BINDINGS = 2  # textured slots of one material (phong's diffuse and specular; backlight's
+# albedo and the share of it its surface reflects)
 
-# The slot of each colour parameter in its material's row, by material kind
-PARAM_SLOTS = {DIFFUSE: {"albedo": ALBEDO}, PHONG: {"diffuse": KD, "specular": KS},
-               MIRROR: {"reflectance": REFLECTANCE}, CONDUCTOR: {"specular": SPECULAR},
-               ROUGH_CONDUCTOR: {"specular": SPECULAR}}
+# The slots each colour parameter fills in its material's row, by material kind: (slot, the
+# row's slot whose (1 − value) scales it, or −1 for none). A translucent material's textured
+# albedo colours its surface: the Lambertian surface of single_scatter, the entry scattering of
+# diffuse_entry, backlight's reflected (1 − scale)·albedo and its transmitted term.
+PARAM_SLOTS = {DIFFUSE: {"albedo": ((ALBEDO, -1),)},
+               PHONG: {"diffuse": ((KD, -1),), "specular": ((KS, -1),)},
+               MIRROR: {"reflectance": ((REFLECTANCE, -1),)},
+               CONDUCTOR: {"specular": ((SPECULAR, -1),)},
+               ROUGH_CONDUCTOR: {"specular": ((SPECULAR, -1),)},
+               SINGLE_SCATTER: {"albedo": ((translucent.ALBEDO, -1),)},
+               DIFFUSE_ENTRY: {"albedo": ((translucent.ALBEDO, -1),)},
+               BACKLIGHT: {"albedo": ((translucent.ALBEDO, -1),
+                                      (translucent.REFLECTED, translucent.SCALE))}}
 
 INV_2PI = 1.0 / (2.0 * math.pi)
 
@@ -100,17 +121,17 @@ def untextured(m):
     return m.model_copy(update=update) if update else m
 
 
-def pack_textures(materials, kinds) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """(tex_param, texels, mat_tex) of the materials (in row order) and their kind tags. A bitmap
-    image used by several parameters is packed once."""
+def pack_textures(materials, kinds, params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """(tex_param, texels, mat_tex) of the materials (in row order), their kind tags and
+    parameter rows. A bitmap image used by several parameters is packed once."""
     rows: list[np.ndarray] = []
     chunks: list[np.ndarray] = []
     n_texels = 0
     by_image: dict[int, tuple[int, int, int]] = {}  # id(pixels) -> (offset, width, height)
-    mat_tex = np.full((len(materials), 2 * MAX_BINDINGS), -1.0)
+    mat_tex = np.full((len(materials), 3 * MAX_BINDINGS), -1.0)
     for i, (m, kind) in enumerate(zip(materials, kinds, strict=True)):
         b = 0
-        for param, slot in PARAM_SLOTS.get(int(kind), {}).items():
+        for param, slots in PARAM_SLOTS.get(int(kind), {}).items():
             tex = getattr(m, param, None)
             if not is_texture(tex):
                 continue
@@ -129,10 +150,11 @@ def pack_textures(materials, kinds) -> tuple[np.ndarray, np.ndarray, np.ndarray]
                 row[KIND] = BITMAP
                 row[OFFSET], row[WIDTH], row[HEIGHT] = by_image[id(pixels)]
                 row[OU:OU + 2] = tex.offset
-            mat_tex[i, 2 * b] = slot
-            mat_tex[i, 2 * b + 1] = len(rows)
+            for slot, share in slots:
+                mat_tex[i, 3 * b:3 * b + 3] = (slot, len(rows),
+                                               1.0 if share < 0 else 1.0 - params[i][share])
+                b += 1
             rows.append(row)
-            b += 1
     tex_param = np.array(rows).reshape(-1, TEX_ROW)
     texels = np.concatenate(chunks) if chunks else np.zeros(0, np.float32)
     return tex_param, texels, mat_tex
@@ -220,9 +242,9 @@ def textured_row(S, mat, mp, kind, prim, u, v, n, scratch):
         scratch[j] = mp[j]
     tu, tv = surface_uv(kind, S.prim_uv, prim, u, v, n)
     for b in range(MAX_BINDINGS):
-        t = int(S.mat_tex[mat, 2 * b + 1])
+        t = int(S.mat_tex[mat, 3 * b + 1])
         if t >= 0:
-            slot = int(S.mat_tex[mat, 2 * b])
+            slot, k = int(S.mat_tex[mat, 3 * b]), S.mat_tex[mat, 3 * b + 2]
             c = texture_eval(S.tex_param, S.texels, t, tu, tv)
-            scratch[slot], scratch[slot + 1], scratch[slot + 2] = c[0], c[1], c[2]
+            scratch[slot], scratch[slot + 1], scratch[slot + 2] = k * c[0], k * c[1], k * c[2]
     return scratch

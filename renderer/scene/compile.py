@@ -198,7 +198,8 @@ def compile_scene(scene) -> CompiledScene:
         mat_kind[i], mat_param[i] = _material_row(name, untextured(m))
         if name in auto and auto[name].method == "opaque":
             pack_opaque(mat_param[i], m)
-    tex_param, texels, mat_tex = pack_textures([scene.materials[n] for n in names], mat_kind)
+    tex_param, texels, mat_tex = pack_textures([scene.materials[n] for n in names], mat_kind,
+                                               mat_param)
     textured = len(tex_param) > 0
     smooth = any(obj.type == "mesh" and obj.normal_array() is not None for obj in scene.objects)
 

@@ -240,7 +240,7 @@ def _check_count(
 # --- Round 2: pydantic errors -> (path, message) --------------------------------------------------
 
 _UNION_TAGS = {"objects": OBJECT_TYPES, "lights": LIGHT_TYPES, "materials": MATERIAL_TYPES}
-_COLOUR_TAGS = ("rgb",) + TEXTURE_TYPES
+_COLOUR_TAGS = ("rgb", "none") + TEXTURE_TYPES
 _PAIRS = ("scale", "offset")  # a texture's (u, v) pairs
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
 
@@ -678,6 +678,8 @@ def _check_textures(scene: Scene, files: FileSource, limits: Limits) -> list[tup
                                f"{low:g} to {high:g})"))
                 continue
             tex._attach_pixels(pixels)
+        if m.type == "translucent":
+            m._read_texture()
         if m.type == "phong" and not errors:
             errors += _check_phong_texels(name, m)
     return errors

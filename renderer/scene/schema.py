@@ -264,6 +264,8 @@ TEXTURE_TYPES = ("bitmap", "checkerboard")
 
 def _colour_kind(value) -> str | None:
     """The branch of a colour parameter: ``rgb`` for a triple, else the texture's type."""
+    if value is None:
+        return "none"
     if isinstance(value, dict):
         return value.get("type") if value.get("type") in TEXTURE_TYPES else "texture"
     if isinstance(value, (BitmapTexture, CheckerboardTexture)):
@@ -271,11 +273,13 @@ def _colour_kind(value) -> str | None:
     return "rgb"
 
 
-def _colour_param(rgb):
+def _colour_param(rgb, optional: bool = False):
+    branches = (Annotated[rgb, Tag("rgb")] | Annotated[BitmapTexture, Tag("bitmap")]
+                | Annotated[CheckerboardTexture, Tag("checkerboard")])
+    if optional:  # (``X | None`` outside would hash the discriminator's dict)
+        branches = branches | Annotated[None, Tag("none")]
     return Annotated[
-        Annotated[rgb, Tag("rgb")]
-        | Annotated[BitmapTexture, Tag("bitmap")]
-        | Annotated[CheckerboardTexture, Tag("checkerboard")],
+        branches,
         Discriminator(_colour_kind, custom_error_type="scene", custom_error_message="{message}",
                       custom_error_context={"message": (
                           'must be [r, g, b] or a texture {"type": "bitmap" | "checkerboard", '
@@ -284,13 +288,15 @@ def _colour_param(rgb):
 
 
 AlbedoParam = _colour_param(Albedo)
+OptionalAlbedoParam = _colour_param(Albedo, optional=True)
 """A colour parameter in [0, 1] per channel, or a texture (whose texels must be in [0, 1])."""
 
 ColourParam = _colour_param(Colour)
 """A colour parameter >= 0 per channel, or a texture."""
 
 COLOUR_PARAMS = {"diffuse": ("albedo",), "phong": ("diffuse", "specular"),
-                 "mirror": ("reflectance",), "conductor": ("specular",)}
+                 "mirror": ("reflectance",), "conductor": ("specular",),
+                 "translucent": ("albedo",)}
 """The fields of each material type that may be textures (scene format v1.1)."""
 
 
@@ -453,8 +459,10 @@ class TranslucentMaterial(SceneModel):
     type: Literal["translucent"] = "translucent"
     method: TranslucentMethod = "volumetric"
     ior: Float = Field(default=1.3, ge=1.0)
-    albedo: Albedo | None = None
-    """Single-scattering albedo per channel (default [0.8, 0.8, 0.8])."""
+    albedo: OptionalAlbedoParam = None
+    """Single-scattering albedo per channel (default [0.8, 0.8, 0.8]); for the methods
+    single_scatter, diffuse_entry and backlight a texture may colour the surface (the medium
+    then has the texture's mean albedo)."""
     density: PositiveFloat | tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = None
     """Extinction coefficient sigma_t per unit length (mean free path 1 / density), one number or
     one per channel (default 1)."""
@@ -528,6 +536,8 @@ class TranslucentMaterial(SceneModel):
             s, a = self.sigma_s, self.sigma_a  # type: ignore[assignment]
         else:
             albedo = self.albedo if self.albedo is not None else (0.8, 0.8, 0.8)
+            if is_texture(albedo):  # the medium's: the texture's mean (set again once read)
+                albedo = _texture_mean_or(albedo, (0.8, 0.8, 0.8))
             density = 1.0 if self.density is None else self.density
             sigma_t = (density,) * 3 if isinstance(density, (int, float)) else density
             self._medium = (tuple(float(x) for x in albedo),  # type: ignore[assignment]
@@ -556,13 +566,19 @@ class TranslucentMaterial(SceneModel):
         """Whether the channels travel different mean free paths."""
         return len(set(self.sigma_t)) > 1
 
-    @field_validator("albedo", mode="before")
-    @classmethod
-    def _no_texture(cls, value):
-        if isinstance(value, dict) and value.get("type") in TEXTURE_TYPES:
-            raise scene_error("a texture on a translucent material's albedo is not supported by "
-                              "this version (diffuse, phong, mirror and conductor colours are)")
-        return value
+    @model_validator(mode="after")
+    def _check_texture(self) -> TranslucentMaterial:
+        if is_texture(self.albedo) and self.method not in TEXTURE_METHODS:
+            raise scene_error(
+                f"a texture on albedo is rendered by methods {', '.join(TEXTURE_METHODS)} (the "
+                f"surface's colour); method {self.method!r} takes an RGB albedo (volumetric: the "
+                "albedo belongs to the medium)")
+        return self
+
+    def _read_texture(self) -> None:
+        """The medium's albedo from a bitmap texture's mean, once ``load_scene`` has read it."""
+        if is_texture(self.albedo) and self.sigma_s is None and self.preset is None:
+            self._medium = (_texture_mean_or(self.albedo, self._medium[0]), self._medium[1])
 
     @model_validator(mode="after")
     def _check_roughness(self) -> TranslucentMaterial:
@@ -583,6 +599,19 @@ class TranslucentMaterial(SceneModel):
                     f"{self.method!r})"
                 )
         return self
+
+
+# The methods whose albedo may be a texture: it colours their surface.
+TEXTURE_METHODS = ("single_scatter", "diffuse_entry", "backlight")
+
+
+def _texture_mean_or(texture, default) -> tuple[float, float, float]:
+    """A texture's mean colour (a bitmap's once read), else ``default``."""
+    if isinstance(texture, BitmapTexture) and texture._pixels is None:
+        return tuple(float(x) for x in default)  # type: ignore[return-value]
+    from renderer.textures import texture_mean
+
+    return texture_mean(texture)
 
 
 # The methods that render a rough boundary (``roughness`` > 0).

@@ -329,3 +329,59 @@ def test_rendered_quad_shows_the_texture_upright(tmp_path):
     top_left, bottom_right = rgb[:4, :4].mean(axis=(0, 1)), rgb[-4:, -4:].mean(axis=(0, 1))
     assert top_left[0] > 0.7 and top_left[2] < 0.2, top_left
     assert bottom_right[2] > 0.7 and bottom_right[0] < 0.2, bottom_right
+
+
+UNIFORM = {  # (material, the colour parameter a uniform checkerboard replaces)
+    "diffuse": ({"type": "diffuse", "albedo": [0.6, 0.4, 0.2]}, "albedo"),
+    "phong-diffuse": ({"type": "phong", "diffuse": [0.5, 0.3, 0.2], "specular": [0.3, 0.3, 0.3],
+                       "exponent": 20}, "diffuse"),
+    "phong-specular": ({"type": "phong", "diffuse": [0.5, 0.3, 0.2], "specular": [0.3, 0.3, 0.3],
+                        "exponent": 20}, "specular"),
+    "mirror": ({"type": "mirror", "reflectance": [0.9, 0.7, 0.5]}, "reflectance"),
+    "conductor": ({"type": "conductor", "preset": "Au", "roughness": 0.2,
+                   "specular": [0.9, 0.8, 0.7]}, "specular"),
+    "single_scatter": ({"type": "translucent", "method": "single_scatter", "ior": 1.3,
+                        "albedo": [0.9, 0.7, 0.5], "density": 2.0}, "albedo"),
+    "diffuse_entry": ({"type": "translucent", "method": "diffuse_entry", "ior": 1.3,
+                       "albedo": [0.9, 0.7, 0.5], "density": 2.0, "direct_light": True},
+                      "albedo"),
+    "backlight": ({"type": "translucent", "method": "backlight", "ior": 1.3,
+                   "albedo": [0.9, 0.7, 0.5], "density": 2.0, "scale": 0.4}, "albedo"),
+}
+
+
+@pytest.mark.parametrize("name", sorted(UNIFORM))
+def test_a_uniform_texture_is_the_colour_itself(name):
+    """Every textured slot of every material that takes a texture: a checkerboard whose two
+    colours are the material's RGB renders the very image of that RGB, bit for bit (backlight:
+    its reflected share (1 − scale)·albedo and its transmitted term both follow the texture)."""
+    from renderer.render import render
+
+    material, param = UNIFORM[name]
+    scene = {
+        "camera": {"position": [0, 0.5, 3], "look_at": [0, 0, 0], "fov": 40},
+        "film": {"width": 16, "height": 12},
+        "render": {"spp": 4, "max_depth": 4, "seed": 2},
+        "background": [0.3, 0.4, 0.5],
+        "materials": {"m": material, "floor": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+        "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 0.7, "material": "m"},
+                    {"type": "quad", "origin": [-3, -0.7, 3], "edge1": [6, 0, 0],
+                     "edge2": [0, 0, -6], "material": "floor"}],
+        "lights": [{"type": "point", "position": [1, 2, -2], "intensity": [8, 8, 8]}],
+    }
+    plain = render(load_scene(scene), threads=1)
+    rgb = material[param]
+    material[param] = {"type": "checkerboard", "color0": rgb, "color1": rgb, "scale": [5, 3]}
+    textured = render(load_scene(scene), threads=1)
+    material[param] = rgb
+    assert plain.max() > 0.0
+    np.testing.assert_array_equal(textured, plain)
+
+
+def test_translucent_textures_only_where_they_colour_a_surface():
+    scene = textured_scene({"type": "checkerboard"})
+    scene["materials"]["m"] = {"type": "translucent", "method": "volumetric",
+                               "albedo": {"type": "checkerboard"}}
+    with pytest.raises(SceneError) as info:
+        load_scene(scene)
+    assert info.value.errors[0][0] == "materials.m" and "volumetric" in info.value.errors[0][1]
