@@ -53,7 +53,10 @@ Mapping (Lucent → Mitsuba 3)
  * - phong
    - ``NotImplementedError`` — Mitsuba 3 has no Phong plugin.
  * - sphere {center, radius}
-   - ``sphere``.
+   - ``sphere``; with a textured material, ``to_world`` = translate(center)·R·radius with R
+     taking Mitsuba's local (x, y, z) to (d.x, d.y, d.z) = (y, −z, −x), so that Mitsuba's
+     u = atan2(y, x)/2π, v = acos(z)/π are the scene format's u = atan2(d.x, −d.z)/2π,
+     v = 1 − acos(d.y)/π.
  * - quad {origin, edge1, edge2}
    - ``rectangle`` ([−1,1]² in local xy, normal +z) with ``to_world`` columns (edge1/2, edge2/2,
      n = normalize(cross(edge1, edge2))) and translation origin + edge1/2 + edge2/2. The shading
@@ -62,13 +65,20 @@ Mapping (Lucent → Mitsuba 3)
  * - box {min, max, rotate, translate}
    - six ``rectangle`` with outward normals; corners rotated about the world origin (Rodrigues,
      right-handed, degrees), then translated.
- * - mesh {vertices, triangles} / {path}, scale, rotate, translate
-   - ``mi.Mesh`` filled through ``mi.traverse`` (no vertex normals ⇒ flat face normals
-     cross(v1 − v0, v2 − v0), as Lucent); a ``path`` loads ``obj`` / ``ply`` with
-     ``face_normals=True``, relative to ``base_dir`` (the scene file's folder). A medium lies
-     behind the faces in both renderers, so a hollow mesh whose inner sheet faces the cavity is a
-     shell (``examples/translucent_shell.json``). Placement: the vertices of an inline mesh are
-     scaled, rotated and translated here, a file's through ``to_world`` (the same M·x + t).
+ * - mesh {vertices, triangles, uvs, normals} / {path} / {asset}, scale, rotate, translate
+   - ``mi.Mesh`` filled through ``mi.traverse``: ``vertex_texcoords`` from ``uvs``,
+     ``vertex_normals`` from ``normals`` (placed by the inverse transpose); without normals, flat
+     face normals cross(v1 − v0, v2 − v0), as Lucent. A file (``path`` relative to ``base_dir``,
+     the scene file's folder; an ``asset`` from the local asset cache) is read by Lucent's reader
+     (``meshio.parse_mesh``: the same vertices, seams split the same way) and given inline. A
+     medium lies behind the faces in both renderers, so a hollow mesh whose inner sheet faces the
+     cavity is a shell (``examples/translucent_shell.json``). Placement: the vertices are scaled,
+     rotated and translated here (M·x + t).
+ * - colour parameters: RGB / bitmap / checkerboard
+   - ``rgb``; ``bitmap`` with the texels Lucent decodes (linear float, ``raw``), ``filter_type:
+     bilinear``, ``wrap_mode: repeat`` and ``to_uv`` (u, v) ↦ (u·su + ou, 1 − (v·sv + ov))
+     (Mitsuba reads v = 0 at the image's top row, Lucent at its bottom); ``checkerboard`` with
+     ``to_uv`` scaled by (su/2, sv/2) (Mitsuba's has two squares a unit).
  * - object emission
    - ``area`` emitter, ``radiance`` rgb. Mitsuba's area emitter is one-sided (front = normal side)
      like Lucent's: quads emit on their normal side, spheres/boxes/meshes outward.

@@ -20,7 +20,7 @@ Arrays (``SceneArrays``): ``tex_param`` (textures, ``TEX_ROW``) a row per textur
 (materials, 3·``MAX_BINDINGS``) per material the (slot of its row, texture, factor) of each
 textured slot, −1 where none; ``prim_uv`` (primitives, 6) the (u, v) of each triangle's three
 corners, or no rows when the scene has no textures. The host packs the textures once
-(``pack_textures``); ``textured_row`` fills a copy of a material's row at a hit.
+(``pack_textures``); ``textured_row`` fills a copy of a textured material's row at a hit.
 
 ==========  =====  ===============================================================
 Slot        Index  Meaning
@@ -233,13 +233,14 @@ def texture_eval(tex_param, texels, t, u, v):
 
 
 @inline_kernel
-def textured_row(S, mat, mp, kind, prim, u, v, n, scratch):
-    """Material ``mat``'s row at a hit: ``mp`` itself when it has no texture, else ``scratch``
-    holding a copy with each textured colour looked up at the hit's (u, v)."""
+def textured_row(S, mat, kind, prim, u, v, n, scratch):
+    """Whether material ``mat`` has textures; if so, ``scratch`` holds its row at a hit, each
+    textured colour looked up at the hit's (u, v) (a bool, not the row: a kernel without the
+    runtime returns no array, tests/renderer/test_jit.py)."""
     if S.mat_tex[mat, 1] < 0.0:
-        return mp
+        return False
     for j in range(N_PARAMS):
-        scratch[j] = mp[j]
+        scratch[j] = S.mat_param[mat, j]
     tu, tv = surface_uv(kind, S.prim_uv, prim, u, v, n)
     for b in range(MAX_BINDINGS):
         t = int(S.mat_tex[mat, 3 * b + 1])
@@ -247,4 +248,4 @@ def textured_row(S, mat, mp, kind, prim, u, v, n, scratch):
             slot, k = int(S.mat_tex[mat, 3 * b]), S.mat_tex[mat, 3 * b + 2]
             c = texture_eval(S.tex_param, S.texels, t, tu, tv)
             scratch[slot], scratch[slot + 1], scratch[slot + 2] = k * c[0], k * c[1], k * c[2]
-    return scratch
+    return True

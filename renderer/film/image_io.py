@@ -15,7 +15,8 @@ The EXR writer is written here in NumPy (plus zlib): the layout is small and doc
 ("OpenEXR File Layout", openexr.com). Reading goes through the OpenEXR library's own bindings (the
 `openexr` package), since the files users bring (environment maps from Blender, Mitsuba or HDRI
 sites) use PIZ, DWAA and other coders that are not worth writing again. `decode_hdr_image` reads
-the three float formats a scene may name (EXR, PFM, Radiance `.hdr`) from their bytes.
+the three float formats a scene may name (EXR, PFM, Radiance `.hdr`) from their bytes, and
+`decode_texture` a bitmap texture's (PNG of 8 or 16 bits per channel, `decode_png`; EXR, PFM).
 """
 
 import io

@@ -3,12 +3,14 @@
 | Function      | Returns / writes                                                              |
 |---------------|-------------------------------------------------------------------------------|
 | `read_mesh`   | `(vertices float64 (V, 3), triangles int64 (T, 3))`, chosen by `.obj`/`.ply`  |
+| `parse_mesh`  | the same from bytes, plus texture coordinates (V, 2) and normals (V, 3) or None |
 | `write_ply`   | binary little-endian by default; also `binary_big_endian` and `ascii`         |
 | `write_obj`   | `v` and `f` lines only, coordinates with 17 significant digits (lossless)     |
 
 Polygons are split into triangle fans around their first vertex, which keeps the winding (and so
-the geometric normal) of the polygon. Only positions and faces are read: normals, texture
-coordinates, groups and materials are ignored. Example:
+the geometric normal) of the polygon. `read_mesh` reads positions and faces only; `parse_mesh`
+adds OBJ `vt`/`vn` (a vertex split per distinct (v, vt, vn) corner, in a line-by-line reader) and
+PLY `u,v` (or `s,t`) and `nx,ny,nz`. Groups and materials are ignored. Example:
 `vertices, triangles = read_mesh("scenes/bunny.ply")`.
 
 Both readers are vectorized with NumPy: a million triangles load in about 0.1 s from binary PLY

@@ -82,16 +82,16 @@ def null_boundary(S, mk, mp, mat, cos_o, medium, single_done, skip_emission, key
 @block
 def surface_vertex(S, kind, geo, prim, mat, mk, o, d, t, u, v, scratch):
     """A hit's point, outward geometric normal n, shading normal ns (a mesh's interpolated
-    normals bent for the view, ``renderer.materials.shading``; else n itself) and material row
-    (its textures looked up at the hit, ``renderer.textures``)."""
+    normals bent for the view, ``renderer.materials.shading``; else n itself), and whether the
+    material is textured (its row at the hit is then in ``scratch``, ``renderer.textures``)."""
     p, n = surface_point(kind, geo, o, d, t, u, v)
-    mp = textured_row(S, mat, S.mat_param[mat], kind, prim, u, v, n, scratch)
+    textured = textured_row(S, mat, kind, prim, u, v, n, scratch)
     ns = n
     if S.prim_normal.shape[0] > 0 and uses_shading_normal(mk):
         ns_i = interpolated_normal(S.prim_normal, kind, prim, u, v, n)
         if ns_i[0] != n[0] or ns_i[1] != n[1] or ns_i[2] != n[2]:
             ns = bent_normal((-d[0], -d[1], -d[2]), n, ns_i)
-    return p, n, ns, mp
+    return p, n, ns, textured
 
 
 @inline_kernel
@@ -158,7 +158,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         # The surface point and its material
         kind, geo, mat = S.prim_kind[prim], S.prim_geo[prim], S.prim_material[prim]
         mk, scale = S.mat_kind[mat], S.prim_scale[prim]
-        p, n, ns, mp = surface_vertex(S, kind, geo, prim, mat, mk, o, d, t, u, v, scratch)
+        p, n, ns, textured = surface_vertex(S, kind, geo, prim, mat, mk, o, d, t, u, v, scratch)
+        mp = scratch if textured else S.mat_param[mat]
         wo = (-d[0], -d[1], -d[2])
         cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
 
