@@ -9,8 +9,11 @@
 
 Polygons are split into triangle fans around their first vertex, which keeps the winding (and so
 the geometric normal) of the polygon. `read_mesh` reads positions and faces only; `parse_mesh`
-adds OBJ `vt`/`vn` (a vertex split per distinct (v, vt, vn) corner, in a line-by-line reader) and
-PLY `u,v` (or `s,t`) and `nx,ny,nz`. Groups and materials are ignored. Example:
+adds OBJ `vt`/`vn` (a vertex split per distinct (v, vt, vn) corner) and PLY `u,v` (or `s,t`) and
+`nx,ny,nz`. Groups and materials are ignored. An OBJ with `vt`/`vn` whose corners are all written
+alike (`i/j/k`, `i/j` or `i//k`, positive indices) is read in bulk as well: 3.5 s for 490 000
+triangles on the shared 2-core machine, against 2.5x that for the line-by-line reader that takes
+the rest and names a bad line. Example:
 `vertices, triangles = read_mesh("scenes/bunny.ply")`.
 
 Both readers are vectorized with NumPy: a million triangles load in about 0.1 s from binary PLY
@@ -280,7 +283,74 @@ def parse_mesh(data: bytes, kind: str, *, name: str):
     if b"\nvt" not in data and b"\nvn" not in data and not data.startswith((b"vt", b"vn")):
         vertices, triangles = parse_obj(data, name=name)
         return vertices, triangles, None, None
-    return _parse_obj_corners(data, name)
+    try:
+        return _obj_corners_bulk(data)
+    except (_Malformed, ValueError, OverflowError):
+        # Malformed (the line parser names the line) or valid in a way the bulk path does not
+        # take (relative indices, corners written differently from face to face)
+        return _parse_obj_corners(data, name)
+
+
+_OBJ_VT = (b"vt ", b"vt\t")
+_OBJ_VN = (b"vn ", b"vn\t")
+
+
+def _obj_corners_bulk(data: bytes):
+    """``_parse_obj_corners`` vectorized, for files whose face corners are all written alike
+    (``i/j``, ``i//k`` or ``i/j/k``) with positive indices: about 10x as fast."""
+    lines = data.split(b"\n")
+    if data[:1] in (b" ", b"\t") or b"\n " in data or b"\n\t" in data:
+        lines = [line.lstrip() for line in lines]
+    positions = _obj_vertices([line for line in lines if line[:2] in _OBJ_V])
+    tables = []
+    for keyword, prefix, size in ((b"vt", _OBJ_VT, 2), (b"vn", _OBJ_VN, 3)):
+        values, counts, _ = _obj_statements([ln for ln in lines if ln[:3] in prefix], keyword)
+        if len(counts) and (counts < size).any():
+            raise _Malformed
+        if isinstance(values, list) and size == 3:  # exactly three numbers on every line
+            table = np.fromiter(map(float, values), np.float64, len(values)).reshape(-1, 3)
+        else:
+            values = np.asarray(values, dtype=np.bytes_)
+            first = np.cumsum(counts) - counts
+            table = (values[first[:, None] + np.arange(size)].astype(np.float64) if len(counts)
+                     else np.zeros((0, size)))
+        if not np.isfinite(table).all():
+            raise _Malformed
+        tables.append(table)
+    refs, counts, _ = _obj_statements([line for line in lines if line[:2] in _OBJ_F], b"f")
+    if (counts < 3).any():
+        raise _Malformed
+    if not isinstance(refs, list):
+        refs = refs.tolist()
+    slashes = refs[0].count(b"/") if refs else 0
+    fields = b"/".join(refs).split(b"/")
+    if len(fields) != (slashes + 1) * len(refs):
+        raise _Malformed  # corners written differently
+    columns = [fields[k::slashes + 1] for k in range(slashes + 1)] + [[], []]
+    index = np.full((len(refs), 3), -1, np.int64)
+    for k, (column, count) in enumerate(zip(columns[:3], (len(positions), len(tables[0]),
+                                                          len(tables[1])), strict=True)):
+        if k > 0 and (not column or not column[0]):
+            continue  # no vt (i//k) or no vn (i/j)
+        values = np.fromiter(map(int, column), np.int64, len(column)) - 1
+        if (values < 0).any() or (values >= count).any():
+            raise _Malformed
+        index[:, k] = values
+    # One vertex per distinct corner: unique over one int64 key (v, vt, vn) when it fits
+    sizes = [len(positions) + 1, len(tables[0]) + 1, len(tables[1]) + 1]
+    if float(sizes[0]) * sizes[1] * sizes[2] < 2.0**62:
+        key = ((index[:, 0] + 1) * sizes[1] + index[:, 1] + 1) * sizes[2] + index[:, 2] + 1
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(index, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # vertices in the order their corners first appear
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    corners = index[first[order]]
+    triangles = _fan_triangulate(rank[inverse.ravel()], counts)
+    uvs = tables[0][corners[:, 1]] if corners[0, 1] >= 0 else None
+    normals = tables[1][corners[:, 2]] if corners[0, 2] >= 0 else None
+    return positions[corners[:, 0]], triangles, uvs, normals
 
 
 def _parse_obj_corners(data: bytes, name: str):

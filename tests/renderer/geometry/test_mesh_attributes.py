@@ -7,7 +7,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from renderer.geometry.meshio import parse_mesh
+from renderer.geometry.meshgen import uv_sphere
+from renderer.geometry.meshio import _obj_corners_bulk, _parse_obj_corners, parse_mesh
 from renderer.geometry.shapes import QUAD, TRIANGLE, interpolated_normal
 from renderer.scene import SceneError, load_scene
 
@@ -36,6 +37,35 @@ def test_obj_corners_split_at_seams():
     np.testing.assert_array_equal(vertices[[0, 3]], [[0, 0, 0], [0, 0, 0]])
     np.testing.assert_array_equal(uvs, [[0, 0], [1, 0], [1, 1], [0.5, 0.5], [0, 1]])
     np.testing.assert_array_equal(normals[2], [0, 0.6, 0.8])
+
+
+def sphere_obj(corner: str) -> bytes:
+    """The uv sphere's OBJ (seams at u = 0 and the poles), corners written as ``corner``
+    (``{0}`` the 1-based index)."""
+    v, t, n, uv = uv_sphere(10, 6)
+    lines = [f"v {x:.17g} {y:.17g} {z:.17g}" for x, y, z in v]
+    lines += [f"vt {a:.17g} {b:.17g}" for a, b in uv]
+    lines += [f"vn {x:.17g} {y:.17g} {z:.17g}" for x, y, z in n]
+    lines += ["f " + " ".join(corner.format(i + 1) for i in tri) for tri in t]
+    return ("\n".join(lines) + "\n").encode()
+
+
+@pytest.mark.parametrize("corner, has_uvs, has_normals", [
+    ("{0}/{0}/{0}", True, True), ("{0}/{0}", True, False), ("{0}//{0}", False, True)])
+def test_the_bulk_obj_reader_is_the_line_reader(corner, has_uvs, has_normals):
+    """The vectorized reader gives the line-by-line reader's arrays (vertex order included)."""
+    data = sphere_obj(corner)
+    bulk, lines = _obj_corners_bulk(data), _parse_obj_corners(data, "sphere.obj")
+    assert (bulk[2] is not None, bulk[3] is not None) == (has_uvs, has_normals)
+    for a, b in zip(bulk, lines, strict=True):
+        assert (a is None and b is None) or np.array_equal(a, b)
+
+
+def test_relative_indices_go_to_the_line_reader():
+    data = b"v 0 0 0\nv 1 0 0\nv 0 1 0\nvt 0 0\nvt 1 0\nvt 0 1\nf -3/-3 -2/-2 -1/-1\n"
+    vertices, triangles, uvs, _ = parse_mesh(data, ".obj", name="rel.obj")
+    np.testing.assert_array_equal(uvs, [[0, 0], [1, 0], [0, 1]])
+    assert triangles.tolist() == [[0, 1, 2]]
 
 
 def test_obj_without_attributes_and_mixed_attributes():
