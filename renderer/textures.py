@@ -50,6 +50,7 @@ from renderer.materials.bsdf import (
     CONDUCTOR,
     DIFFUSE,
     DIFFUSE_ENTRY,
+    DIFFUSION,
     MIRROR,
     N_PARAMS,
     PHONG,
@@ -58,6 +59,7 @@ from renderer.materials.bsdf import (
 )
 from renderer.materials.conductor import SPECULAR
 from renderer.materials.diffuse import ALBEDO
+from renderer.materials.diffusion import profile_from_albedo
 from renderer.materials.mirror import REFLECTANCE
 from renderer.materials.phong import KD, KS
 
@@ -82,7 +84,9 @@ PARAM_SLOTS = {DIFFUSE: {"albedo": ((ALBEDO, -1),)},
                SINGLE_SCATTER: {"albedo": ((translucent.ALBEDO, -1),)},
                DIFFUSE_ENTRY: {"albedo": ((translucent.ALBEDO, -1),)},
                BACKLIGHT: {"albedo": ((translucent.ALBEDO, -1),
-                                      (translucent.REFLECTED, translucent.SCALE))}}
+                                      (translucent.REFLECTED, translucent.SCALE))},
+               DIFFUSION: {"albedo": ((translucent.ALBEDO, -1),)}}
+# (diffusion: the albedo at the hit gives the profile's A and d there, ``profile_from_albedo``)
 
 INV_2PI = 1.0 / (2.0 * math.pi)
 
@@ -248,4 +252,6 @@ def textured_row(S, mat, kind, prim, u, v, n, scratch):
             slot, k = int(S.mat_tex[mat, 3 * b]), S.mat_tex[mat, 3 * b + 2]
             c = texture_eval(S.tex_param, S.texels, t, tu, tv)
             scratch[slot], scratch[slot + 1], scratch[slot + 2] = k * c[0], k * c[1], k * c[2]
+    if S.mat_kind[mat] == DIFFUSION:
+        profile_from_albedo(scratch)
     return True

@@ -572,7 +572,7 @@ class TranslucentMaterial(SceneModel):
             raise scene_error(
                 f"a texture on albedo is rendered by methods {', '.join(TEXTURE_METHODS)} (the "
                 f"surface's colour); method {self.method!r} takes an RGB albedo (volumetric: the "
-                "albedo belongs to the medium)")
+                "albedo belongs to the medium; auto: its choice rests on one albedo)")
         return self
 
     def _read_texture(self) -> None:
@@ -602,7 +602,7 @@ class TranslucentMaterial(SceneModel):
 
 
 # The methods whose albedo may be a texture: it colours their surface.
-TEXTURE_METHODS = ("single_scatter", "diffuse_entry", "backlight")
+TEXTURE_METHODS = ("single_scatter", "diffuse_entry", "backlight", "diffusion")
 
 
 def _texture_mean_or(texture, default) -> tuple[float, float, float]:

@@ -347,6 +347,8 @@ UNIFORM = {  # (material, the colour parameter a uniform checkerboard replaces)
                       "albedo"),
     "backlight": ({"type": "translucent", "method": "backlight", "ior": 1.3,
                    "albedo": [0.9, 0.7, 0.5], "density": 2.0, "scale": 0.4}, "albedo"),
+    "diffusion": ({"type": "translucent", "method": "diffusion", "ior": 1.3,
+                   "albedo": [0.9, 0.7, 0.5], "density": 20.0}, "albedo"),
 }
 
 
@@ -354,7 +356,8 @@ UNIFORM = {  # (material, the colour parameter a uniform checkerboard replaces)
 def test_a_uniform_texture_is_the_colour_itself(name):
     """Every textured slot of every material that takes a texture: a checkerboard whose two
     colours are the material's RGB renders the very image of that RGB, bit for bit (backlight:
-    its reflected share (1 − scale)·albedo and its transmitted term both follow the texture)."""
+    its reflected share (1 − scale)·albedo and its transmitted term both follow the texture;
+    diffusion: its profile's A and d, recomputed at the hit, to rounding)."""
     from renderer.render import render
 
     material, param = UNIFORM[name]
@@ -375,7 +378,10 @@ def test_a_uniform_texture_is_the_colour_itself(name):
     textured = render(load_scene(scene), threads=1)
     material[param] = rgb
     assert plain.max() > 0.0
-    np.testing.assert_array_equal(textured, plain)
+    if name == "diffusion":  # its profile recomputed in the kernel (math.exp, not np.exp)
+        np.testing.assert_allclose(textured, plain, rtol=1e-9, atol=1e-12)
+    else:
+        np.testing.assert_array_equal(textured, plain)
 
 
 def test_translucent_textures_only_where_they_colour_a_surface():
@@ -385,3 +391,25 @@ def test_translucent_textures_only_where_they_colour_a_surface():
     with pytest.raises(SceneError) as info:
         load_scene(scene)
     assert info.value.errors[0][0] == "materials.m" and "volumetric" in info.value.errors[0][1]
+
+
+def test_the_diffusion_profile_at_a_hit_is_the_hosts(rng):
+    """A textured diffusion albedo: the kernel's A and d from the albedo at the hit
+    (``profile_from_albedo``) are ``diffusion_parameters``' (the host's, for an RGB albedo)."""
+    from renderer.materials.diffusion import (
+        MS_ALBEDO,
+        PROFILE_D,
+        diffusion_parameters,
+        profile_from_albedo,
+    )
+    from renderer.materials.translucent import ALBEDO, IOR, SIGMA_T, G
+
+    for _ in range(50):
+        albedo, sigma_t = rng.uniform(0.0, 1.0, 3), rng.uniform(0.5, 50.0, 3)
+        g, ior = rng.uniform(-0.5, 0.9), rng.uniform(1.0, 1.8)
+        row = np.zeros(23)
+        row[ALBEDO:ALBEDO + 3], row[SIGMA_T:SIGMA_T + 3], row[G], row[IOR] = albedo, sigma_t, g, ior
+        profile_from_albedo(row)
+        big_a, d, _ = diffusion_parameters(albedo, sigma_t, g, ior)
+        np.testing.assert_allclose(row[MS_ALBEDO:MS_ALBEDO + 3], big_a, rtol=1e-12)
+        np.testing.assert_allclose(row[PROFILE_D:PROFILE_D + 3], d, rtol=1e-12)
