@@ -136,3 +136,34 @@ def test_normal_interpolation_against_numpy(rng):
     # Without normals (NaN), or not a triangle: the geometric normal
     assert interpolated_normal(np.full((1, 9), np.nan), TRIANGLE, 0, 0.2, 0.2, n) == n
     assert interpolated_normal(corners, QUAD, 0, 0.2, 0.2, n) == n
+
+
+def test_a_mesh_files_attributes_reach_the_scene_and_their_errors_name_the_file(tmp_path):
+    header = ("ply\nformat ascii 1.0\nelement vertex 3\nproperty float x\nproperty float y\n"
+              "property float z\nproperty float nx\nproperty float ny\nproperty float nz\n"
+              "property float u\nproperty float v\nelement face 1\n"
+              "property list uchar int vertex_indices\nend_header\n")
+    good = "0 0 0 0 0 1 0 0\n1 0 0 0 0 1 1 0\n0 1 0 0 0 2 0 1\n3 0 1 2\n"
+    (tmp_path / "tri.ply").write_text(header + good)
+    scene = mesh_scene()
+    scene["objects"][0] = {"type": "mesh", "path": "tri.ply", "material": "m"}
+    mesh = load_scene(scene, allow_paths=True, base_dir=tmp_path).objects[0]
+    np.testing.assert_array_equal(mesh.uv_array(), [[0, 0], [1, 0], [0, 1]])
+    np.testing.assert_array_equal(mesh.normal_array(), [[0, 0, 1]] * 3)  # normalized
+    (tmp_path / "tri.ply").write_text(header + good.replace("0 0 2 0 1", "0 0 0 0 1"))
+    with pytest.raises(SceneError) as info:
+        load_scene(scene, allow_paths=True, base_dir=tmp_path)
+    assert info.value.errors == [("objects[0].path", "its normals: a zero vector cannot be a "
+                                  "normal (vertex 2)")]
+
+
+def test_box_faces_carry_the_documented_st():
+    """A box face's (u, v) is its quad's (s, t) (docs/scene-format.md): −x (z, y), +x (y, z),
+    −y (x, z), +y (z, x), −z (y, x), +z (x, y), each from the face's min corner."""
+    from renderer.scene.compile import box_quads
+
+    faces = box_quads((0, 0, 0), (1, 2, 3))
+    axes = {"x": 0, "y": 1, "z": 2}
+    for row, (s_axis, t_axis) in zip(faces, ["zy", "yz", "xz", "zx", "yx", "xy"], strict=True):
+        assert np.flatnonzero(row[3:6])[0] == axes[s_axis] and row[3:6].min() >= 0
+        assert np.flatnonzero(row[6:9])[0] == axes[t_axis] and row[6:9].min() >= 0
