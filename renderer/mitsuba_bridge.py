@@ -53,7 +53,10 @@ Mapping (Lucent → Mitsuba 3)
  * - phong
    - ``NotImplementedError`` — Mitsuba 3 has no Phong plugin.
  * - sphere {center, radius}
-   - ``sphere``.
+   - ``sphere``; with a textured material, ``to_world`` = translate(center)·R·radius with R
+     taking Mitsuba's local (x, y, z) to (d.x, d.y, d.z) = (y, −z, −x), so that Mitsuba's
+     u = atan2(y, x)/2π, v = acos(z)/π are the scene format's u = atan2(d.x, −d.z)/2π,
+     v = 1 − acos(d.y)/π.
  * - quad {origin, edge1, edge2}
    - ``rectangle`` ([−1,1]² in local xy, normal +z) with ``to_world`` columns (edge1/2, edge2/2,
      n = normalize(cross(edge1, edge2))) and translation origin + edge1/2 + edge2/2. The shading
@@ -62,13 +65,20 @@ Mapping (Lucent → Mitsuba 3)
  * - box {min, max, rotate, translate}
    - six ``rectangle`` with outward normals; corners rotated about the world origin (Rodrigues,
      right-handed, degrees), then translated.
- * - mesh {vertices, triangles} / {path}, scale, rotate, translate
-   - ``mi.Mesh`` filled through ``mi.traverse`` (no vertex normals ⇒ flat face normals
-     cross(v1 − v0, v2 − v0), as Lucent); a ``path`` loads ``obj`` / ``ply`` with
-     ``face_normals=True``, relative to ``base_dir`` (the scene file's folder). A medium lies
-     behind the faces in both renderers, so a hollow mesh whose inner sheet faces the cavity is a
-     shell (``examples/translucent_shell.json``). Placement: the vertices of an inline mesh are
-     scaled, rotated and translated here, a file's through ``to_world`` (the same M·x + t).
+ * - mesh {vertices, triangles, uvs, normals} / {path} / {asset}, scale, rotate, translate
+   - ``mi.Mesh`` filled through ``mi.traverse``: ``vertex_texcoords`` from ``uvs``,
+     ``vertex_normals`` from ``normals`` (placed by the inverse transpose); without normals, flat
+     face normals cross(v1 − v0, v2 − v0), as Lucent. A file (``path`` relative to ``base_dir``,
+     the scene file's folder; an ``asset`` from the local asset cache) is read by Lucent's reader
+     (``meshio.parse_mesh``: the same vertices, seams split the same way) and given inline. A
+     medium lies behind the faces in both renderers, so a hollow mesh whose inner sheet faces the
+     cavity is a shell (``examples/translucent_shell.json``). Placement: the vertices are scaled,
+     rotated and translated here (M·x + t).
+ * - colour parameters: RGB / bitmap / checkerboard
+   - ``rgb``; ``bitmap`` with the texels Lucent decodes (linear float, ``raw``), ``filter_type:
+     bilinear``, ``wrap_mode: repeat`` and ``to_uv`` (u, v) ↦ (u·su + ou, 1 − (v·sv + ov))
+     (Mitsuba reads v = 0 at the image's top row, Lucent at its bottom); ``checkerboard`` with
+     ``to_uv`` scaled by (su/2, sv/2) (Mitsuba's has two squares a unit).
  * - object emission
    - ``area`` emitter, ``radiance`` rgb. Mitsuba's area emitter is one-sided (front = normal side)
      like Lucent's: quads emit on their normal side, spheres/boxes/meshes outward.
@@ -292,8 +302,65 @@ def _unbounded_rgb(value: Any, path: str) -> dict:
     return {"type": "constvolume", "value": _rgb(value, path)}
 
 
-def _material(materials: dict, name: str, path: str) -> tuple[dict, dict | None]:
-    """Mitsuba (bsdf, interior medium or None) for the Lucent material ``name``."""
+def _file_bytes(ref: Any, where: str, kinds: tuple[str, ...],
+                base_dir: str | os.PathLike | None) -> tuple[bytes, str, str]:
+    """(bytes, kind, label) of a file reference (a path relative to ``base_dir``, or an asset in
+    the local asset cache), as Lucent's loader reads it."""
+    from pathlib import Path
+
+    from renderer.scene.files import FileSource, local_assets
+    from renderer.scene.schema import AssetRef
+
+    if isinstance(ref, dict):
+        ref = AssetRef(**ref)
+    source = FileSource(allow_paths=True, base_dir=None if base_dir is None else Path(base_dir),
+                        assets=local_assets())
+    read = source.read(ref, where, kinds)
+    if isinstance(read, list):
+        raise ValueError("; ".join(f"{path}: {message}" for path, message in read))
+    return read
+
+
+def _colour(mi: Any, value: Any, path: str, base_dir: str | os.PathLike | None) -> dict:
+    """A colour parameter: ``rgb``, or the texture Mitsuba 3 reads the same way. Mitsuba looks
+    a bitmap up with v = 0 at the image's top row, Lucent (and OBJ) at its bottom row: ``to_uv``
+    maps (u, v) to (u·su + ou, 1 − (v·sv + ov)). Mitsuba's checkerboard has two squares a unit
+    (color0 where both fractional parts are below ½ or both above): ``to_uv`` scales by s/2."""
+    if not isinstance(value, dict):
+        return _rgb(value, path)
+    kind = value.get("type")
+    if kind == "checkerboard":
+        su, sv = value.get("scale", [2.0, 2.0])
+        return {"type": "checkerboard",
+                "color0": _rgb(value.get("color0", [0.4, 0.4, 0.4]), f"{path}.color0"),
+                "color1": _rgb(value.get("color1", [0.2, 0.2, 0.2]), f"{path}.color1"),
+                "to_uv": mi.ScalarTransform4f(np.diag([su / 2.0, sv / 2.0, 1.0, 1.0]))}
+    if kind == "bitmap":
+        from renderer.film.image_io import decode_texture
+
+        data, file_kind, label = _file_bytes(value.get("image"), f"{path}.image",
+                                             (".png", ".exr", ".pfm"), base_dir)
+        pixels = decode_texture(data, file_kind, srgb=value.get("srgb"), name=label)
+        su, sv = value.get("scale", [1.0, 1.0])
+        ou, ov = value.get("offset", [0.0, 0.0])
+        # (u, v) ↦ the 4 × 4's x and y of the point (u, v, 0) (translation in the last column)
+        to_uv = np.eye(4)
+        to_uv[0, 0], to_uv[0, 3] = su, ou
+        to_uv[1, 1], to_uv[1, 3] = -sv, 1.0 - ov
+        return {"type": "bitmap", "bitmap": mi.Bitmap(np.ascontiguousarray(pixels, np.float32)),
+                "raw": True, "filter_type": "bilinear", "wrap_mode": "repeat",
+                "to_uv": mi.ScalarTransform4f(to_uv)}
+    raise ValueError(f"{path}.type: unknown texture type {kind!r}")
+
+
+def _material(materials: dict, name: str, path: str, mi: Any = None,
+              base_dir: str | os.PathLike | None = None) -> tuple[dict, dict | None]:
+    """Mitsuba (bsdf, interior medium or None) for the Lucent material ``name`` (``mi`` for
+    its textures)."""
+
+    def _rgb(value: Any, where: str) -> dict:  # a colour parameter, which may be a texture
+        return _colour(mi, value, where, base_dir)
+
     if name not in materials:
         raise ValueError(f"{path}.material: unknown material {name!r}")
     mat = materials[name]
@@ -412,7 +479,8 @@ def _mesh_placement(obj: dict, path: str) -> tuple[np.ndarray | None, np.ndarray
 def _inline_mesh(
     mi: Any, obj: dict, path: str, key: str, bsdf: dict, medium: dict | None, emitter: dict | None
 ) -> Any:
-    """A ``mi.Mesh`` with flat face normals from inline vertices/triangles."""
+    """A ``mi.Mesh`` from inline vertices/triangles: flat face normals, or the mesh's ``normals``
+    (placed by the inverse transpose) and its ``uvs``."""
     vertices = np.asarray(obj["vertices"], dtype=np.float64)
     triangles = np.asarray(obj["triangles"], dtype=np.int64)
     if vertices.ndim != 2 or vertices.shape[1] != 3 or len(vertices) == 0:
@@ -432,10 +500,22 @@ def _inline_mesh(
     if emitter is not None:
         props["emitter"] = mi.load_dict(emitter)
     # No vertex normals: Mitsuba then shades with the geometric (face) normal, no smoothing.
-    mesh = mi.Mesh(key, len(vertices), len(triangles), props=props, has_vertex_normals=False)
+    normals = obj.get("normals")
+    uvs = obj.get("uvs")
+    mesh = mi.Mesh(key, len(vertices), len(triangles), props=props,
+                   has_vertex_normals=normals is not None,
+                   has_vertex_texcoords=uvs is not None)
     params = mi.traverse(mesh)
     params["vertex_positions"] = vertices.ravel()
     params["faces"] = triangles.astype(np.uint32).ravel()
+    if normals is not None:
+        normals = np.asarray(normals, np.float64).reshape(-1, 3)
+        if m is not None:
+            normals = normals @ np.linalg.inv(m)
+        normals /= np.linalg.norm(normals, axis=1, keepdims=True)
+        params["vertex_normals"] = normals.astype(np.float32).ravel()
+    if uvs is not None:
+        params["vertex_texcoords"] = np.asarray(uvs, np.float32).ravel()
     params.update()
     return mesh
 
@@ -448,7 +528,7 @@ def _shapes(mi: Any, scene: dict, base_dir: str | os.PathLike | None) -> tuple[d
     for i, obj in enumerate(scene.get("objects", [])):
         path = f"objects[{i}]"
         key = f"object_{i:03d}"
-        bsdf, medium = _material(materials, obj.get("material"), path)
+        bsdf, medium = _material(materials, obj.get("material"), path, mi, base_dir)
         any_medium |= medium is not None
         emitter = _area(obj.get("emission"), f"{path}.emission")
 
@@ -461,12 +541,27 @@ def _shapes(mi: Any, scene: dict, base_dir: str | os.PathLike | None) -> tuple[d
             return shape
 
         kind = obj.get("type")
-        if kind == "sphere":
+        textured = any(isinstance(v, dict) for v in materials.get(obj.get("material"), {})
+                       .values())
+        if kind == "sphere" and not textured:
             shapes[key] = dress(
                 {
                     "type": "sphere",
                     "center": [float(x) for x in _vec3(obj["center"], f"{path}.center")],
                     "radius": float(obj["radius"]),
+                }
+            )
+        elif kind == "sphere":
+            # Mitsuba's sphere is parametrized about its local +z, Lucent's about +y with u = 0
+            # towards −z: local (x, y, z) = (−d.z, d.x, −d.y) gives both the same (u, v)
+            world = np.eye(4)
+            world[:3, :3] = float(obj["radius"]) * np.array(
+                [[0.0, 1.0, 0.0], [0.0, 0.0, -1.0], [-1.0, 0.0, 0.0]])
+            world[:3, 3] = _vec3(obj["center"], f"{path}.center")
+            shapes[key] = dress(
+                {
+                    "type": "sphere",
+                    "to_world": mi.ScalarTransform4f(world),
                 }
             )
         elif kind == "quad":
@@ -483,20 +578,24 @@ def _shapes(mi: Any, scene: dict, base_dir: str | os.PathLike | None) -> tuple[d
                     {"type": "rectangle", "to_world": mi.ScalarTransform4f(m)}
                 )
         elif kind == "mesh":
-            if "path" in obj:
-                ext = os.path.splitext(obj["path"])[1].lower().lstrip(".")
-                if ext not in ("obj", "ply"):
-                    raise ValueError(f"{path}.path: only .obj and .ply meshes are supported")
-                # Relative to the scene file, as Lucent's loader reads it (Mitsuba would
-                # resolve it against the working directory)
-                filename = os.path.join(base_dir or os.getcwd(), os.path.expanduser(obj["path"]))
-                shape = {"type": ext, "filename": filename, "face_normals": True}
-                m, t = _mesh_placement(obj, path)
-                if m is not None:
-                    world = np.eye(4)
-                    world[:3, :3], world[:3, 3] = m, t
-                    shape["to_world"] = mi.ScalarTransform4f(world)
-                shapes[key] = dress(shape)
+            if "path" in obj or "asset" in obj:
+                # Read by Lucent's reader (relative to the scene file, as Lucent's loader reads
+                # it) and given to Mitsuba inline: the same vertices, seams split the same way,
+                # normals and texture coordinates where the file has them, else none (Mitsuba
+                # would smooth a file without normals)
+                from renderer.geometry.meshio import parse_mesh
+
+                field = f"{path}.path" if "path" in obj else f"{path}.asset"
+                ref = obj["path"] if "path" in obj else {"asset": obj["asset"]}
+                data, file_kind, label = _file_bytes(ref, field, (".obj", ".ply"), base_dir)
+                vertices, triangles, uvs, normals = parse_mesh(data, file_kind, name=label)
+                inline = {k: v for k, v in obj.items() if k not in ("path", "asset")}
+                inline.update(vertices=vertices, triangles=triangles)
+                if uvs is not None:
+                    inline["uvs"] = uvs
+                if normals is not None:
+                    inline["normals"] = normals
+                shapes[key] = _inline_mesh(mi, inline, path, key, bsdf, medium, emitter)
             else:
                 shapes[key] = _inline_mesh(mi, obj, path, key, bsdf, medium, emitter)
         else:
@@ -536,21 +635,10 @@ def _environment(mi: Any, scene: dict, base_dir: str | os.PathLike | None) -> di
     env = scene.get("environment")
     if env is None:
         return {}
-    from pathlib import Path
-
     from renderer.film.image_io import decode_hdr_image
-    from renderer.scene.files import FileSource, local_assets
-    from renderer.scene.schema import AssetRef
 
-    ref = env.get("image")
-    if isinstance(ref, dict):
-        ref = AssetRef(**ref)
-    source = FileSource(allow_paths=True, base_dir=None if base_dir is None else Path(base_dir),
-                        assets=local_assets())
-    read = source.read(ref, "environment.image", (".exr", ".pfm", ".hdr"))
-    if isinstance(read, list):
-        raise ValueError("; ".join(f"{path}: {message}" for path, message in read))
-    data, kind, label = read
+    data, kind, label = _file_bytes(env.get("image"), "environment.image",
+                                    (".exr", ".pfm", ".hdr"), base_dir)
     pixels = decode_hdr_image(data, kind, name=label)
     emitter: dict[str, Any] = {"type": "envmap", "bitmap": mi.Bitmap(pixels),
                                "scale": float(env.get("scale", 1.0))}

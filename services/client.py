@@ -25,9 +25,9 @@ IMAGE_TYPES = {".exr": "exr", ".png": "png", ".npy": "npy"}
 
 def scene_for_upload(path: str | Path, client: Client) -> dict[str, Any]:
     """Read a scene file; each file it names by a path (relative to the scene's folder: a mesh's
-    ``path``, the environment's ``image``) is uploaded to the farm as an asset, unless the farm
-    has it already (``HEAD`` first), and the reference rewritten to ``{"asset": "sha256:…"}``
-    (the server never reads a path)."""
+    ``path``, the environment's ``image``, a bitmap texture's ``image``) is uploaded to the farm
+    as an asset, unless the farm has it already (``HEAD`` first), and the reference rewritten to
+    ``{"asset": "sha256:…"}`` (the server never reads a path)."""
     path = Path(path)
     data = json.loads(path.read_text())
 
@@ -43,6 +43,12 @@ def scene_for_upload(path: str | Path, client: Client) -> dict[str, Any]:
     env = data.get("environment")
     if isinstance(env, dict) and isinstance(env.get("image"), str) and env["image"]:
         env["image"] = {"asset": upload(env["image"])}
+    for material in (data.get("materials") or {}).values():
+        # Bitmap textures on any colour parameter (materials.NAME.albedo.image, ...)
+        for value in material.values() if isinstance(material, dict) else ():
+            if (isinstance(value, dict) and value.get("type") == "bitmap"
+                    and isinstance(value.get("image"), str) and value["image"]):
+                value["image"] = {"asset": upload(value["image"])}
     return data
 
 

@@ -15,7 +15,8 @@ The EXR writer is written here in NumPy (plus zlib): the layout is small and doc
 ("OpenEXR File Layout", openexr.com). Reading goes through the OpenEXR library's own bindings (the
 `openexr` package), since the files users bring (environment maps from Blender, Mitsuba or HDRI
 sites) use PIZ, DWAA and other coders that are not worth writing again. `decode_hdr_image` reads
-the three float formats a scene may name (EXR, PFM, Radiance `.hdr`) from their bytes.
+the three float formats a scene may name (EXR, PFM, Radiance `.hdr`) from their bytes, and
+`decode_texture` a bitmap texture's (PNG of 8 or 16 bits per channel, `decode_png`; EXR, PFM).
 """
 
 import io
@@ -331,6 +332,108 @@ def decode_hdr_image(data: bytes, kind: str, *, name: str) -> np.ndarray:
     if kind == ".hdr":
         return decode_rgbe(data, name=name)
     raise ValueError(f"{name}: not a float image (EXR, PFM or Radiance HDR)")
+
+
+# --- PNG textures (8 and 16 bits per channel) ----------------------------------------------------
+
+_PNG_SIGNATURE = b"\x89PNG\r\n\x1a\n"
+_PNG_CHANNELS = {0: 1, 2: 3, 4: 2, 6: 4}  # colour type -> samples per pixel (grey, RGB, GA, RGBA)
+
+
+def decode_png(data: bytes, *, name: str = "<png>") -> np.ndarray:
+    """The encoded values of a PNG, float32 HxWx3 in [0, 1] (not linearized): 8-bit files of any
+    colour type through Pillow, 16-bit ones here, which Pillow would cut to 8 bits (PNG
+    specification, W3C 2003: chunks, zlib stream, per-row filters). Grey is copied to all three
+    channels, alpha dropped. A truncated or corrupt file raises ``ValueError`` naming ``name``."""
+    if not data.startswith(_PNG_SIGNATURE):
+        raise ValueError(f"{name}: not a PNG file (bad signature)")
+    if len(data) < 33 or data[12:16] != b"IHDR":
+        raise ValueError(f"{name}: truncated PNG file (no IHDR chunk)")
+    width, height, depth, colour, _, _, interlace = struct.unpack(">IIBBBBB", data[16:29])
+    if depth != 16:
+        try:
+            with Image.open(io.BytesIO(data)) as image:
+                rgb = np.asarray(image.convert("RGB"))
+        except Exception as exc:  # Pillow's errors (OSError, SyntaxError, ...): a bad file
+            raise ValueError(f"{name}: truncated or corrupt PNG file ({exc})") from None
+        return rgb.astype(np.float32) / np.float32(255.0)
+    if colour not in _PNG_CHANNELS or interlace != 0 or width == 0 or height == 0:
+        raise ValueError(f"{name}: 16-bit PNG of colour type {colour}"
+                         f"{', interlaced' if interlace else ''} is not supported")
+    idat, pos = [], 8
+    while pos + 8 <= len(data):
+        length, kind = struct.unpack_from(">I4s", data, pos)
+        if kind == b"IDAT":
+            idat.append(data[pos + 8:pos + 8 + length])
+        if kind == b"IEND":
+            break
+        pos += 12 + length
+    channels = _PNG_CHANNELS[colour]
+    stride = 2 * channels * width
+    try:
+        raw = zlib.decompress(b"".join(idat))
+    except zlib.error as exc:
+        raise ValueError(f"{name}: truncated or corrupt PNG file ({exc})") from None
+    if len(raw) < height * (stride + 1):
+        raise ValueError(f"{name}: truncated PNG file ({len(raw)} bytes of pixel data for "
+                         f"{height * (stride + 1)})")
+    rows = np.frombuffer(raw, np.uint8, height * (stride + 1)).reshape(height, stride + 1)
+    if (rows[:, 0] > 4).any():
+        raise ValueError(f"{name}: corrupt PNG file (unknown row filter)")
+    out = np.empty((height, stride), np.uint8)
+    _png_unfilter(rows, 2 * channels, out)
+    values = out.view(">u2").reshape(height, width, channels).astype(np.float32) / 65535.0
+    if channels <= 2:
+        return np.repeat(values[:, :, :1], 3, axis=2)
+    return np.ascontiguousarray(values[:, :, :3])
+
+
+def _png_unfilter(rows, bpp, out):
+    from renderer.jit import kernel  # lazily: numba only for the files that need it
+
+    global _png_unfilter_kernel
+    if _png_unfilter_kernel is None:
+        _png_unfilter_kernel = kernel(_unfilter)
+    _png_unfilter_kernel(rows, bpp, out)
+
+
+_png_unfilter_kernel = None
+
+
+def _unfilter(rows, bpp, out):
+    """Undo PNG's per-row filters (None, Sub, Up, Average, Paeth; PNG specification, 9.2)."""
+    height, width = out.shape
+    for y in range(height):
+        f = rows[y, 0]
+        for x in range(width):
+            raw = np.int32(rows[y, x + 1])
+            a = np.int32(out[y, x - bpp]) if x >= bpp else np.int32(0)
+            b = np.int32(out[y - 1, x]) if y > 0 else np.int32(0)
+            c = np.int32(out[y - 1, x - bpp]) if (x >= bpp and y > 0) else np.int32(0)
+            if f == 1:
+                raw += a
+            elif f == 2:
+                raw += b
+            elif f == 3:
+                raw += (a + b) // 2
+            elif f == 4:
+                p = a + b - c
+                pa, pb, pc = abs(p - a), abs(p - b), abs(p - c)
+                raw += a if (pa <= pb and pa <= pc) else (b if pb <= pc else c)
+            out[y, x] = raw & 0xFF
+
+
+def decode_texture(data: bytes, kind: str, *, srgb: bool | None, name: str) -> np.ndarray:
+    """A texture's linear texels, float32 HxWx3 (row 0 at the top), from its bytes: ``kind``
+    ``.png`` (sRGB-decoded unless ``srgb`` is False), ``.exr`` or ``.pfm`` (linear unless ``srgb``
+    is True); ``ValueError`` naming ``name`` for a file that cannot be read."""
+    if kind == ".png":
+        encoded = decode_png(data, name=name)
+        return srgb_to_linear(encoded).astype(np.float32) if srgb in (None, True) else encoded
+    if kind in (".exr", ".pfm"):
+        rgb = decode_exr(data, name=name) if kind == ".exr" else decode_pfm(data, name=name)
+        return srgb_to_linear(np.clip(rgb, 0.0, None)).astype(np.float32) if srgb else rgb
+    raise ValueError(f"{name}: not a texture image (PNG, EXR or PFM)")
 
 
 # --- helpers --------------------------------------------------------------------------------------

@@ -41,3 +41,31 @@ def sheet(n: int, z: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
     triangles = np.stack([np.stack([a, a + 1, a + n + 2], axis=1),
                           np.stack([a, a + n + 2, a + n + 1], axis=1)], axis=1).reshape(-1, 3)
     return vertices, triangles.astype(np.int64)
+
+
+def uv_sphere(n_lon: int, n_lat: int, radius: float = 1.0
+              ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """A closed sphere of ``n_lon`` × ``n_lat`` quads (fans at the poles), counter-clockwise seen
+    from outside. Returns (vertices, triangles, normals (the unit radial directions: smooth
+    shading), uvs in the sphere's parametrization of the scene format, u = atan2(x, −z)/(2π),
+    v = 1 − acos(y)/π). The seam's vertices are doubled (u runs 0 to 1 across it) and the poles'
+    repeated per column: geometrically closed, but not an edge-manifold, so not for the materials
+    that need an inside (dielectric, translucent)."""
+    u = np.arange(n_lon + 1) / n_lon
+    v = np.arange(n_lat + 1) / n_lat
+    uu, vv = np.meshgrid(u, v, indexing="ij")  # vertex (i, j): i along u, j along v
+    theta = np.pi * (1.0 - vv)  # from +y
+    phi = 2.0 * np.pi * uu
+    normals = np.stack([np.sin(theta) * np.sin(phi), np.cos(theta),
+                        -np.sin(theta) * np.cos(phi)], -1).reshape(-1, 3)
+    i, j = np.meshgrid(np.arange(n_lon), np.arange(n_lat), indexing="ij")
+    a = i * (n_lat + 1) + j
+    b = (i + 1) * (n_lat + 1) + j
+    c, d = b + 1, a + 1
+    # Seen from outside, u grows to the left (westwards, like a globe's inside-out map) and v
+    # upwards: (a, c, b) turns counter-clockwise
+    lower = np.stack([a, c, b], -1)[:, 1:]  # the bottom row's (a, b) is the pole: one triangle
+    upper = np.stack([a, d, c], -1)[:, :-1]
+    triangles = np.concatenate([lower.reshape(-1, 3), upper.reshape(-1, 3)])
+    uvs = np.stack([uu, vv], -1).reshape(-1, 2)
+    return radius * normals, triangles.astype(np.int64), normals, uvs

@@ -3,12 +3,17 @@
 | Function      | Returns / writes                                                              |
 |---------------|-------------------------------------------------------------------------------|
 | `read_mesh`   | `(vertices float64 (V, 3), triangles int64 (T, 3))`, chosen by `.obj`/`.ply`  |
+| `parse_mesh`  | the same from bytes, plus texture coordinates (V, 2) and normals (V, 3) or None |
 | `write_ply`   | binary little-endian by default; also `binary_big_endian` and `ascii`         |
 | `write_obj`   | `v` and `f` lines only, coordinates with 17 significant digits (lossless)     |
 
 Polygons are split into triangle fans around their first vertex, which keeps the winding (and so
-the geometric normal) of the polygon. Only positions and faces are read: normals, texture
-coordinates, groups and materials are ignored. Example:
+the geometric normal) of the polygon. `read_mesh` reads positions and faces only; `parse_mesh`
+adds OBJ `vt`/`vn` (a vertex split per distinct (v, vt, vn) corner) and PLY `u,v` (or `s,t`) and
+`nx,ny,nz`. Groups and materials are ignored. An OBJ with `vt`/`vn` whose corners are all written
+alike (`i/j/k`, `i/j` or `i//k`, positive indices) is read in bulk as well: 3.5 s for 490 000
+triangles on the shared 2-core machine, against 2.5x that for the line-by-line reader that takes
+the rest and names a bad line. Example:
 `vertices, triangles = read_mesh("scenes/bunny.ply")`.
 
 Both readers are vectorized with NumPy: a million triangles load in about 0.1 s from binary PLY
@@ -252,6 +257,176 @@ def parse_obj_reference(lines: list[bytes], *, name: str = "<obj>"):
     )
 
 
+# --- Texture coordinates and normals ------------------------------------------------------------
+
+# The names PLY writers give texture coordinates (Blender: s, t; others u, v or texture_u, ...)
+_PLY_UV_NAMES = (("u", "v"), ("s", "t"), ("texture_u", "texture_v"), ("texture_s", "texture_t"))
+
+
+def parse_mesh(data: bytes, kind: str, *, name: str):
+    """(vertices (V, 3), triangles (T, 3), uvs (V, 2) or None, normals (V, 3) or None) of an OBJ
+    (``kind`` ".obj") or PLY file. OBJ ``vt``/``vn`` are indexed per face corner: a vertex that
+    different faces give different texture coordinates or normals (a seam) is split into one
+    vertex per distinct (v, vt, vn). PLY reads ``u,v`` (or ``s,t``) and ``nx,ny,nz`` of the vertex
+    element."""
+    if kind == ".ply":
+        vertices, triangles, columns = _parse_ply(data, name)
+        uvs = normals = None
+        for nu, nv in _PLY_UV_NAMES:
+            if nu in columns and nv in columns:
+                uvs = np.stack([columns[nu][0], columns[nv][0]], axis=1).astype(np.float64)
+                break
+        if {"nx", "ny", "nz"} <= columns.keys():
+            normals = np.stack([columns[a][0] for a in ("nx", "ny", "nz")],
+                               axis=1).astype(np.float64)
+        return vertices, triangles, uvs, normals
+    if b"\nvt" not in data and b"\nvn" not in data and not data.startswith((b"vt", b"vn")):
+        vertices, triangles = parse_obj(data, name=name)
+        return vertices, triangles, None, None
+    try:
+        return _obj_corners_bulk(data)
+    except (_Malformed, ValueError, OverflowError):
+        # Malformed (the line parser names the line) or valid in a way the bulk path does not
+        # take (relative indices, corners written differently from face to face)
+        return _parse_obj_corners(data, name)
+
+
+_OBJ_VT = (b"vt ", b"vt\t")
+_OBJ_VN = (b"vn ", b"vn\t")
+
+
+def _obj_corners_bulk(data: bytes):
+    """``_parse_obj_corners`` vectorized, for files whose face corners are all written alike
+    (``i/j``, ``i//k`` or ``i/j/k``) with positive indices: about 10x as fast."""
+    lines = data.split(b"\n")
+    if data[:1] in (b" ", b"\t") or b"\n " in data or b"\n\t" in data:
+        lines = [line.lstrip() for line in lines]
+    positions = _obj_vertices([line for line in lines if line[:2] in _OBJ_V])
+    tables = []
+    for keyword, prefix, size in ((b"vt", _OBJ_VT, 2), (b"vn", _OBJ_VN, 3)):
+        values, counts, _ = _obj_statements([ln for ln in lines if ln[:3] in prefix], keyword)
+        if len(counts) and (counts < size).any():
+            raise _Malformed
+        if isinstance(values, list) and size == 3:  # exactly three numbers on every line
+            table = np.fromiter(map(float, values), np.float64, len(values)).reshape(-1, 3)
+        else:
+            values = np.asarray(values, dtype=np.bytes_)
+            first = np.cumsum(counts) - counts
+            table = (values[first[:, None] + np.arange(size)].astype(np.float64) if len(counts)
+                     else np.zeros((0, size)))
+        if not np.isfinite(table).all():
+            raise _Malformed
+        tables.append(table)
+    refs, counts, _ = _obj_statements([line for line in lines if line[:2] in _OBJ_F], b"f")
+    if (counts < 3).any():
+        raise _Malformed
+    if not isinstance(refs, list):
+        refs = refs.tolist()
+    slashes = refs[0].count(b"/") if refs else 0
+    fields = b"/".join(refs).split(b"/")
+    if len(fields) != (slashes + 1) * len(refs):
+        raise _Malformed  # corners written differently
+    columns = [fields[k::slashes + 1] for k in range(slashes + 1)] + [[], []]
+    index = np.full((len(refs), 3), -1, np.int64)
+    for k, (column, count) in enumerate(zip(columns[:3], (len(positions), len(tables[0]),
+                                                          len(tables[1])), strict=True)):
+        if k > 0 and (not column or not column[0]):
+            continue  # no vt (i//k) or no vn (i/j)
+        values = np.fromiter(map(int, column), np.int64, len(column)) - 1
+        if (values < 0).any() or (values >= count).any():
+            raise _Malformed
+        index[:, k] = values
+    # One vertex per distinct corner: unique over one int64 key (v, vt, vn) when it fits
+    sizes = [len(positions) + 1, len(tables[0]) + 1, len(tables[1]) + 1]
+    if float(sizes[0]) * sizes[1] * sizes[2] < 2.0**62:
+        key = ((index[:, 0] + 1) * sizes[1] + index[:, 1] + 1) * sizes[2] + index[:, 2] + 1
+        _, first, inverse = np.unique(key, return_index=True, return_inverse=True)
+    else:
+        _, first, inverse = np.unique(index, axis=0, return_index=True, return_inverse=True)
+    order = np.argsort(first)  # vertices in the order their corners first appear
+    rank = np.empty_like(order)
+    rank[order] = np.arange(len(order))
+    corners = index[first[order]]
+    triangles = _fan_triangulate(rank[inverse.ravel()], counts)
+    uvs = tables[0][corners[:, 1]] if corners[0, 1] >= 0 else None
+    normals = tables[1][corners[:, 2]] if corners[0, 2] >= 0 else None
+    return positions[corners[:, 0]], triangles, uvs, normals
+
+
+def _parse_obj_corners(data: bytes, name: str):
+    """An OBJ with ``vt`` or ``vn`` lines: one output vertex per distinct corner (v, vt, vn)."""
+    positions: list[list[float]] = []
+    texcoords: list[list[float]] = []
+    normals: list[list[float]] = []
+    corners: list[tuple[int, int, int]] = []
+    triangles: list[tuple[int, int, int]] = []
+    index: dict[tuple[int, int, int], int] = {}
+    tables = {b"v": (positions, 3), b"vt": (texcoords, 2), b"vn": (normals, 3)}
+
+    def resolve(ref: bytes, count: int, where: str, what: str) -> int:
+        i = int(ref)
+        if i == 0:
+            raise ValueError(f"{where}: {what} index 0 (OBJ indices start at 1)")
+        i = i - 1 if i > 0 else count + i
+        if not 0 <= i < count:
+            raise ValueError(f"{where}: {what} index {ref.decode()} but {count} defined above")
+        return i
+
+    for number, line in enumerate(data.split(b"\n"), start=1):
+        parts = line.split(b"#", 1)[0].split()
+        if not parts:
+            continue
+        where = f"{name}:{number}"
+        if parts[0] in tables:
+            table, size = tables[parts[0]]
+            try:
+                values = [float(p) for p in parts[1:1 + size]]
+            except ValueError:
+                raise ValueError(f"{where}: bad number in {line[:80]!r}") from None
+            if len(values) < size and parts[0] != b"vt":
+                raise ValueError(f"{where}: {parts[0].decode()} needs {size} numbers")
+            values += [0.0] * (size - len(values))  # `vt u` alone: v = 0
+            if not np.isfinite(values).all():
+                raise ValueError(f"{where}: {parts[0].decode()} has a non-finite number")
+            table.append(values)
+            continue
+        if parts[0] != b"f":
+            continue
+        if len(parts) < 4:
+            raise ValueError(f"{where}: a face needs at least 3 vertices")
+        polygon = []
+        for ref in parts[1:]:
+            fields = ref.split(b"/")
+            try:
+                v = resolve(fields[0], len(positions), where, "vertex")
+                t = (resolve(fields[1], len(texcoords), where, "texture coordinate")
+                     if len(fields) > 1 and fields[1] else -1)
+                n = (resolve(fields[2], len(normals), where, "normal")
+                     if len(fields) > 2 and fields[2] else -1)
+            except ValueError as exc:
+                if str(exc).startswith(where):
+                    raise
+                raise ValueError(f"{where}: bad vertex reference {ref!r}") from None
+            key = (v, t, n)
+            if key not in index:
+                index[key] = len(corners)
+                corners.append(key)
+            polygon.append(index[key])
+        triangles += [(polygon[0], polygon[k], polygon[k + 1]) for k in range(1, len(polygon) - 1)]
+    c = np.array(corners, np.int64).reshape(-1, 3)
+    vertices = np.array(positions, np.float64).reshape(-1, 3)[c[:, 0]]
+    uvs = out_normals = None
+    if len(texcoords) and (c[:, 1] >= 0).any():
+        if (c[:, 1] < 0).any():
+            raise ValueError(f"{name}: some faces give texture coordinates (vt) and some do not")
+        uvs = np.array(texcoords, np.float64).reshape(-1, 2)[c[:, 1]]
+    if len(normals) and (c[:, 2] >= 0).any():
+        if (c[:, 2] < 0).any():
+            raise ValueError(f"{name}: some faces give normals (vn) and some do not")
+        out_normals = np.array(normals, np.float64).reshape(-1, 3)[c[:, 2]]
+    return vertices, np.array(triangles, np.int64).reshape(-1, 3), uvs, out_normals
+
+
 # --- Stanford PLY ---------------------------------------------------------------------------------
 
 _PLY_TYPES = {
@@ -280,6 +455,12 @@ class _PlyElement:
 
 def parse_ply(data: bytes, *, name: str = "<ply>") -> tuple[np.ndarray, np.ndarray]:
     """Parse a PLY file in any of the three encodings; see the module docstring."""
+    vertices, triangles, _ = _parse_ply(data, name)
+    return vertices, triangles
+
+
+def _parse_ply(data: bytes, name: str):
+    """(vertices, triangles, the vertex element's columns)."""
     endian, elements, body = _ply_header(data, name)
     columns: dict[str, dict[str, tuple[np.ndarray, np.ndarray | None]]] = {}
     if endian is None:
@@ -309,7 +490,7 @@ def parse_ply(data: bytes, *, name: str = "<ply>") -> tuple[np.ndarray, np.ndarr
     if bad.size:
         raise ValueError(f"{name}: PLY vertex {bad[0]} has a non-finite coordinate")
     if "face" not in columns:
-        return vertices, np.empty((0, 3), np.int64)  # a point cloud
+        return vertices, np.empty((0, 3), np.int64), vertex  # a point cloud
 
     face = columns["face"]
     key = "vertex_indices" if "vertex_indices" in face else "vertex_index"
@@ -328,7 +509,7 @@ def parse_ply(data: bytes, *, name: str = "<ply>") -> tuple[np.ndarray, np.ndarr
             f"{name}: PLY face {face_number} refers to vertex {indices[bad[0]]} "
             f"but there are {len(vertices)}"
         )
-    return vertices, _fan_triangulate(indices, counts)
+    return vertices, _fan_triangulate(indices, counts), vertex
 
 
 def _ply_header(data: bytes, name: str) -> tuple[str | None, list[_PlyElement], int]:

@@ -178,3 +178,27 @@ def prim_bounds(kind, geo):
                 lo[i, a] = min(lo[i, a], p3)
                 hi[i, a] = max(hi[i, a], p3)
     return lo, hi
+
+
+@kernel
+def interpolated_normal(prim_normal, kind, prim, u, v, n):
+    """The shading normal of a triangle hit at barycentrics (u, v): its corners' normals
+    (``prim_normal``, world space, unit) interpolated and normalized, turned to the side of the
+    outward geometric normal n; n itself where the primitive has none (a NaN first component
+    marks a triangle of a mesh without normals) or the interpolation vanishes."""
+    if kind != TRIANGLE or prim_normal.shape[0] == 0:
+        return n
+    r = prim_normal[prim]
+    if not r[0] == r[0]:
+        return n
+    w = 1.0 - u - v
+    x = w * r[0] + u * r[3] + v * r[6]
+    y = w * r[1] + u * r[4] + v * r[7]
+    z = w * r[2] + u * r[5] + v * r[8]
+    length = math.sqrt(x * x + y * y + z * z)
+    if not length > 1e-12:
+        return n
+    x, y, z = x / length, y / length, z / length
+    if x * n[0] + y * n[1] + z * n[2] < 0.0:
+        return (-x, -y, -z)
+    return (x, y, z)

@@ -19,8 +19,9 @@ from renderer.integrators.shadow import SHADOW_SLACK, surface_shadow, transmitta
 from renderer.integrators.subsurface.backlight import backlight_light
 from renderer.jit import block
 from renderer.lights import sample_light
-from renderer.materials.bsdf import BACKLIGHT, ROUGH_TRANSLUCENT, bsdf_eval, bsdf_pdf
+from renderer.materials.bsdf import BACKLIGHT, ROUGH_TRANSLUCENT
 from renderer.materials.phase import hg_pdf
+from renderer.materials.shading import shaded_eval, shaded_pdf
 from renderer.sampling import power_heuristic
 
 
@@ -35,17 +36,18 @@ def light_sample(S, p, key, dim, sidx, sob):
 
 
 @block
-def surface_direct(S, mk, mp, p, n, wo, scale, medium, null_media, br, bg, bb, key, dim, sidx,
-                   sob, stack):
+def surface_direct(S, mk, mp, p, n, ns, wo, scale, medium, null_media, br, bg, bb, key, dim,
+                   sidx, sob, stack):
     """β·f·Li·Tr/pdf of one light sample at a surface vertex of material kind ``mk`` (row
-    ``mp``), MIS-weighted against the BSDF; ``medium`` is the material of the medium on the side
+    ``mp``, geometric normal n, shading normal ns: ``renderer.materials.shading``),
+    MIS-weighted against the BSDF; ``medium`` is the material of the medium on the side
     the shadow ray starts (−1: vacuum); for a rough translucent boundary, the boundary's own
     medium, which the shadow ray is in when it goes inside."""
     none = (0.0, 0.0, 0.0)
     wi, li_rgb, pdf_l, t_max, delta_l = light_sample(S, p, key, dim, sidx, sob)
     if not pdf_l > 0.0:
         return none
-    f = bsdf_eval(mk, mp, wo, wi, n)
+    f = shaded_eval(mk, mp, wo, wi, n, ns)
     if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
         if mk == ROUGH_TRANSLUCENT:
             # ``medium`` is the boundary's own: the shadow ray starts in it when wi goes inside
@@ -59,7 +61,7 @@ def surface_direct(S, mk, mp, p, n, wo, scale, medium, null_media, br, bg, bb, k
             return none
         wr, wg, wb = tr[0] / pdf_l, tr[1] / pdf_l, tr[2] / pdf_l
         if not delta_l:
-            mis = power_heuristic(pdf_l, bsdf_pdf(mk, mp, wo, wi, n))
+            mis = power_heuristic(pdf_l, shaded_pdf(mk, mp, wo, wi, n, ns))
             wr, wg, wb = wr * mis, wg * mis, wb * mis
         return br * f[0] * li_rgb[0] * wr, bg * f[1] * li_rgb[1] * wg, bb * f[2] * li_rgb[2] * wb
     if mk == BACKLIGHT:

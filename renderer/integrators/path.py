@@ -26,7 +26,7 @@ from numba import prange
 
 from renderer.environment import direction_to_uv, environment_pdf, environment_radiance
 from renderer.geometry.bvh import intersect_closest, traversal_stack
-from renderer.geometry.shapes import spawn_offset, surface_point
+from renderer.geometry.shapes import interpolated_normal, spawn_offset, surface_point
 from renderer.integrators.direct import surface_direct
 from renderer.integrators.roulette import RR_MAX, roulette
 from renderer.integrators.sampler import (
@@ -45,17 +45,19 @@ from renderer.materials.bsdf import (
     DIELECTRIC,
     DIFFUSE_ENTRY,
     DIFFUSION,
+    N_PARAMS,
     ROUGH_DIELECTRIC,
     ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
-    bsdf_sample,
     is_delta,
 )
 from renderer.materials.dielectric import absorbed
+from renderer.materials.shading import bent_normal, shaded_sample, uses_shading_normal
 from renderer.materials.translucent import DIRECT_LIGHT, IOR
 from renderer.rng import mix64, sample_key, sobol_block_seeds, sobol_value, uniform
 from renderer.sampling import INV_4PI, power_heuristic
+from renderer.textures import textured_row
 
 # A guard against a path that never ends (a ray trapped between two perfect mirrors with
 # roulette surviving at 0.95 still ends, but only with probability one). Every scattering event
@@ -77,11 +79,27 @@ def null_boundary(S, mk, mp, mat, cos_o, medium, single_done, skip_emission, key
     return False, medium, single_done, False
 
 
+@block
+def surface_vertex(S, kind, geo, prim, mat, mk, o, d, t, u, v, scratch):
+    """A hit's point, outward geometric normal n, shading normal ns (a mesh's interpolated
+    normals bent for the view, ``renderer.materials.shading``; else n itself), and whether the
+    material is textured (its row at the hit is then in ``scratch``, ``renderer.textures``)."""
+    p, n = surface_point(kind, geo, o, d, t, u, v)
+    textured = textured_row(S, mat, kind, prim, u, v, n, scratch)
+    ns = n
+    if S.prim_normal.shape[0] > 0 and uses_shading_normal(mk):
+        ns_i = interpolated_normal(S.prim_normal, kind, prim, u, v, n)
+        if ns_i[0] != n[0] or ns_i[1] != n[1] or ns_i[2] != n[2]:
+            ns = bent_normal((-d[0], -d[1], -d[2]), n, ns_i)
+    return p, n, ns, textured
+
+
 @inline_kernel
-def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
+def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     """Radiance arriving at o from direction −d along one sampled path. S is ``SceneArrays``;
     ``sidx`` (the sample's index) and ``sob`` (its pixel's sequence seeds) feed the sobol
-    sampler's first vertices (``draw``)."""
+    sampler's first vertices (``draw``); ``scratch`` (N_PARAMS) holds a textured material's row
+    at the current vertex (``textured_row``)."""
     lr = lg = lb = 0.0  # radiance gathered so far
     br = bg = bb = 1.0  # throughput β
     depth = 0  # scattering events so far
@@ -139,8 +157,9 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
 
         # The surface point and its material
         kind, geo, mat = S.prim_kind[prim], S.prim_geo[prim], S.prim_material[prim]
-        mk, mp, scale = S.mat_kind[mat], S.mat_param[mat], S.prim_scale[prim]
-        p, n = surface_point(kind, geo, o, d, t, u, v)
+        mk, scale = S.mat_kind[mat], S.prim_scale[prim]
+        p, n, ns, textured = surface_vertex(S, kind, geo, prim, mat, mk, o, d, t, u, v, scratch)
+        mp = scratch if textured else S.mat_param[mat]
         wo = (-d[0], -d[1], -d[2])
         cos_o = wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2]
 
@@ -176,13 +195,14 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
                 sidx, sob, stack)
             if ended:
                 break
+            ns = n  # the exit point's: diffusion keeps the geometric normal
 
         # Next-event estimation: one light sample, MIS-weighted against the BSDF (backlight:
         # the light from behind comes through)
         delta = is_delta(mk)
         if n_lights > 0 and not delta:
             # (a rough translucent boundary's light sample may go either side: its medium)
-            c = surface_direct(S, mk, mp, p, n, wo, scale, mat if mk == ROUGH_TRANSLUCENT
+            c = surface_direct(S, mk, mp, p, n, ns, wo, scale, mat if mk == ROUGH_TRANSLUCENT
                                else medium, null_media, br, bg, bb, key, dim, sidx, sob, stack)
             lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
         if mk == DIFFUSE_ENTRY and mp[DIRECT_LIGHT] > 0.0 and cos_o > 0.0 and n_lights > 0:
@@ -191,9 +211,9 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob):
             lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
 
         # The BSDF's sample for the next direction (diffuse_entry: its entry scattering)
-        wi, weight, pdf, ok = bsdf_sample(mk, mp, wo, n, draw(S, key, dim, 3, sidx, sob),
-                                          draw(S, key, dim, 4, sidx, sob),
-                                          draw(S, key, dim, 5, sidx, sob))
+        wi, weight, pdf, ok = shaded_sample(mk, mp, wo, n, ns, draw(S, key, dim, 3, sidx, sob),
+                                            draw(S, key, dim, 4, sidx, sob),
+                                            draw(S, key, dim, 5, sidx, sob))
         if ok and mk == DIFFUSE_ENTRY:
             ok, wi, weight, skip_emission, eta_scale = entry_scatter(
                 S, mp, n, cos_o, wi, weight, eta_scale, key, dim, sidx, sob)
@@ -235,9 +255,11 @@ def camera_ray(cam, width, height, x, y, jx, jy):
 
 @kernel
 def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_start,
-               sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, stack, sob):
+               sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, stack, sob,
+               scratch):
     """Add the samples of one row of a tile (``render_tile_kernel``'s unit of work). ``sob`` is
-    (SOBOL_BLOCKS, 3) scratch for the sobol sampler's seeds of a pixel."""
+    (SOBOL_BLOCKS, 3) scratch for the sobol sampler's seeds of a pixel, ``scratch`` (N_PARAMS)
+    for a textured material's row."""
     for col in range(tile_w):
         if active[row, col] == 0:
             continue
@@ -259,7 +281,7 @@ def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_sta
                 jx = uniform(key, 0)
                 jy = uniform(key, 1)
             o, d = camera_ray(S.camera, width, height, x, y, jx, jy)
-            r, g, b = trace_path(S, o, d, key, stack, max_depth, s, sob)
+            r, g, b = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
             # Dropped also when the square overflows, so the variance sums stay finite
             if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
                 sr += r
@@ -300,7 +322,8 @@ def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, ti
     for chunk in prange(n_chunks):
         stack = traversal_stack(stack_size)
         sob = np.zeros((SOBOL_BLOCKS, 3), np.uint64)
+        scratch = np.zeros(N_PARAMS)
         for row in range(chunk, tile_h, n_chunks):
             render_row(S, width, height, seed, max_depth, x0, y0 + row, row, tile_w,
                        sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
-                       out_dropped, stack, sob)
+                       out_dropped, stack, sob, scratch)

@@ -25,11 +25,14 @@ A (three slots) and ``PROFILE_D`` d (three slots).
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
 
+from renderer.jit import kernel
 from renderer.materials.burley import burley_s
 from renderer.materials.opaque import opaque_albedo
-from renderer.materials.translucent import pack_translucent
+from renderer.materials.translucent import ALBEDO, IOR, SIGMA_T, G, pack_translucent
 
 C_NORM = 7
 OPAQUE = 10
@@ -68,6 +71,23 @@ def diffusion_parameters(albedo, density, g: float, ior: float):
     c = 1 - 2 * fresnel_moment1(1 / ior)
     return big_a, d, c
 
+
+
+@kernel
+def profile_from_albedo(p):
+    """Rewrite the row ``p``'s A (``MS_ALBEDO``) and d (``PROFILE_D``) from its ``ALBEDO`` slots,
+    as ``diffusion_parameters`` does on the host: for a textured albedo, looked up at a hit."""
+    eta = p[IOR]
+    f_dr = -1.440 / (eta * eta) + 0.710 / eta + 0.668 + 0.0636 * eta
+    a_f = (1.0 + f_dr) / (1.0 - f_dr)
+    for c in range(3):
+        sigma_s_reduced = p[SIGMA_T + c] * p[ALBEDO + c] * (1.0 - p[G])
+        sigma_t_reduced = p[SIGMA_T + c] * (1.0 - p[ALBEDO + c]) + sigma_s_reduced
+        reduced = sigma_s_reduced / sigma_t_reduced if sigma_t_reduced > 0.0 else 0.0
+        root = math.sqrt(3.0 * (1.0 - reduced))
+        big_a = 0.5 * reduced * (1.0 + math.exp(-4.0 / 3.0 * a_f * root)) * math.exp(-root)
+        p[MS_ALBEDO + c] = big_a
+        p[PROFILE_D + c] = 1.0 / max(sigma_t_reduced, 1e-300) / burley_s(big_a)
 
 
 def pack_diffusion(p, m) -> None:

@@ -50,6 +50,7 @@ from renderer.materials.translucent import (
     pack_translucent,
 )
 from renderer.scene.schema import DielectricMaterial
+from renderer.textures import pack_textures, untextured
 from renderer.vecmath import LUMINANCE, Y_B, Y_G, Y_R
 
 SceneArrays = namedtuple(
@@ -73,6 +74,11 @@ SceneArrays = namedtuple(
         "null_media",
         # [0] independent samples, [1] the sobol sampler (renderer.rng, render.sampler)
         "sampler",
+        # textures (renderer.textures): per triangle its corners' (u, v), per material its
+        # textured slots, the textures' rows and texels
+        "prim_uv", "mat_tex", "tex_param", "texels",
+        # per triangle its corners' shading normals (renderer.materials.shading; NaN: none)
+        "prim_normal",
     ],
 )
 
@@ -189,12 +195,16 @@ def compile_scene(scene) -> CompiledScene:
         m = scene.materials[name]
         if m.type == "translucent" and m.method == "auto":
             m, auto[name] = _resolve_auto(scene, name, m)
-        mat_kind[i], mat_param[i] = _material_row(name, m)
+        mat_kind[i], mat_param[i] = _material_row(name, untextured(m))
         if name in auto and auto[name].method == "opaque":
             pack_opaque(mat_param[i], m)
+    tex_param, texels, mat_tex = pack_textures([scene.materials[n] for n in names], mat_kind,
+                                               mat_param)
+    textured = len(tex_param) > 0
+    smooth = any(obj.type == "mesh" and obj.normal_array() is not None for obj in scene.objects)
 
     # Objects → primitives
-    kinds, geos, mats, emissions = [], [], [], []
+    kinds, geos, mats, emissions, uvs, normals = [], [], [], [], [], []
     n_triangles = 0
     for obj in scene.objects:
         m = mat_index[obj.material]
@@ -215,6 +225,18 @@ def compile_scene(scene) -> CompiledScene:
             g = np.concatenate([v0, verts[tris[:, 1]] - v0, verts[tris[:, 2]] - v0], axis=1)
             k = TRIANGLE
             n_triangles += len(tris)
+            if textured:
+                uv = obj.uv_array()
+                uvs.append(uv[tris].reshape(-1, 6) if uv is not None
+                           else np.tile([0.0, 0.0, 1.0, 0.0, 0.0, 1.0], (len(tris), 1)))
+            if smooth:
+                vn = obj.normal_array()
+                normals.append(vn[tris].reshape(-1, 9) if vn is not None
+                               else np.full((len(tris), 9), np.nan))
+        if textured and k != TRIANGLE:
+            uvs.append(np.zeros((len(g), 6)))
+        if smooth and k != TRIANGLE:
+            normals.append(np.full((len(g), 9), np.nan))
         kinds.append(np.full(len(g), k, np.int8))
         geos.append(np.asarray(g, dtype=np.float64))
         mats.append(np.full(len(g), m, np.int32))
@@ -224,9 +246,11 @@ def compile_scene(scene) -> CompiledScene:
     prim_geo = np.concatenate(geos)
     prim_material = np.concatenate(mats)
     prim_emission = np.concatenate(emissions)
+    prim_uv = np.concatenate(uvs) if textured else np.zeros((0, 6))
+    prim_normal = np.concatenate(normals) if smooth else np.zeros((0, 9))
     # Drop the per-object pieces now: for a large mesh they are as big as the packed arrays, and
     # the BVH build and the reordering below would otherwise stack on top of them (peak memory)
-    kinds = geos = mats = emissions = g = v0 = None
+    kinds = geos = mats = emissions = g = v0 = uvs = normals = None
 
     # BVH, then primitives in BVH order
     lo, hi = prim_bounds(prim_kind, prim_geo)
@@ -249,6 +273,10 @@ def compile_scene(scene) -> CompiledScene:
     prim_geo = np.ascontiguousarray(prim_geo[order])
     prim_material = prim_material[order]
     prim_emission = prim_emission[order]
+    if textured:
+        prim_uv = np.ascontiguousarray(prim_uv[order])
+    if smooth:
+        prim_normal = np.ascontiguousarray(prim_normal[order])
     lo, hi = lo[order], hi[order]
     flat = flat_geometry(prim_kind, prim_geo) if is_flat else np.zeros((FLAT_ROWS, 0))
     prim_scale = np.maximum(np.abs(lo).max(axis=1), np.abs(hi).max(axis=1))
@@ -346,6 +374,8 @@ def compile_scene(scene) -> CompiledScene:
             ((mat_kind == TRANSLUCENT) & (mat_param[:, IOR] == 1.0)) | (mat_kind == SINGLE_SCATTER)
         ))]),
         sampler=np.array([1 if scene.render.sampler == "sobol" else 0], np.int64),
+        prim_uv=prim_uv, mat_tex=mat_tex, tex_param=tex_param, texels=texels,
+        prim_normal=prim_normal,
     )
     return CompiledScene(
         arrays=arrays,

@@ -18,6 +18,8 @@ Field              Default        Environment variable      What it bounds
 ``max_materials``  1 000          ``LUCENT_MAX_MATERIALS``  ``len(materials)``
 ``max_environment  8192           ``LUCENT_MAX_ENVIRONMENT  the environment image's width and
 _side``                           _SIDE``                   height, each
+``max_texture      8192           ``LUCENT_MAX_TEXTURE      a texture image's width and
+_side``                           _SIDE``                   height, each
 ``max_texels``     67 108 864     ``LUCENT_MAX_TEXELS``     texels over all images of a scene
 =================  =============  ========================  =================================
 
@@ -75,6 +77,9 @@ class Limits(BaseSettings):
     max_environment_side: int = Field(default=8192, ge=2)
     """The widest and tallest environment image, in texels (an 8192 × 4096 latitude–longitude
     image holds 384 MiB as float32 RGB, and its sampling tables twice that)."""
+
+    max_texture_side: int = Field(default=8192, ge=1)
+    """The widest and tallest texture image, in texels."""
 
     max_texels: int = Field(default=67_108_864, ge=1)
     """The most texels over all the images a scene reads (textures and the environment)."""

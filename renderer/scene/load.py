@@ -26,11 +26,14 @@ from pydantic import ValidationError
 from renderer.scene.files import AssetReader, FileSource, local_assets
 from renderer.scene.limits import Limits
 from renderer.scene.schema import (
+    COLOUR_PARAMS,
     LIGHT_TYPES,
     MATERIAL_TYPES,
     OBJECT_TYPES,
+    TEXTURE_TYPES,
     VOLUME_MATERIAL_TYPES,
     AssetRef,
+    BitmapTexture,
     Mesh,
     Scene,
     overflow_message,
@@ -47,6 +50,9 @@ MESH_KINDS = (".obj", ".ply")
 
 ENVIRONMENT_KINDS = (".exr", ".pfm", ".hdr")
 """The images an environment may be."""
+
+TEXTURE_KINDS = (".png", ".exr", ".pfm")
+"""The images a bitmap texture may be."""
 
 # How many faulty triangles of one mesh are named before the rest are only counted.
 MAX_REPORTED = 5
@@ -136,6 +142,7 @@ def load_scene(
     errors += _check_count("objects", total_triangles, limits, "max_triangles", "triangles")
     if scene.environment is not None:
         errors += _check_environment(scene, files, limits)
+    errors += _check_textures(scene, files, limits)
     if errors:
         raise SceneError(errors)
     return scene
@@ -233,6 +240,8 @@ def _check_count(
 # --- Round 2: pydantic errors -> (path, message) --------------------------------------------------
 
 _UNION_TAGS = {"objects": OBJECT_TYPES, "lights": LIGHT_TYPES, "materials": MATERIAL_TYPES}
+_COLOUR_TAGS = ("rgb", "none") + TEXTURE_TYPES
+_PAIRS = ("scale", "offset")  # a texture's (u, v) pairs
 _IDENTIFIER = re.compile(r"[A-Za-z_][A-Za-z0-9_\-]*")
 
 
@@ -253,7 +262,10 @@ def _strip_union_tag(loc: tuple[int | str, ...]) -> tuple[int | str, ...]:
     # pydantic puts the tag of a discriminated union in the location:
     # ('objects', 3, 'sphere', 'radius'); users wrote objects[3].radius.
     if len(loc) >= 3 and loc[0] in _UNION_TAGS and loc[2] in _UNION_TAGS[loc[0]]:
-        return loc[:2] + loc[3:]
+        loc = loc[:2] + loc[3:]
+    # and that of a colour parameter's branch: materials.m.albedo, a triple or a texture
+    if len(loc) >= 4 and loc[0] == "materials" and loc[3] in _COLOUR_TAGS:
+        loc = loc[:3] + loc[4:]
     return loc
 
 
@@ -282,7 +294,8 @@ def _convert_validation_error(exc: ValidationError) -> list[tuple[str, str]]:
             parent = format_path(loc[:-1])
             if parent not in short_tuples:
                 short_tuples.add(parent)
-                errors.append((parent, f"must have exactly 3 elements, not {loc[-1]}"))
+                size = 2 if loc[-2] in _PAIRS or (len(loc) >= 3 and loc[-3] == "uvs") else 3
+                errors.append((parent, f"must have exactly {size} elements, not {loc[-1]}"))
             continue
         if kind == "union_tag_not_found":
             names = ", ".join(_UNION_TAGS.get(str(loc[0]), ()))
@@ -330,7 +343,7 @@ def _message(
     if kind in ("too_short", "too_long"):
         n, actual = ctx.get("min_length", ctx.get("max_length")), ctx.get("actual_length")
         if ctx.get("field_type") == "Tuple":
-            return f"must have exactly 3 elements, not {actual}"
+            return f"must have exactly {n} elements, not {actual}"
         if kind == "too_short":
             return f"must have at least {n} element{'s' if n != 1 else ''}"
         return f"must have at most {n} elements, not {actual}"
@@ -423,6 +436,11 @@ def _check_mesh(scene: Scene, i: int, mesh: Mesh, files: FileSource) -> list[tup
             )
         return errors
 
+    # Texture coordinates and shading normals: one per vertex, finite; normals non-zero
+    errors = _check_vertex_attributes(where, mesh, n_vertices, source_field if from_file else None)
+    if errors:
+        return errors
+
     # Triangles too large to compute with (an edge's squared length overflows): said as such,
     # from a file too, where a degenerate one would be dropped.
     degenerate, overflow = triangle_faults(vertices, triangles)
@@ -478,6 +496,35 @@ def _check_mesh(scene: Scene, i: int, mesh: Mesh, files: FileSource) -> list[tup
     return []
 
 
+def _check_vertex_attributes(where: str, mesh: Mesh, n_vertices: int,
+                             file_field: str | None) -> list[tuple[str, str]]:
+    """A mesh's ``uvs`` and ``normals``: one per vertex, finite, normals not zero (errors on the
+    field, or on the file's reference for a mesh read from one)."""
+    errors = []
+    for name, values in (("uvs", mesh.uv_array()), ("normals", mesh.model_normal_array())):
+        if values is None:
+            continue
+        field = file_field or f"{where}.{name}"
+        what = name if file_field is None else f"its {name}"
+        if len(values) != n_vertices:
+            errors.append((field, f"{what}: {len(values)} given for {n_vertices} vertices (one "
+                           "per vertex)"))
+            continue
+        bad = np.flatnonzero(~np.isfinite(values).all(axis=1))
+        if bad.size:
+            errors.append((field if file_field else f"{field}[{bad[0]}]",
+                           f"{what}: not a finite number" + (f" (vertex {bad[0]})"
+                                                             if file_field else "")))
+            continue
+        if name == "normals":
+            bad = np.flatnonzero(~(np.abs(values).max(axis=1) > 0.0))
+            if bad.size:
+                errors.append((field if file_field else f"{field}[{bad[0]}]",
+                               f"{what}: a zero vector cannot be a normal"
+                               + (f" (vertex {bad[0]})" if file_field else "")))
+    return errors
+
+
 def _read_mesh_file(
     where: str, mesh: Mesh, files: FileSource
 ) -> list[tuple[str, str]] | tuple[np.ndarray, np.ndarray, Path | None]:
@@ -495,12 +542,11 @@ def _read_mesh_file(
     data, kind, label = read
     try:
         # Lazily: the mesh reader is needed only for scenes that use it.
-        from renderer.geometry.meshio import parse_obj, parse_ply
+        from renderer.geometry.meshio import parse_mesh
     except ImportError as exc:
         return [(field, f"mesh files cannot be read here ({exc})")]
     try:
-        parse = parse_obj if kind == ".obj" else parse_ply
-        vertices, triangles = parse(data, name=label)
+        vertices, triangles, uvs, normals = parse_mesh(data, kind, name=label)
     except Exception as exc:  # a malformed file: report it, whatever the reader raised
         text = str(exc)
         return [(field, text if label in text else f"{label!r}: {text}")]
@@ -514,6 +560,7 @@ def _read_mesh_file(
     if not np.isfinite(vertices).all():
         return [(field, f"{label!r}: vertex coordinates must be finite numbers")]
     source = None if mesh.asset is not None else Path(label)
+    mesh._attach_attributes(uvs, normals)
     return vertices, triangles.astype(np.int64, copy=False), source
 
 
@@ -565,6 +612,93 @@ def _check_environment(scene: Scene, files: FileSource, limits: Limits) -> list[
     if not errors:
         env._attach_pixels(pixels)
     return errors
+
+
+# --- Textures ------------------------------------------------------------------------------------
+
+
+def _check_textures(scene: Scene, files: FileSource, limits: Limits) -> list[tuple[str, str]]:
+    """Read every bitmap texture (each file once) and check it: a PNG, EXR or PFM within the side
+    limit, its texels finite, ≥ 0, and ≤ 1 on a reflectance (``Albedo``) parameter; the texels of
+    all textures and the environment together within ``max_texels``; a phong whose lobes are
+    textured keeps diffuse + specular ≤ 1 texel by texel."""
+    errors: list[tuple[str, str]] = []
+    env = scene.environment
+    texels = env.pixels().shape[0] * env.pixels().shape[1] if (
+        env is not None and env._pixels is not None) else 0
+    read: dict[str, np.ndarray] = {}  # the images read, by reference and srgb
+    for name, m in scene.materials.items():
+        for param in COLOUR_PARAMS.get(m.type, ()):
+            tex = getattr(m, param)
+            if not isinstance(tex, BitmapTexture):
+                continue
+            where = f"materials.{format_path([name])}.{param}.image"
+            field = where + (".asset" if isinstance(tex.image, AssetRef) else "")
+            key = json.dumps([tex.image if isinstance(tex.image, str) else tex.image.asset,
+                              tex.srgb])
+            if key not in read:
+                got = files.read(tex.image, where, TEXTURE_KINDS)
+                if isinstance(got, list):
+                    errors += got
+                    continue
+                data, kind, label = got
+                try:
+                    from renderer.film.image_io import decode_texture
+
+                    pixels = decode_texture(data, kind, srgb=tex.srgb, name=label)
+                except ValueError as exc:
+                    errors.append((field, str(exc)))
+                    continue
+                height, width = pixels.shape[:2]
+                side = limits.max_texture_side
+                if width > side or height > side:
+                    errors.append((field, f"{label}: {width}x{height} texels exceed the limit "
+                                   f"{side} per side ({Limits.env_name('max_texture_side')})"))
+                    continue
+                texels += width * height
+                if texels > limits.max_texels:
+                    errors.append((field, f"{label}: {width}x{height} texels bring the scene's "
+                                   f"images to {texels} texels, over the limit "
+                                   f"{limits.max_texels} ({Limits.env_name('max_texels')})"))
+                    continue
+                bad = ~np.isfinite(pixels)
+                if bad.any():
+                    y, x, c = np.argwhere(bad)[0]
+                    errors.append((field, f"{label}: {int(bad.any(axis=2).sum())} texels are not "
+                                   f"finite numbers (the first at row {y}, column {x}: "
+                                   f"{pixels[y, x, c]})"))
+                    continue
+                read[key] = pixels
+            pixels = read[key]
+            limit_one = param != "specular" or m.type == "phong"  # conductor.specular: ≥ 0
+            low, high = float(pixels.min()), float(pixels.max())
+            if low < 0.0 or (limit_one and high > 1.0):
+                bound = "in [0, 1]" if limit_one else "≥ 0"
+                errors.append((field, f"texels must be {bound} for {param} (found "
+                               f"{low:g} to {high:g})"))
+                continue
+            tex._attach_pixels(pixels)
+        if m.type == "translucent":
+            m._read_texture()
+        if m.type == "phong" and not errors:
+            errors += _check_phong_texels(name, m)
+    return errors
+
+
+def _check_phong_texels(name: str, m) -> list[tuple[str, str]]:
+    """diffuse + specular ≤ 1 with a textured lobe: the largest texel of each bounds the sum."""
+    from renderer.textures import texture_max
+
+    kd, ks = texture_max(m.diffuse), texture_max(m.specular)
+    if any(d + s > 1.0 + 1e-6 for d, s in zip(kd, ks, strict=True)):
+        return [(f"materials.{format_path([name])}", "diffuse + specular must be <= 1 in every "
+                 f"channel (energy conservation): the brightest texels reach "
+                 f"{format_rgb(kd)} + {format_rgb(ks)}")]
+    return []
+
+
+def format_rgb(c) -> str:
+    return "[" + ", ".join(f"{x:.3g}" for x in c) + "]"
 
 
 # --- Mesh checks (vectorized) ---------------------------------------------------------------------

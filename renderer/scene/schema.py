@@ -27,17 +27,19 @@ import math
 import re
 from itertools import chain
 from pathlib import Path
-from typing import Annotated, Literal
+from typing import Annotated, ClassVar, Literal
 
 import numpy as np
 from pydantic import (
     AfterValidator,
     BaseModel,
     ConfigDict,
+    Discriminator,
     Field,
     PrivateAttr,
     SerializerFunctionWrapHandler,
     Strict,
+    Tag,
     ValidationInfo,
     WithJsonSchema,
     field_validator,
@@ -200,6 +202,108 @@ def check_file_ref(ref: AssetRef | str, info: ValidationInfo) -> AssetRef | str:
     return ref if isinstance(ref, AssetRef) else _path_allowed(ref, info)
 
 
+# --- Textures (v1.1, "Textures, UVs and shading normals"; renderer.textures) ---------------------
+
+
+class ImageModel(SceneModel):
+    """A part of a scene that names an image file (``image``), which ``load_scene`` reads."""
+
+    _pixels: np.ndarray | None = PrivateAttr(default=None)
+    _what: ClassVar[str] = "image"
+
+    def pixels(self) -> np.ndarray:
+        """The image, linear float32 (H, W, 3), row 0 at the top, as ``load_scene`` read it."""
+        if self._pixels is None:
+            raise ValueError(f"the {self._what} image has not been read: load the scene with "
+                             "load_scene")
+        return self._pixels
+
+    def _attach_pixels(self, pixels: np.ndarray) -> None:
+        self._pixels = pixels
+
+
+class BitmapTexture(ImageModel):
+    """An image looked up at (u·su + ou, v·sv + ov), bilinear between texel centres, repeating;
+    u grows to the right of the image and v upwards ((0, 0) is the bottom-left corner as
+    displayed). ``load_scene`` reads the image."""
+
+    type: Literal["bitmap"] = "bitmap"
+    image: FileRef
+    """PNG (8 or 16 bits per channel), EXR or PFM: a path (the command line) or an asset."""
+    srgb: bool | None = None
+    """Whether the texels are sRGB-encoded (decoded to linear); default true for PNG, false for
+    EXR and PFM."""
+    scale: tuple[Float, Float] = (1.0, 1.0)
+    offset: tuple[Float, Float] = (0.0, 0.0)
+
+    _check_image = field_validator("image")(check_file_ref)
+    _what: ClassVar[str] = "texture"
+
+    @field_validator("scale")
+    @classmethod
+    def _check_scale(cls, scale: tuple[float, float]) -> tuple[float, float]:
+        if scale[0] == 0.0 or scale[1] == 0.0:
+            raise scene_error("must be non-zero in u and v")
+        return scale
+
+
+class CheckerboardTexture(SceneModel):
+    """``color0`` where floor(u·su) + floor(v·sv) is even, ``color1`` elsewhere."""
+
+    type: Literal["checkerboard"] = "checkerboard"
+    color0: Colour = (0.4, 0.4, 0.4)
+    color1: Colour = (0.2, 0.2, 0.2)
+    scale: tuple[Float, Float] = (2.0, 2.0)
+    """Squares per unit of u and of v (2: Mitsuba 3's default checkerboard)."""
+
+
+Texture = BitmapTexture | CheckerboardTexture
+
+TEXTURE_TYPES = ("bitmap", "checkerboard")
+
+
+def _colour_kind(value) -> str | None:
+    """The branch of a colour parameter: ``rgb`` for a triple, else the texture's type."""
+    if value is None:
+        return "none"
+    if isinstance(value, dict):
+        return value.get("type") if value.get("type") in TEXTURE_TYPES else "texture"
+    if isinstance(value, (BitmapTexture, CheckerboardTexture)):
+        return value.type
+    return "rgb"
+
+
+def _colour_param(rgb, optional: bool = False):
+    branches = (Annotated[rgb, Tag("rgb")] | Annotated[BitmapTexture, Tag("bitmap")]
+                | Annotated[CheckerboardTexture, Tag("checkerboard")])
+    if optional:  # (``X | None`` outside would hash the discriminator's dict)
+        branches = branches | Annotated[None, Tag("none")]
+    return Annotated[
+        branches,
+        Discriminator(_colour_kind, custom_error_type="scene", custom_error_message="{message}",
+                      custom_error_context={"message": (
+                          'must be [r, g, b] or a texture {"type": "bitmap" | "checkerboard", '
+                          '...}')}),
+    ]
+
+
+AlbedoParam = _colour_param(Albedo)
+OptionalAlbedoParam = _colour_param(Albedo, optional=True)
+"""A colour parameter in [0, 1] per channel, or a texture (whose texels must be in [0, 1])."""
+
+ColourParam = _colour_param(Colour)
+"""A colour parameter >= 0 per channel, or a texture."""
+
+COLOUR_PARAMS = {"diffuse": ("albedo",), "phong": ("diffuse", "specular"),
+                 "mirror": ("reflectance",), "conductor": ("specular",),
+                 "translucent": ("albedo",)}
+"""The fields of each material type that may be textures (scene format v1.1)."""
+
+
+def is_texture(value) -> bool:
+    return isinstance(value, (BitmapTexture, CheckerboardTexture))
+
+
 # --- Camera, film and render settings -------------------------------------------------------------
 
 
@@ -266,21 +370,23 @@ class DiffuseMaterial(SceneModel):
     """Lambertian reflection."""
 
     type: Literal["diffuse"] = "diffuse"
-    albedo: Albedo = (0.5, 0.5, 0.5)
+    albedo: AlbedoParam = (0.5, 0.5, 0.5)
 
 
 class PhongMaterial(SceneModel):
     """Energy-conserving (normalized) Phong: a Lambertian lobe plus a glossy lobe."""
 
     type: Literal["phong"] = "phong"
-    diffuse: Albedo = (0.5, 0.5, 0.5)
-    specular: Albedo = (0.2, 0.2, 0.2)
+    diffuse: AlbedoParam = (0.5, 0.5, 0.5)
+    specular: AlbedoParam = (0.2, 0.2, 0.2)
     exponent: Float = Field(default=30.0, gt=0)
 
     @model_validator(mode="after")
     def _check_energy(self) -> PhongMaterial:
         # Each lobe is normalized, so the two weights must not sum above 1: the material would
         # reflect more than it receives (a small slack absorbs rounding, e.g. 0.7 + 0.3).
+        if is_texture(self.diffuse) or is_texture(self.specular):
+            return self  # load_scene checks textured lobes texel by texel
         for c, (kd, ks) in enumerate(zip(self.diffuse, self.specular, strict=True)):
             if kd + ks > 1.0 + 1e-9:
                 raise scene_error(
@@ -294,7 +400,7 @@ class MirrorMaterial(SceneModel):
     """Perfect specular reflection."""
 
     type: Literal["mirror"] = "mirror"
-    reflectance: Albedo = (1.0, 1.0, 1.0)
+    reflectance: AlbedoParam = (1.0, 1.0, 1.0)
 
 
 class ConductorMaterial(SceneModel):
@@ -308,7 +414,7 @@ class ConductorMaterial(SceneModel):
     """Imaginary part (extinction coefficient), per channel (with ``eta``)."""
     preset: Literal["Au", "Ag", "Cu", "Al"] | None = None
     """A measured metal instead of eta and k (renderer/materials/conductor.py)."""
-    specular: Colour = (1.0, 1.0, 1.0)
+    specular: ColourParam = (1.0, 1.0, 1.0)
     """A scale on the reflectance, per channel (1: the physical metal)."""
     roughness: Float = Field(default=0.0, ge=0, le=1)
     """GGX α of the surface, as Mitsuba writes it (not a perceptual roughness); 0 is the smooth
@@ -353,8 +459,10 @@ class TranslucentMaterial(SceneModel):
     type: Literal["translucent"] = "translucent"
     method: TranslucentMethod = "volumetric"
     ior: Float = Field(default=1.3, ge=1.0)
-    albedo: Albedo | None = None
-    """Single-scattering albedo per channel (default [0.8, 0.8, 0.8])."""
+    albedo: OptionalAlbedoParam = None
+    """Single-scattering albedo per channel (default [0.8, 0.8, 0.8]); for the methods
+    single_scatter, diffuse_entry and backlight a texture may colour the surface (the medium
+    then has the texture's mean albedo)."""
     density: PositiveFloat | tuple[PositiveFloat, PositiveFloat, PositiveFloat] | None = None
     """Extinction coefficient sigma_t per unit length (mean free path 1 / density), one number or
     one per channel (default 1)."""
@@ -428,6 +536,8 @@ class TranslucentMaterial(SceneModel):
             s, a = self.sigma_s, self.sigma_a  # type: ignore[assignment]
         else:
             albedo = self.albedo if self.albedo is not None else (0.8, 0.8, 0.8)
+            if is_texture(albedo):  # the medium's: the texture's mean (set again once read)
+                albedo = _texture_mean_or(albedo, (0.8, 0.8, 0.8))
             density = 1.0 if self.density is None else self.density
             sigma_t = (density,) * 3 if isinstance(density, (int, float)) else density
             self._medium = (tuple(float(x) for x in albedo),  # type: ignore[assignment]
@@ -457,6 +567,20 @@ class TranslucentMaterial(SceneModel):
         return len(set(self.sigma_t)) > 1
 
     @model_validator(mode="after")
+    def _check_texture(self) -> TranslucentMaterial:
+        if is_texture(self.albedo) and self.method not in TEXTURE_METHODS:
+            raise scene_error(
+                f"a texture on albedo is rendered by methods {', '.join(TEXTURE_METHODS)} (the "
+                f"surface's colour); method {self.method!r} takes an RGB albedo (volumetric: the "
+                "albedo belongs to the medium; auto: its choice rests on one albedo)")
+        return self
+
+    def _read_texture(self) -> None:
+        """The medium's albedo from a bitmap texture's mean, once ``load_scene`` has read it."""
+        if is_texture(self.albedo) and self.sigma_s is None and self.preset is None:
+            self._medium = (_texture_mean_or(self.albedo, self._medium[0]), self._medium[1])
+
+    @model_validator(mode="after")
     def _check_roughness(self) -> TranslucentMaterial:
         if self.roughness > 0.0 and self.method not in ROUGH_METHODS:
             raise scene_error(
@@ -475,6 +599,19 @@ class TranslucentMaterial(SceneModel):
                     f"{self.method!r})"
                 )
         return self
+
+
+# The methods whose albedo may be a texture: it colours their surface.
+TEXTURE_METHODS = ("single_scatter", "diffuse_entry", "backlight", "diffusion")
+
+
+def _texture_mean_or(texture, default) -> tuple[float, float, float]:
+    """A texture's mean colour (a bitmap's once read), else ``default``."""
+    if isinstance(texture, BitmapTexture) and texture._pixels is None:
+        return tuple(float(x) for x in default)  # type: ignore[return-value]
+    from renderer.textures import texture_mean
+
+    return texture_mean(texture)
 
 
 # The methods that render a rough boundary (``roughness`` > 0).
@@ -582,6 +719,10 @@ class Mesh(ObjectBase):
     triangles: list[tuple[VertexIndex, VertexIndex, VertexIndex]] | None = Field(
         default=None, min_length=1
     )
+    uvs: list[tuple[Float, Float]] | None = Field(default=None, min_length=1)
+    """Texture coordinates (u, v), one per vertex (inline meshes; files give theirs)."""
+    normals: list[Vec3] | None = Field(default=None, min_length=1)
+    """Shading normals, one per vertex, interpolated across each triangle (inline meshes)."""
     path: str | None = None
     asset: AssetName | None = None
     """An uploaded mesh file (OBJ or PLY), ``"sha256:<hex>"``, instead of ``path``."""
@@ -595,6 +736,9 @@ class Mesh(ObjectBase):
     _vertices_array: np.ndarray | None = PrivateAttr(default=None)
     _world_vertices: np.ndarray | None = PrivateAttr(default=None)
     _triangles_array: np.ndarray | None = PrivateAttr(default=None)
+    _uvs_array: np.ndarray | None = PrivateAttr(default=None)
+    _normals_array: np.ndarray | None = PrivateAttr(default=None)
+    _world_normals: np.ndarray | None = PrivateAttr(default=None)
     _dropped_degenerate: int = PrivateAttr(default=0)
     _source_path: Path | None = PrivateAttr(default=None)
 
@@ -623,6 +767,10 @@ class Mesh(ObjectBase):
             raise scene_error(
                 f"give one of vertices and triangles, path or asset, not {' and '.join(parts)}"
             )
+        if given and (self.uvs is not None or self.normals is not None):
+            extra = " and ".join(f for f in ("uvs", "normals") if getattr(self, f) is not None)
+            raise scene_error(f"{extra} belong to an inline mesh; a mesh file gives its own "
+                              "(OBJ vt/vn, PLY u,v/nx,ny,nz)")
         if not given:
             if self.vertices is None and self.triangles is None:
                 raise scene_error(
@@ -649,6 +797,10 @@ class Mesh(ObjectBase):
         ):
             data["vertices"] = self._vertices_array.tolist()
             data["triangles"] = self._triangles_array.tolist()
+            if self._uvs_array is not None:
+                data["uvs"] = self._uvs_array.tolist()
+            if self._normals_array is not None:
+                data["normals"] = self._normals_array.tolist()
             data.pop("path", None)
         return data
 
@@ -667,6 +819,49 @@ class Mesh(ObjectBase):
             world.flags.writeable = False
             self._world_vertices = world
         return self._world_vertices, triangles
+
+    def _per_vertex(self, name: str, width: int) -> np.ndarray | None:
+        """The inline per-vertex list ``name`` (uvs, normals) as a read-only float64 array, built
+        once (a mesh read from a file has its array attached instead), or None."""
+        attr = f"_{name}_array"
+        if getattr(self, attr) is None and getattr(self, name) is not None:
+            values = np.asarray(getattr(self, name), np.float64).reshape(-1, width)
+            values.flags.writeable = False
+            setattr(self, attr, values)
+        return getattr(self, attr)
+
+    def uv_array(self) -> np.ndarray | None:
+        """Texture coordinates float64 (V, 2), or None when the mesh has none."""
+        return self._per_vertex("uvs", 2)
+
+    def normal_array(self) -> np.ndarray | None:
+        """Shading normals float64 (V, 3) in world coordinates (unit; placed by the inverse
+        transpose of the placement), or None when the mesh has none."""
+        if self.model_normal_array() is None:
+            return None
+        if self._world_normals is None:
+            normals = self._normals_array
+            if self.scale is not None or self.rotate is not None:
+                from renderer.geometry.transform import placement
+
+                m, _ = placement(self.scale, self.rotate, self.translate)
+                normals = normals @ np.linalg.inv(m)  # (M⁻ᵀ n)ᵀ = nᵀ M⁻¹
+            with np.errstate(invalid="ignore", divide="ignore"):
+                normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
+            normals.flags.writeable = False
+            self._world_normals = normals
+        return self._world_normals
+
+    def model_normal_array(self) -> np.ndarray | None:
+        """The shading normals as given (the model's coordinates, not normalized), or None."""
+        return self._per_vertex("normals", 3)
+
+    def _attach_attributes(self, uvs: np.ndarray | None, normals: np.ndarray | None) -> None:
+        """Keep the texture coordinates and normals of a mesh read from a file."""
+        self._uvs_array = None if uvs is None else np.ascontiguousarray(uvs, np.float64)
+        self._normals_array = None if normals is None else np.ascontiguousarray(normals,
+                                                                                np.float64)
+        self._world_normals = None
 
     def model_arrays(self) -> tuple[np.ndarray, np.ndarray]:
         """``arrays()`` in the model's own coordinates, before placement."""
@@ -753,7 +948,7 @@ LIGHT_TYPES = ("point", "directional")
 # --- Environment (v1.1, "Light from an environment") ----------------------------------------------
 
 
-class Environment(SceneModel):
+class Environment(ImageModel):
     """A latitude–longitude image of linear radiance around the scene (``renderer.environment``):
     seen by every ray that escapes and sampled as a light. ``load_scene`` reads the image."""
 
@@ -766,17 +961,7 @@ class Environment(SceneModel):
     rotate⁻¹·d)."""
 
     _check_image = field_validator("image")(check_file_ref)
-    _pixels: np.ndarray | None = PrivateAttr(default=None)
-
-    def pixels(self) -> np.ndarray:
-        """The image, float32 (H, W, 3), as ``load_scene`` read it."""
-        if self._pixels is None:
-            raise ValueError("the environment image has not been read: load the scene with "
-                             "load_scene")
-        return self._pixels
-
-    def _attach_pixels(self, pixels: np.ndarray) -> None:
-        self._pixels = pixels
+    _what: ClassVar[str] = "environment"
 
 
 # --- Scene ----------------------------------------------------------------------------------------

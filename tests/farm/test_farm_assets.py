@@ -141,3 +141,32 @@ def test_submit_uploads_the_environment_image(tmp_path):
     scene_file.write_text(json.dumps(scene))
     assert scene_for_upload(scene_file, uploads) == scene  # type: ignore[arg-type]
     assert uploads.sent == [b"v/1\x01 a sky"]
+
+
+def test_submit_uploads_texture_images(tmp_path):
+    """``lucent submit`` sends each bitmap texture's image as an asset (on any colour parameter)
+    and rewrites its reference; colours and checkerboards stay as they are."""
+    from renderer.scene.files import digest
+
+    sent: list[bytes] = []
+
+    class Uploads:
+        def upload_asset(self, data: bytes) -> str:
+            sent.append(data)
+            return digest(data)
+
+    (tmp_path / "wood.png").write_bytes(b"\x89PNG wood")
+    (tmp_path / "rust.png").write_bytes(b"\x89PNG rust")
+    checker = {"type": "checkerboard", "scale": [4, 4]}
+    scene_file = tmp_path / "scene.json"
+    scene_file.write_text(json.dumps({"materials": {
+        "floor": {"type": "diffuse", "albedo": {"type": "bitmap", "image": "wood.png"}},
+        "metal": {"type": "phong", "diffuse": checker,
+                  "specular": {"type": "bitmap", "image": "rust.png", "scale": [2, 2]}},
+        "plain": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}}}))
+    scene = scene_for_upload(scene_file, Uploads())  # type: ignore[arg-type]
+    materials = scene["materials"]
+    assert materials["floor"]["albedo"]["image"] == {"asset": digest(b"\x89PNG wood")}
+    assert materials["metal"]["specular"] == {"type": "bitmap", "scale": [2, 2],
+                                              "image": {"asset": digest(b"\x89PNG rust")}}
+    assert materials["metal"]["diffuse"] == checker and sent == [b"\x89PNG wood", b"\x89PNG rust"]

@@ -48,11 +48,13 @@ import numpy as np
 ROOT = Path(__file__).resolve().parents[2]
 SCENES = ("cornell_box", "glass_sphere", "translucent_sphere", "backlit_slab", "dense_sphere",
           "chromatic_wax", "chromatic_slab", "env_diffuse_sphere", "env_rough_glass_sphere",
-          "env_wax_sphere")
+          "env_wax_sphere", "tex_bitmap_quad", "tex_checker_quad")
 # Scenes kept beside their references in tests/data/ (with the environment image they name,
 # sky_64x32.exr: ``python examples/make_sky.py tests/data/sky_64x32.exr --width 64 --height 32
-# --sun-radius 5``), already at the reference film size.
-DATA_SCENES = ("env_diffuse_sphere", "env_rough_glass_sphere", "env_wax_sphere")
+# --sun-radius 5``; the bitmap texture_16x16.png, a gradient with a dark band near its bottom and a
+# bright mark in its top-left corner), already at the reference film size.
+DATA_SCENES = ("env_diffuse_sphere", "env_rough_glass_sphere", "env_wax_sphere", "tex_bitmap_quad",
+               "tex_checker_quad")
 # Chromatic media (σt per channel): the reference is split by channel, three renders with the
 # medium made grey at each channel's σt, channel k taken from the k-th (RGB transport is
 # independent per channel). Mitsuba's RGB volpath samples a chromatic medium's flights from one

@@ -46,3 +46,21 @@ def test_sheet_lays_its_vertices_row_by_row_and_faces_up():
     normals = np.cross(e1, e2)
     assert np.all(normals[:, 2] > 0) and np.allclose(normals[:, :2], 0)
     assert np.isclose(0.5 * normals[:, 2].sum(), 1.0)  # the triangles tile the unit square
+
+
+def test_uv_sphere_faces_out_and_carries_the_sphere_parametrization():
+    from renderer.geometry.meshgen import uv_sphere
+
+    vertices, triangles, normals, uvs = uv_sphere(16, 10, radius=2.0)
+    e1 = vertices[triangles[:, 1]] - vertices[triangles[:, 0]]
+    e2 = vertices[triangles[:, 2]] - vertices[triangles[:, 0]]
+    centres = vertices[triangles].mean(axis=1)
+    assert (np.einsum("ij,ij->i", np.cross(e1, e2), centres) > 0).all()  # outward
+    np.testing.assert_allclose(np.linalg.norm(vertices, axis=1), 2.0)
+    np.testing.assert_allclose(normals, vertices / 2.0, atol=1e-15)
+    # u = atan2(x, −z)/(2π) mod 1, v = 1 − acos(y)/π away from the seam and the poles
+    inner = (uvs[:, 0] > 0) & (uvs[:, 0] < 1) & (uvs[:, 1] > 0) & (uvs[:, 1] < 1)
+    d = normals[inner]
+    np.testing.assert_allclose(uvs[inner, 0], np.mod(np.arctan2(d[:, 0], -d[:, 2]) / (2 * np.pi),
+                                                     1.0), atol=1e-12)
+    np.testing.assert_allclose(uvs[inner, 1], 1.0 - np.arccos(d[:, 1]) / np.pi, atol=1e-12)

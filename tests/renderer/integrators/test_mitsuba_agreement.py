@@ -33,12 +33,17 @@ DATA = ROOT / "tests" / "data"
 # translucent method in a Cornell box and in a backlit slab (Mitsuba `volpath`, dielectric boundary,
 # homogeneous medium with the same albedo, σt and HG g).
 SCENES = ["cornell_box", "glass_sphere", "translucent_sphere", "backlit_slab", "chromatic_wax",
-          "chromatic_slab", "env_diffuse_sphere", "env_rough_glass_sphere"]
+          "chromatic_slab", "env_diffuse_sphere", "env_rough_glass_sphere", "tex_bitmap_quad",
+          "tex_checker_quad"]
 # Under an environment image (tests/data/sky_64x32.exr, a sky with a sun ~2 texels wide, rotated
 # about +Y), kept in tests/data/ beside their references: a diffuse sphere on a floor (Mitsuba
 # `path`) and a rough glass sphere (α 0.3) alone. Measured: MSE 1.04× and 1.13× Mitsuba's own at
 # 64 spp (four seeds), frame means 0.15 % and 0.03 % apart.
-DATA_SCENES = ("env_diffuse_sphere", "env_rough_glass_sphere")
+# Textured (tests/data/, beside their references): a floor with a bitmap albedo (an 8-bit sRGB PNG,
+# scale [2, 1] and offset [0.25, 0]: any flip or shift of u or v moves its gradient, band and mark)
+# under a white sphere, and a checkerboard floor under a checkerboard sphere (the sphere's (u, v)).
+DATA_SCENES = ("env_diffuse_sphere", "env_rough_glass_sphere", "tex_bitmap_quad",
+               "tex_checker_quad")
 # Chromatic media (σt 3/8/16 and 12/25/50 per channel): their references are split by channel,
 # three Mitsuba renders with the medium grey at each channel's σt (tests/reference/generate.py;
 # Mitsuba's own RGB volpath samples a chromatic medium without MIS over the channels and is no
@@ -58,7 +63,7 @@ def _scene(name: str, seed: int, sampler: str = "independent"):
     data = json.loads((folder / f"{name}.json").read_text())
     data["film"] = {"width": 64, "height": 48}
     data["render"].update(spp=64, seed=seed, sampler=sampler)
-    if name in DATA_SCENES:  # they name their environment image by a path
+    if name in DATA_SCENES:  # they name their images by a path
         return load_scene(data, allow_paths=True, base_dir=DATA)
     return data
 

@@ -802,8 +802,12 @@ def fake_meshio(monkeypatch):
         path.write_text("v 0 0 0\n")
         meshes[path.name] = arrays
 
+    def parse_mesh(data, kind, *, name):
+        return (*parse(data, name=name), None, None)  # no texture coordinates, no normals
+
     module = types.ModuleType("renderer.geometry.meshio")
     module.parse_obj = module.parse_ply = parse
+    module.parse_mesh = parse_mesh
     monkeypatch.setitem(sys.modules, "renderer.geometry.meshio", module)
     return put, calls
 
