@@ -24,6 +24,10 @@ from services.farm.store import JobStore
 
 log = logging.getLogger(__name__)
 
+# This worker node's Celery name (``n0@host``), set in the node's main process before the pool
+# forks (``worker.tasks``, ``worker_init``): the unit the blocklist counts failures of.
+NODE = ""
+
 # A scene small enough to render in milliseconds that still runs every kernel the tile renderer
 # calls (a quad light over a diffuse sphere), to load numba's cached machine code before the
 # first real task.
@@ -183,6 +187,8 @@ class WorkerState:
                 "tiles_done": self.tiles_done,
                 "paths_per_second": self.paths / self.render_seconds if self.render_seconds else 0,
                 "started_at": self.started,
+                "node": NODE,
+                "tags": ",".join(self.settings.worker_tags),
             }
         self.store.heartbeat(self.worker_id, fields, ttl=3 * self.settings.heartbeat_interval)
 

@@ -20,6 +20,7 @@ from celery.exceptions import Reject, SoftTimeLimitExceeded
 from renderer.film.buffer import SampleBuffer
 from services.farm.passes import begin_pass, converged, deliver, end_pass, pass_failed
 from services.farm.planner import celery_priority
+from services.farm.pools import queue_for
 from services.farm.settings import get_settings
 from worker import runtime
 from worker.celery_app import app
@@ -28,8 +29,10 @@ log = logging.getLogger(__name__)
 
 
 @signals.worker_init.connect
-def _init_worker(**_: object) -> None:
-    """In the worker node's main process, before the pool forks: fill a cold kernel cache once."""
+def _init_worker(sender: object = None, **_: object) -> None:
+    """In the worker node's main process, before the pool forks: its name (the pool processes
+    inherit it), and a cold kernel cache filled once."""
+    runtime.NODE = str(getattr(sender, "hostname", "") or "")
     if not get_settings().prewarm:
         return
     seconds = runtime.prewarm_cache()
@@ -95,7 +98,8 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
         if not pass_failed(store, settings, delivery, tile, pass_index, reason):
             return "failed"
         render_pass.apply_async((job_id, tile, pass_index), countdown=1.0,
-                                priority=celery_priority(delivery.meta.priority))
+                                priority=celery_priority(delivery.meta.priority),
+                                queue=queue_for(delivery.meta.tags))
         return "retrying"
     finally:
         state.set_task("")

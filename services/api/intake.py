@@ -101,7 +101,9 @@ def read_submission(body: bytes, content_type: str | None, limits: Limits,
             {"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in checked.errors))
     options = JobOptions(name=create.name, priority=create.priority, tile_size=create.tile_size,
                          spp_per_pass=create.spp_per_pass,
-                         max_spp_per_pass=create.max_spp_per_pass)
+                         max_spp_per_pass=create.max_spp_per_pass,
+                         tags=tuple(sorted(set(create.tags))),
+                         check_workers=create.check_workers)
     return Submission(options, checked)
 
 

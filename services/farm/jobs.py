@@ -31,6 +31,7 @@ from renderer.scene import Limits, SceneError, load_scene
 from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
 from services.farm.planner import Plan
+from services.farm.pools import live_tag_sets, waiting_for
 from services.farm.queue import enqueue
 from services.farm.records import Records, RecordsUnavailable
 from services.farm.settings import Settings
@@ -69,6 +70,8 @@ class JobOptions:
     tile_size: int | None = None
     spp_per_pass: int | None = None
     max_spp_per_pass: int | None = None
+    tags: tuple[str, ...] = ()  # worker tags the job requires (services.farm.pools)
+    check_workers: bool = False  # refuse (409) when no live worker has the tags
 
 
 @dataclass(frozen=True)
@@ -126,20 +129,26 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
         return Refusal(refused.status,
                        [(list(loc), refused.msg, "limit") for loc in refused.locs],
                        {"Retry-After": "60"} if refused.status == 429 else None)
+    if options.check_workers:
+        waiting = waiting_for(options.tags, live_tag_sets(store.workers()))
+        if waiting is not None:
+            return Refusal(409, [(["body", "tags"], f"no live worker has the tags "
+                                  f"{','.join(options.tags)} (LUCENT_WORKER_TAGS); without "
+                                  "check_workers the job would wait for one", "workers")])
     job_id = uuid.uuid4().hex  # store.JOB_ID's form
     # The record first: with the database away, nothing is queued (503) and the job is not run
     # unrecorded; with Redis away after it, the record goes again (the sweeper would fail it).
     created = JobMeta.new(job_id, options.name, options.priority, plan, scene.methods,
-                          time.time(), submitter)
+                          time.time(), submitter, options.tags)
     records.create(created)
     try:
         meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
-                                scene.methods, created.created_at, submitter)
+                                scene.methods, created.created_at, submitter, options.tags)
     except Exception:
         with contextlib.suppress(RecordsUnavailable):
             records.delete(job_id)
         raise
-    enqueue(celery, job_id, plan.order(), options.priority)
+    enqueue(celery, job_id, plan.order(), options.priority, options.tags)
     return meta
 
 
@@ -149,6 +158,6 @@ def retry_job(store: JobStore, celery: Celery, meta: JobMeta) -> str | None:
     if meta.status not in ("failed", "cancelled"):
         return f"job {meta.id} is {meta.status}: only failed or cancelled jobs can be retried"
     todo = store.reopen_job(meta.id)
-    enqueue(celery, meta.id, todo, meta.priority)
+    enqueue(celery, meta.id, todo, meta.priority, meta.tags)
     store.finish_if_complete(meta.id)  # nothing was left to render
     return None

@@ -79,10 +79,10 @@ def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
     clock = store.stall_clock(job_id)
     if clock is None:
         return []
-    priority, since = clock
+    priority, since, tags = clock
     if now - since < rule.timeout:
         return []  # the cheap test first: the queue is looked at only for idle jobs
-    if waiting_ahead(rule.celery, store, priority):
+    if waiting_ahead(rule.celery, store, priority, tags):
         return []
     stalls = store.claim_stall(job_id, rule.timeout, now)
     if not stalls:
@@ -95,7 +95,7 @@ def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
     if meta is None:
         return []
     todo = store.unmerged(job_id, meta.plan)
-    enqueue(rule.celery, job_id, todo, priority)
+    enqueue(rule.celery, job_id, todo, priority, tags)
     store.count(stall_requeues=1, passes_requeued=len(todo))
     log.warning("job %s stalled for %.0f s (%d in a row): %d unmerged passes sent again",
                 job_id, now - since, stalls, len(todo))

@@ -25,6 +25,7 @@ timings                ``created_at``, ``started_at``, ``finished_at`` (Unix sec
 ``image_removed_at``   when the cap on stored images (``LUCENT_MAX_IMAGE_BYTES``) removed it
 ``state_blob``         a failed or cancelled job parked out of Redis: the blob of its tiles'
                        accumulations (``JobSnapshot``), what a retry goes on from
+``tags``               the worker tags it requires, comma-separated (``services.farm.pools``)
 =====================  ========================================================================
 
 ``job_counts`` holds the number of jobs of each status, kept by triggers on ``jobs`` (a listing's
@@ -112,6 +113,7 @@ jobs = Table(
     Column("image_bytes", BigInteger, nullable=False, server_default="0"),
     Column("image_removed_at", Double),
     Column("state_blob", String(71)),
+    Column("tags", String(300)),
     Index("jobs_created_at", "created_at", "id"),
     Index("jobs_status_created_at", "status", "created_at", "id"),
     Index("jobs_finished_at", "finished_at"),
@@ -450,6 +452,8 @@ def _row(meta: JobMeta) -> dict[str, Any]:
            "max_spp_per_pass": plan.max_spp_per_pass, "tasks_total": plan.n_tasks,
            "created_at": meta.created_at, "methods": json.dumps(meta.methods),
            **_progress(meta)}
+    if meta.tags:  # (a column of migration 0003: a row without is written as before it)
+        row["tags"] = ",".join(meta.tags)
     if meta.images:  # archived before the farm kept records (the hash held the blob keys)
         row.update(tiles=json.dumps(meta.tiles_final), image_exr=meta.images.get("exr"),
                    image_png=meta.images.get("png"), archived_at=time.time())
@@ -475,4 +479,5 @@ def _meta(row: Any) -> JobMeta:
         started_at=row["started_at"], finished_at=row["finished_at"], error=row["error"],
         methods=json.loads(row["methods"]), images=images,
         tiles_final=json.loads(tiles) if tiles else {}, submitter=row["submitter"],
-        image_removed=row["image_removed_at"] is not None, parked=row.get("state_blob"))
+        image_removed=row["image_removed_at"] is not None, parked=row.get("state_blob"),
+        tags=tuple(t for t in (row.get("tags") or "").split(",") if t))

@@ -179,15 +179,17 @@ class JobMeta:
     submitter: str | None = None  # the name of the API token it was submitted with
     image_removed: bool = False  # its image removed by the cap on stored images (a record's)
     parked: str | None = None  # a record's: the blob of a failed or cancelled job's tiles
+    tags: tuple[str, ...] = ()  # the worker tags it requires (services.farm.pools)
 
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
-            created_at: float, submitter: str | None = None) -> JobMeta:
+            created_at: float, submitter: str | None = None,
+            tags: tuple[str, ...] = ()) -> JobMeta:
         """A job just submitted: queued, nothing merged (what ``create_job`` stores)."""
         return cls(id=job_id, name=name, status="queued", priority=priority, plan=plan,
                    tasks_merged=0, samples_merged=0, dropped=0, version=0,
                    created_at=created_at, started_at=None, finished_at=None, error=None,
-                   methods=methods, images={}, tiles_final={}, submitter=submitter)
+                   methods=methods, images={}, tiles_final={}, submitter=submitter, tags=tags)
 
     @property
     def samples_planned(self) -> int:
@@ -220,6 +222,7 @@ class JobMeta:
             images=json.loads(d.get("images") or "{}"),
             tiles_final=json.loads(d.get("tiles_final") or "{}"),
             submitter=d.get("submitter") or None,
+            tags=tuple(t for t in d.get("tags", "").split(",") if t),
         )
 
 
@@ -242,7 +245,7 @@ class JobSnapshot:
         head = {"meta": {**{k: getattr(m, k) for k in (
                     "id", "name", "status", "priority", "tasks_merged", "samples_merged",
                     "dropped", "version", "created_at", "started_at", "finished_at", "error",
-                    "methods", "submitter")},
+                    "methods", "submitter", "tags")},
                     "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
                              m.plan.spp_per_pass, m.plan.max_spp_per_pass]},
                 "scene": self.scene_json.decode(),
@@ -257,6 +260,7 @@ class JobSnapshot:
         line, _, rest = data.partition(b"\n")
         head = json.loads(line)
         d = head["meta"]
+        d["tags"] = tuple(d.get("tags", ()))
         meta = JobMeta(plan=Plan(*d.pop("plan")), images={}, tiles_final={}, **d)
         buffers: list[bytes | None] = []
         pos = 0
@@ -314,7 +318,8 @@ class JobStore:
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
                    scene_json: str | bytes, methods: dict[str, str] | None = None,
-                   created_at: float | None = None, submitter: str | None = None) -> JobMeta:
+                   created_at: float | None = None, submitter: str | None = None,
+                   tags: tuple[str, ...] = ()) -> JobMeta:
         now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -324,7 +329,7 @@ class JobStore:
             "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
-            "submitter": submitter or "",
+            "submitter": submitter or "", "tags": ",".join(tags),
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
@@ -436,14 +441,15 @@ class JobStore:
         self.transition(job_id, "running", ("failed", "cancelled"))
         return todo
 
-    def stall_clock(self, job_id: str) -> tuple[int, float] | None:
-        """(priority, when anything of the job last happened) for a queued or running job, else
-        None: the stall rule's inputs."""
-        h = self.r.hmget(self.job_key(job_id), "status", "priority", "created_at", "active_at",
-                         "requeued_at")
+    def stall_clock(self, job_id: str) -> tuple[int, float, tuple[str, ...]] | None:
+        """(priority, when anything of the job last happened, its tags) for a queued or running
+        job, else None: the stall rule's inputs."""
+        h = self.r.hmget(self.job_key(job_id), "status", "priority", "tags", "created_at",
+                         "active_at", "requeued_at")
         if h[0] is None or h[0].decode() not in ACTIVE:
             return None
-        return int(h[1] or 0), max(float(v) for v in h[2:] if v)
+        tags = tuple(t for t in (h[2] or b"").decode().split(",") if t)
+        return int(h[1] or 0), max(float(v) for v in h[3:] if v), tags
 
     def claim_stall(self, job_id: str, stall_timeout: float, now: float | None = None) -> int:
         """If the job is queued or running and nothing of it happened for ``stall_timeout``

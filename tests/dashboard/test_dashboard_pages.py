@@ -191,9 +191,12 @@ def test_workers_page_lists_the_workers_and_shows_a_lost_one(dashboard, page, ar
     # A worker that beats once and falls silent is shown as lost within 3 intervals.
     store.heartbeat("ghost@nowhere", {"host": "nowhere", "pid": 1, "state": "busy",
                                       "current_task": "", "tiles_done": 7,
-                                      "paths_per_second": 1.0}, ttl=3 * 0.5)
+                                      "paths_per_second": 1.0, "tags": "bigmem,gpu"},
+                    ttl=3 * 0.5)
     ghost = page.locator("tr[data-id='ghost@nowhere']")
     ghost.wait_for()
+    # its node's pool tags, one badge each
+    assert ghost.locator("td.tags .tag").all_inner_texts() == ["bigmem", "gpu"]
     t0 = time.monotonic()
     page.wait_for_selector("tr[data-id='ghost@nowhere'][data-state='lost']", timeout=10_000)
     assert time.monotonic() - t0 < 5.0

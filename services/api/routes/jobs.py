@@ -34,13 +34,16 @@ from services.farm.archive import (
 from services.farm.jobs import Refusal, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
+from services.farm.pools import live_tag_sets, waiting_for
 from services.farm.records import Records
 from services.farm.store import ACTIVE, JobMeta, JobStore, is_job_id
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 
-def to_public(meta: JobMeta) -> JobPublic:
+def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> JobPublic:
+    """The job's public form; with ``live_tags`` (the tags of each live worker), an active job
+    that no live worker can take says what it waits for."""
     plan = meta.plan
     end = meta.finished_at or time.time()
     rate = None
@@ -64,7 +67,9 @@ def to_public(meta: JobMeta) -> JobPublic:
         samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
         created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
         error=meta.error, image_version=meta.version, methods=meta.methods,
-        submitter=meta.submitter,
+        submitter=meta.submitter, tags=list(meta.tags),
+        waiting_for=(waiting_for(meta.tags, live_tags)
+                     if live_tags is not None and meta.status in ACTIVE else None),
     )
 
 
@@ -131,12 +136,15 @@ def list_jobs(store: StoreDep, records: RecordsDep,
     records.sync(store.jobs_in_flight())
     metas, total = records.page(status_, offset, limit)
     live = store.get_jobs([m.id for m in metas])
-    return JobsPublic(data=[to_public(live.get(m.id, m)) for m in metas], count=total,
+    tagged = any(m.tags and m.status in ACTIVE for m in live.values())
+    live_tags = live_tag_sets(store.workers()) if tagged else None
+    return JobsPublic(data=[to_public(live.get(m.id, m), live_tags) for m in metas], count=total,
                       offset=offset, limit=limit)
 
 
 def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
-               errors: dict[int, str]) -> JobDetail:
+               errors: dict[int, str], live_tags: list[frozenset[str]] | None = None
+               ) -> JobDetail:
     if meta.tiles_final:  # out of Redis: its tiles' summary is in its record
         final = meta.tiles_final
         states = ({int(t): s for t, s in final["states"].items()} if "states" in final
@@ -153,7 +161,8 @@ def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
     # A failed tile fails its job with the same words: say it once.
     all_errors = ([meta.error] if meta.error and meta.error not in tile_errors else []) + \
         tile_errors
-    return JobDetail(**to_public(meta).model_dump(), tile_states=tiles, errors=all_errors)
+    return JobDetail(**to_public(meta, live_tags).model_dump(), tile_states=tiles,
+                     errors=all_errors)
 
 
 @dataclass(frozen=True)
@@ -187,6 +196,10 @@ class StatusViews:
             if record is None:
                 return None
             read = (record, {}, {}, {})
+        # A job requiring tags that is waiting: the workers are part of what its answer says
+        live_tags = (live_tag_sets(self.store.workers())
+                     if read[0].tags and read[0].status in ACTIVE else None)
+        read = (*read, live_tags)
         with self._lock:
             view = self._views.get(job_id)
             if view is not None and view.state == read:
