@@ -18,7 +18,16 @@ from celery import signals
 from celery.exceptions import Reject, SoftTimeLimitExceeded
 
 from renderer.film.buffer import SampleBuffer
-from services.farm.passes import begin_pass, converged, deliver, end_pass, pass_failed
+from services.farm.blocklist import HAND_BACK_PAUSE
+from services.farm.passes import (
+    Delivery,
+    HandBack,
+    begin_pass,
+    converged,
+    deliver,
+    end_pass,
+    pass_failed,
+)
 from services.farm.planner import celery_priority
 from services.farm.pools import queue_for
 from services.farm.settings import get_settings
@@ -83,19 +92,29 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
     store = state.store
     settings = state.settings
 
-    delivery = begin_pass(store, settings, job_id, tile, pass_index, holder=state.worker_id)
+    node = runtime.NODE or state.worker_id
+    delivery = begin_pass(store, settings, job_id, tile, pass_index, holder=state.worker_id,
+                          node=node)
     try:
         if isinstance(delivery, str):
             return delivery
+        if isinstance(delivery, HandBack):
+            # Blocklisted for this job: the pass goes back to the job's queue for another node,
+            # and this process waits a moment before it takes a message again
+            render_pass.apply_async((job_id, tile, pass_index),
+                                    priority=celery_priority(delivery.meta.priority),
+                                    queue=queue_for(delivery.meta.tags))
+            time.sleep(HAND_BACK_PAUSE)
+            return "handed back (blocklisted)"
         state.set_task(f"{job_id}/{tile}/{pass_index}")
         return _render_and_merge(state, delivery.meta, tile, pass_index, t_task)
     except REDIS_DOWN:
         raise  # not the pass's fault: no try is spent on recording it
     except Exception as err:  # every other failure is recorded on the tile
-        assert not isinstance(delivery, str)
+        assert isinstance(delivery, Delivery)
         reason = ("timed out" if isinstance(err, SoftTimeLimitExceeded)
                   else f"{type(err).__name__}: {err}")
-        if not pass_failed(store, settings, delivery, tile, pass_index, reason):
+        if not pass_failed(store, settings, delivery, tile, pass_index, reason, node):
             return "failed"
         render_pass.apply_async((job_id, tile, pass_index), countdown=1.0,
                                 priority=celery_priority(delivery.meta.priority),

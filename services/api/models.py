@@ -93,6 +93,10 @@ class JobPublic(BaseModel):
 class JobDetail(JobPublic):
     tile_states: list[TilePublic]
     errors: list[str]
+    blocklist: dict[str, int] = Field(
+        default_factory=dict, description="worker nodes that get none of this job's passes any "
+                                          "more -> its passes that failed on each "
+                                          "(LUCENT_BLOCKLIST_THRESHOLD)")
 
 
 class JobsPublic(BaseModel):

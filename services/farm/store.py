@@ -15,6 +15,8 @@ Key                                Type    What
 ``{p}:job:{id}:merged``            set     ``tile:pass`` merged into the accumulation
 ``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (``to_bytes``)
 ``{p}:job:{id}:pass:{tile}:{pass}`` string a rendered pass, deleted once merged
+``{p}:job:{id}:failures``          hash    worker node -> passes of the job that failed on it
+``{p}:job:{id}:blocklist``         set     nodes that get none of the job's passes any more
 ``{p}:pending``                    set     pass keys written and not merged (the sweeper's)
 ``{p}:finished``                   zset    job id -> finished time, for done/failed/cancelled
 ``{p}:to_archive``                 set     done jobs whose image is not in the blob store yet
@@ -136,6 +138,16 @@ if redis.call('HGET', KEYS[1], ARGV[1]) == ARGV[2] then
   return redis.call('HDEL', KEYS[1], ARGV[1])
 end
 return 0
+"""
+
+
+# Count a failed pass of a job on a worker node (KEYS[1] failures hash, KEYS[2] blocklist set,
+# ARGV[1] node, ARGV[2] threshold); at the threshold the node joins the job's blocklist. Returns
+# the node's failures.
+_NOTE_FAILURE = """
+local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
+if n >= tonumber(ARGV[2]) then redis.call('SADD', KEYS[2], ARGV[1]) end
+return n
 """
 
 
@@ -286,6 +298,7 @@ class JobStore:
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
         self._delete = client.register_script(_DELETE)
+        self._note_failure = client.register_script(_NOTE_FAILURE)
 
     @classmethod
     def from_url(cls, url: str, prefix: str = "lucent") -> JobStore:
@@ -307,7 +320,8 @@ class JobStore:
     def tile_keys(self, job_id: str, n_tiles: int) -> list[str]:
         """The job's keys that hold its tiles: what archiving deletes."""
         return [self.k("job", job_id, name)
-                for name in ("tile_state", "tile_samples", "tile_error", "attempts", "merged")] + \
+                for name in ("tile_state", "tile_samples", "tile_error", "attempts", "merged",
+                             "failures", "blocklist")] + \
             [self.acc_key(job_id, t) for t in range(n_tiles)]
 
     def pending_passes_of(self, job_id: str) -> list[str]:
@@ -538,8 +552,13 @@ class JobStore:
         """The tiles' summary a job's record keeps once it is archived: samples per pixel of
         each tile, and the last error of those that had one."""
         samples = self.tile_samples(job_id)
-        return {"samples": [samples.get(t, 0) for t in range(n_tiles)],
-                "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
+        out: dict[str, Any] = {
+            "samples": [samples.get(t, 0) for t in range(n_tiles)],
+            "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
+        blocklist = self.blocklist(job_id)
+        if blocklist:
+            out["blocklist"] = blocklist
+        return out
 
     def delete_job(self, job_id: str, statuses: tuple[str, ...] = FINAL) -> bool:
         """Delete every key of the job, atomically, if its status is one of ``statuses`` (by
@@ -556,20 +575,46 @@ class JobStore:
             args=[job_id, *statuses]))
 
     # --- tiles ----------------------------------------------------------------------------------
-    def job_view(self, job_id: str
-                 ) -> tuple[JobMeta, dict[int, str], dict[int, int], dict[int, str]] | None:
-        """The job and its tiles' states, samples and errors, as one snapshot in one round trip
-        (what a status answer shows); None for an unknown job."""
+    def job_view(self, job_id: str) -> tuple[JobMeta, dict[int, str], dict[int, int],
+                                             dict[int, str], dict[str, int]] | None:
+        """The job, its tiles' states, samples and errors, and its blocklist (node -> failed
+        passes), as one snapshot in one round trip (what a status answer shows); None for an
+        unknown job."""
         pipe = self.r.pipeline()
-        for part in ("tile_state", "tile_samples", "tile_error"):
+        for part in ("tile_state", "tile_samples", "tile_error", "failures"):
             pipe.hgetall(self.k("job", job_id, part))
+        pipe.smembers(self.k("job", job_id, "blocklist"))
         pipe.hgetall(self.job_key(job_id))
-        states, samples, errors, h = pipe.execute()
+        states, samples, errors, failures, blocked, h = pipe.execute()
         if not h:
             return None
         return (JobMeta.from_hash(h), {int(k): v.decode() for k, v in states.items()},
                 {int(k): int(v) for k, v in samples.items()},
-                {int(k): v.decode() for k, v in errors.items()})
+                {int(k): v.decode() for k, v in errors.items()},
+                {n.decode(): int(failures.get(n, 0)) for n in sorted(blocked)})
+
+    # --- the blocklist --------------------------------------------------------------------------
+    def note_failure(self, job_id: str, node: str, threshold: int) -> int:
+        """Count a pass of the job that failed on ``node``; at ``threshold`` failures the node
+        is blocklisted for the job. Returns the node's failures."""
+        return int(self._note_failure(
+            keys=[self.k("job", job_id, "failures"), self.k("job", job_id, "blocklist")],
+            args=[node, threshold]))
+
+    def is_blocklisted(self, job_id: str, node: str) -> bool:
+        return bool(self.r.sismember(self.k("job", job_id, "blocklist"), node))
+
+    def blocklist(self, job_id: str) -> dict[str, int]:
+        """Node -> failed passes, of the nodes blocklisted for the job."""
+        pipe = self.r.pipeline()
+        pipe.smembers(self.k("job", job_id, "blocklist"))
+        pipe.hgetall(self.k("job", job_id, "failures"))
+        blocked, failures = pipe.execute()
+        return {n.decode(): int(failures.get(n, 0)) for n in sorted(blocked)}
+
+    def forgive_attempt(self, job_id: str, tile: int, pass_index: int) -> None:
+        """Take back a counted try of the pass (it failed through its worker, not itself)."""
+        self.r.hincrby(self.k("job", job_id, "attempts"), pass_member(tile, pass_index), -1)
 
     def tile_states(self, job_id: str) -> dict[int, str]:
         h = self.r.hgetall(self.k("job", job_id, "tile_state"))

@@ -15,11 +15,13 @@ from collections.abc import Iterator
 from pathlib import Path
 
 import pytest
+import redis
 from fastapi.testclient import TestClient
 
 from services.api.main import create_app
 from services.farm.pools import parse_tags, queue_for, waiting_for, worker_queues
 from services.farm.settings import Settings
+from services.farm.store import JobStore
 from services.launcher import EmbeddedRedis, terminate, worker_command, worker_env
 from tests.conftest import wait_until
 from tests.farm.conftest import ROOT, farm_state, records_of
@@ -167,3 +169,52 @@ def test_a_job_requiring_a_tag_runs_only_on_workers_with_it(pool, cornell):
         assert r.status_code == 201, r.text
         assert _done(api, r.json()["id"])["status"] == "done"
     assert records_of(pool.settings).get(gpu_job).tags == ("gpu",)
+
+
+@pytest.mark.slow
+def test_a_worker_failing_every_pass_of_a_job_is_blocklisted_and_the_job_completes(pool,
+                                                                                   cornell):
+    """A node whose every pass raises (``faulty_worker``, ``*:*:raise``) fails 3 passes of the
+    job, is blocklisted for it and hands its passes back; the other node renders them all and the
+    image is the local render's. With the good node gone, the next job fails, saying no eligible
+    worker remains; deleting it removes its blocklist keys."""
+    import io
+
+    import numpy as np
+
+    from renderer.render import render
+
+    scene = _scene(cornell)
+    job = {"scene": scene, "tile_size": 8, "spp_per_pass": 2, "max_spp_per_pass": 2}
+    with TestClient(create_app(pool.settings)) as api:
+        # 5 tries a pass: the bad node alone (3 failures at most) never spends them all, so the
+        # job fails for want of a node, not of tries
+        pool.start("bad", app="faulty_worker", LUCENT_TEST_FAULT="*:*:raise",
+                   LUCENT_MAX_ATTEMPTS="5")
+        good_proc = pool.start("good", LUCENT_MAX_ATTEMPTS="5")
+        bad = pool.wait_warm(api, "bad")["node"]
+        good = pool.wait_warm(api, "good")["node"]
+        job_id = api.post("/api/jobs", json=job).json()["id"]
+        done = _done(api, job_id)
+        assert done["status"] == "done", done
+        assert done["blocklist"] == {bad: 3}, done
+        assert any(f"on {bad}" in e and "blocklisted" in e for e in done["errors"])
+        assert _tiles_done(api, "bad") == 0
+        image = np.load(io.BytesIO(api.get(f"/api/jobs/{job_id}/image.npy").content))
+        np.testing.assert_allclose(image, render(scene), rtol=1e-5, atol=1e-7)
+        # The good node leaves: the next job has no eligible worker once the bad one is out
+        terminate(good_proc, 30.0)
+        wait_until(lambda: all(w["node"] != good for w in api.get("/api/workers").json()["data"]
+                               if w["state"] != "lost"), 20, "the good node gone")
+        second = api.post("/api/jobs", json=job).json()["id"]
+        failed = _done(api, second)
+        assert failed["status"] == "failed", failed
+        assert failed["error"].startswith("no eligible worker remains: every live worker node "
+                                          "is blocklisted for this job after 3 failed passes"), \
+            failed["error"]
+        assert bad in failed["error"] and failed["blocklist"] == {bad: 3}
+        store = JobStore(redis.Redis.from_url(pool.redis_url), pool.prefix)
+        keys = [store.k("job", second, "failures"), store.k("job", second, "blocklist")]
+        assert store.r.exists(*keys) == 2
+        assert api.delete(f"/api/jobs/{second}").status_code == 204
+        assert store.r.exists(*keys) == 0

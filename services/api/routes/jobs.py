@@ -143,10 +143,11 @@ def list_jobs(store: StoreDep, records: RecordsDep,
 
 
 def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
-               errors: dict[int, str], live_tags: list[frozenset[str]] | None = None
-               ) -> JobDetail:
+               errors: dict[int, str], blocklist: dict[str, int],
+               live_tags: list[frozenset[str]] | None = None) -> JobDetail:
     if meta.tiles_final:  # out of Redis: its tiles' summary is in its record
         final = meta.tiles_final
+        blocklist = final.get("blocklist", {})
         states = ({int(t): s for t, s in final["states"].items()} if "states" in final
                   else dict.fromkeys(range(meta.plan.n_tiles), "done"))
         samples = dict(enumerate(final.get("samples", [])))
@@ -162,7 +163,7 @@ def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
     all_errors = ([meta.error] if meta.error and meta.error not in tile_errors else []) + \
         tile_errors
     return JobDetail(**to_public(meta, live_tags).model_dump(), tile_states=tiles,
-                     errors=all_errors)
+                     errors=all_errors, blocklist=blocklist)
 
 
 @dataclass(frozen=True)
@@ -195,7 +196,7 @@ class StatusViews:
             record = self.records.get(job_id)
             if record is None:
                 return None
-            read = (record, {}, {}, {})
+            read = (record, {}, {}, {}, {})
         # A job requiring tags that is waiting: the workers are part of what its answer says
         live_tags = (live_tag_sets(self.store.workers())
                      if read[0].tags and read[0].status in ACTIVE else None)
