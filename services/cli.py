@@ -172,6 +172,11 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                  ("priority", args.priority)) if v is not None}
     if args.tags:
         options["tags"] = list(args.tags)
+    frames = _frames(args)
+    if isinstance(frames, int):
+        return frames
+    if frames is not None:
+        options["frames"] = frames
     return submit_and_wait(args.scene, args.server, token=os.environ.get("LUCENT_API_TOKEN"),
                            wait=args.wait, outputs=[args.output] if args.output else [],
                            quiet=args.quiet,
@@ -195,6 +200,33 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"Lucent farm at {farm.url} with {farm.workers} worker processes", file=sys.stderr)
         return submit_and_wait(args.scene, farm.url, wait=True, outputs=outputs,
                                quiet=args.quiet)
+
+
+def _frames(args: argparse.Namespace) -> list | int | None:
+    """``--sweep PATH=V1,V2,...`` or ``--frames patches.json`` as the job's ``frames``; an exit
+    code when they cannot be read."""
+    import json
+
+    from services.client import sweep_values
+    from services.farm.frames import sweep_patches
+
+    if args.sweep and args.frames:
+        print("give --sweep or --frames, not both", file=sys.stderr)
+        return 2
+    if args.sweep:
+        field, eq, values = args.sweep.partition("=")
+        if not eq or not field:
+            print("--sweep is PATH=V1,V2,... (e.g. materials.wax.density=1,2,4,8)",
+                  file=sys.stderr)
+            return 2
+        return sweep_patches(field, sweep_values(values))
+    if args.frames:
+        try:
+            return json.loads(Path(args.frames).read_text())
+        except (OSError, ValueError) as err:
+            print(f"{args.frames}: {err}", file=sys.stderr)
+            return 1
+    return None
 
 
 def _tags(text: str) -> tuple[str, ...]:
@@ -274,6 +306,11 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-spp-per-pass", type=int,
                    help="the largest pass: passes double the samples so far up to it (default 64)")
     p.add_argument("--priority", type=int, help="0-9, 9 runs first (default 0)")
+    p.add_argument("--sweep", metavar="PATH=V1,V2,...",
+                   help="one frame a value of a scene field, e.g. materials.wax.density=1,2,4,8 "
+                        "(-o then writes OUT_0000.png, OUT_0001.png, ...)")
+    p.add_argument("--frames", metavar="PATCHES.json",
+                   help="a JSON list of RFC 6902 JSON Patches, one a frame")
     p.add_argument("--tags", type=_tags, default=None,
                    help="worker tags the job requires, comma-separated (only nodes with all "
                         "of them render it)")

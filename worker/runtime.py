@@ -132,7 +132,7 @@ class WorkerState:
             self._store = JobStore.from_url(self.settings.redis_url, self.settings.key_prefix)
         return self._store
 
-    # --- compiled scenes (LRU by job id) --------------------------------------------------------
+    # --- compiled scenes (LRU by job id, or ``job/frame`` for a job of frames) ---------------
     def cached(self, job_id: str):
         """The job's ``CompiledScene`` if this process has compiled it, else None (a job's scene
         never changes, so a cached one needs no fetch of the scene from Redis: for a scene with

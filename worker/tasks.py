@@ -19,6 +19,7 @@ from celery.exceptions import Reject, SoftTimeLimitExceeded
 
 from renderer.film.buffer import SampleBuffer
 from services.farm.blocklist import HAND_BACK_PAUSE
+from services.farm.frames import PatchError, apply_patch
 from services.farm.passes import (
     Delivery,
     HandBack,
@@ -135,14 +136,23 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
 
     store = state.store
     job_id = meta.id
-    compiled = state.cached(job_id)
+    # A job of frames: the frame's scene is the job's with the frame's patch applied, compiled
+    # once per process and frame
+    frame = meta.plan.frame_of(tile)
+    key = job_id if meta.plan.frames == 1 else f"{job_id}/{frame}"
+    compiled = state.cached(key)
     try:
         if compiled is None:
             scene_json = store.get_scene(job_id)
             if scene_json is None:
                 return "skipped: no scene"
-            compiled = state.compiled(job_id, scene_json)
-    except (SceneError, CompileError) as err:
+            if meta.plan.frames > 1:
+                patches = store.get_frames(job_id)
+                if patches is None:
+                    return "skipped: no frames"
+                scene_json = apply_patch(scene_json, patches[frame])
+            compiled = state.compiled(key, scene_json)
+    except (SceneError, CompileError, PatchError) as err:
         # Not renderable, whichever tile asks: fail the job with the reason, keep the worker.
         store.fail_job(job_id, str(err))
         return "failed"

@@ -36,13 +36,23 @@ class JobCreate(BaseModel):
     tags: list[Tag] = Field(default_factory=list, max_length=MAX_JOB_TAGS,
                             description="worker tags the job requires: only worker nodes with "
                                         "all of them (LUCENT_WORKER_TAGS) render it")
+    frames: list[list[dict[str, Any]]] | None = Field(
+        default=None, min_length=1, max_length=10_000,
+        description="frame i is the scene with the i-th JSON Patch (RFC 6902) applied: a camera "
+                    "path, a moving object, a sweep; every frame keeps the film size and spp")
     check_workers: StrictBool = Field(
         default=False, description="refuse the job (409) when no live worker has its tags; "
                                    "otherwise it waits for one")
 
 
+class FramePublic(BaseModel):
+    index: int
+    progress: float = Field(description="samples merged / planned of this frame, 0–1")
+
+
 class TilePublic(BaseModel):
     index: int
+    frame: int = 0
     x0: int
     y0: int
     width: int
@@ -66,7 +76,8 @@ class JobPublic(BaseModel):
     passes: int = Field(description="passes per tile")
     largest_pass: int = Field(description="samples of the job's largest pass (at most "
                                           "max_spp_per_pass)")
-    tiles: int
+    tiles: int = Field(description="tiles of the whole job (tiles_per_frame x frames)")
+    frames: int = 1
     tasks_total: int
     tasks_merged: int
     samples_planned: int
@@ -91,6 +102,7 @@ class JobPublic(BaseModel):
 
 
 class JobDetail(JobPublic):
+    frame_progress: list[FramePublic] = Field(default_factory=list)
     tile_states: list[TilePublic]
     errors: list[str]
     blocklist: dict[str, int] = Field(

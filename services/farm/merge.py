@@ -165,14 +165,17 @@ class Sweeper:
             self._thread.join(timeout=10)
 
 
-def assemble(store: JobStore, job_id: str) -> tuple[SampleBuffer, int] | None:
-    """The frame's merged ``SampleBuffer`` as it stands, and the ``version`` it shows."""
+def assemble(store: JobStore, job_id: str, frame_index: int = 0
+             ) -> tuple[SampleBuffer, int] | None:
+    """A frame's merged ``SampleBuffer`` as it stands (the first, or the only one), and the
+    ``version`` it shows; None for an unknown job or frame."""
     meta = store.get_job(job_id)
-    if meta is None:
+    if meta is None or not 0 <= frame_index < meta.plan.frames:
         return None
     plan = meta.plan
     frame = SampleBuffer.empty(0, 0, plan.width, plan.height)
-    for data in store.tile_buffers(job_id, plan.n_tiles):
+    first = frame_index * plan.tiles_per_frame
+    for data in store.tile_buffers(job_id, plan.tiles_per_frame, first):
         if data is not None:
             frame.add(SampleBuffer.from_bytes(data))
     return frame, meta.version

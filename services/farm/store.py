@@ -8,6 +8,7 @@ Key                                Type    What
 ``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``,
                                            ``active_at``, ``stalls`` (the stall re-queues)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
+``{p}:job:{id}:frames``            string  its frames' JSON Patches (a job of frames only)
 ``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass renders) / done / failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
@@ -205,7 +206,7 @@ class JobMeta:
 
     @property
     def samples_planned(self) -> int:
-        return self.plan.width * self.plan.height * self.plan.spp
+        return self.plan.width * self.plan.height * self.plan.spp * self.plan.frames
 
     @classmethod
     def from_hash(cls, h: dict[bytes, bytes]) -> JobMeta:
@@ -221,7 +222,8 @@ class JobMeta:
             priority=int(d.get("priority", 0)),
             # max_spp_per_pass: absent in jobs stored before passes grew (equal passes)
             plan=Plan(int(d["width"]), int(d["height"]), int(d["spp"]), int(d["tile_size"]),
-                      int(d["spp_per_pass"]), int(d.get("max_spp_per_pass", 0))),
+                      int(d["spp_per_pass"]), int(d.get("max_spp_per_pass", 0)),
+                      int(d.get("frames", 1))),
             tasks_merged=int(d.get("tasks_merged", 0)),
             samples_merged=int(d.get("samples_merged", 0)),
             dropped=int(d.get("dropped", 0)),
@@ -249,6 +251,7 @@ class JobSnapshot:
     tile_errors: dict[int, str]
     merged: list[str]  # ``tile:pass``
     tile_buffers: list[bytes | None]  # by tile; None before its first merge
+    frames_json: bytes | None = None  # a job of frames: their patches
 
     def to_bytes(self) -> bytes:
         """The snapshot as one blob: a JSON line (the job, its scene, its tiles), then the
@@ -259,8 +262,9 @@ class JobSnapshot:
                     "dropped", "version", "created_at", "started_at", "finished_at", "error",
                     "methods", "submitter", "tags")},
                     "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
-                             m.plan.spp_per_pass, m.plan.max_spp_per_pass]},
+                             m.plan.spp_per_pass, m.plan.max_spp_per_pass, m.plan.frames]},
                 "scene": self.scene_json.decode(),
+                "frames": self.frames_json.decode() if self.frames_json else None,
                 "tile_states": self.tile_states, "tile_samples": self.tile_samples,
                 "tile_errors": self.tile_errors, "merged": self.merged,
                 "buffers": [-1 if b is None else len(b) for b in self.tile_buffers]}
@@ -282,7 +286,8 @@ class JobSnapshot:
         return cls(meta, head["scene"].encode(),
                    {int(k): v for k, v in head["tile_states"].items()},
                    {int(k): v for k, v in head["tile_samples"].items()},
-                   {int(k): v for k, v in head["tile_errors"].items()}, head["merged"], buffers)
+                   {int(k): v for k, v in head["tile_errors"].items()}, head["merged"], buffers,
+                   head["frames"].encode() if head.get("frames") else None)
 
 
 class JobStore:
@@ -333,7 +338,9 @@ class JobStore:
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
                    scene_json: str | bytes, methods: dict[str, str] | None = None,
                    created_at: float | None = None, submitter: str | None = None,
-                   tags: tuple[str, ...] = ()) -> JobMeta:
+                   tags: tuple[str, ...] = (), frames_json: bytes | None = None) -> JobMeta:
+        """Store a job, queued; ``frames_json``: the patches of a job of ``plan.frames``
+        frames."""
         now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -343,11 +350,13 @@ class JobStore:
             "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
-            "submitter": submitter or "", "tags": ",".join(tags),
+            "submitter": submitter or "", "tags": ",".join(tags), "frames": plan.frames,
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
         pipe.set(self.k("job", job_id, "scene"), scene_json)
+        if frames_json is not None:
+            pipe.set(self.k("job", job_id, "frames"), frames_json)
         pipe.hset(self.k("job", job_id, "tile_state"),
                   mapping={str(t): "queued" for t in range(plan.n_tiles)})
         pipe.zadd(self.k("jobs"), {job_id: now})
@@ -365,6 +374,11 @@ class JobStore:
 
     def get_scene(self, job_id: str) -> dict | None:
         raw = self.r.get(self.k("job", job_id, "scene"))
+        return json.loads(raw) if raw is not None else None
+
+    def get_frames(self, job_id: str) -> list | None:
+        """The patches of a job of frames (one a frame), None for a job of one frame."""
+        raw = self.r.get(self.k("job", job_id, "frames"))
         return json.loads(raw) if raw is not None else None
 
     def get_jobs(self, job_ids: list[str]) -> dict[str, JobMeta]:
@@ -385,9 +399,9 @@ class JobStore:
         """Pixel-samples that each queued or running job has still to render."""
         pipe = self.r.pipeline()
         for job_id in self.active_job_ids():
-            pipe.hmget(self.job_key(job_id), "width", "height", "spp", "samples_merged")
-        return [max(int(w) * int(h) * int(spp) - int(merged or 0), 0)
-                for w, h, spp, merged in pipe.execute() if w is not None]
+            pipe.hmget(self.job_key(job_id), "width", "height", "spp", "samples_merged", "frames")
+        return [max(int(w) * int(h) * int(spp) * int(frames or 1) - int(merged or 0), 0)
+                for w, h, spp, merged, frames in pipe.execute() if w is not None]
 
     def active_job_ids(self) -> list[str]:
         ids = [i.decode() for i in self.r.zrange(self.k("jobs"), 0, -1)]
@@ -493,19 +507,20 @@ class JobStore:
         pipe = self.r.pipeline(transaction=True)
         pipe.hgetall(self.job_key(job_id))
         pipe.get(self.k("job", job_id, "scene"))
+        pipe.get(self.k("job", job_id, "frames"))
         for name in ("tile_state", "tile_samples", "tile_error"):
             pipe.hgetall(self.k("job", job_id, name))
         pipe.smembers(self.k("job", job_id, "merged"))
         for t in range(meta.plan.n_tiles):
             pipe.get(self.acc_key(job_id, t))
-        h, scene, states, samples, errors, merged, *buffers = pipe.execute()
+        h, scene, frames, states, samples, errors, merged, *buffers = pipe.execute()
         if not h or scene is None:
             return None
         return JobSnapshot(
             JobMeta.from_hash(h), scene, {int(k): v.decode() for k, v in states.items()},
             {int(k): int(v) for k, v in samples.items()},
             {int(k): v.decode() for k, v in errors.items()}, sorted(m.decode() for m in merged),
-            buffers)
+            buffers, frames)
 
     def restore_job(self, snap: JobSnapshot) -> None:
         """Put a parked job back in Redis as it was when it was parked (its status, counters,
@@ -522,10 +537,13 @@ class JobStore:
             "created_at": meta.created_at, "started_at": meta.started_at or "",
             "finished_at": meta.finished_at or "", "error": meta.error or "",
             "methods": json.dumps(meta.methods), "submitter": meta.submitter or "",
+            "tags": ",".join(meta.tags), "frames": plan.frames,
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(meta.id), mapping=fields)
         pipe.set(self.k("job", meta.id, "scene"), snap.scene_json)
+        if snap.frames_json is not None:
+            pipe.set(self.k("job", meta.id, "frames"), snap.frames_json)
         pipe.hset(self.k("job", meta.id, "tile_state"),
                   mapping={str(t): snap.tile_states.get(t, "queued")
                            for t in range(plan.n_tiles)})
@@ -567,7 +585,8 @@ class JobStore:
         meta = self.get_job(job_id)
         if meta is None:
             return False
-        keys = [self.k("job", job_id, "scene"), *self.tile_keys(job_id, meta.plan.n_tiles),
+        keys = [self.k("job", job_id, "scene"), self.k("job", job_id, "frames"),
+                *self.tile_keys(job_id, meta.plan.n_tiles),
                 *self.pending_passes_of(job_id)]
         return bool(self._delete(
             keys=[self.job_key(job_id), self.k("jobs"), self.k("finished"),
@@ -756,9 +775,10 @@ class JobStore:
         """The tile's merged buffer (``SampleBuffer.to_bytes``); None before its first merge."""
         return self.r.get(self.acc_key(job_id, tile))
 
-    def tile_buffers(self, job_id: str, n_tiles: int) -> list[bytes | None]:
+    def tile_buffers(self, job_id: str, n_tiles: int, first: int = 0) -> list[bytes | None]:
+        """The merged buffers of tiles ``first`` to ``first + n_tiles - 1``."""
         pipe = self.r.pipeline()
-        for t in range(n_tiles):
+        for t in range(first, first + n_tiles):
             pipe.get(self.acc_key(job_id, t))
         return pipe.execute()
 
