@@ -7,8 +7,8 @@ On this machine:
 
 On a farm (the code lives in ``services/`` and ``worker/``):
 
-    lucent up [--host 127.0.0.1] [--port 8000] [--workers N]
-    lucent worker --redis URL [--concurrency N] [--threads N]
+    lucent up [--host 127.0.0.1] [--port 8000] [--workers N] [--tags gpu,bigmem]
+    lucent worker --redis URL [--concurrency N] [--threads N] [--tags gpu,bigmem]
     lucent submit SCENE.json [--server URL] [--wait] [-o OUT.{exr,png,npy}]
     lucent demo [SCENE.json] [-o OUT ...]
 """
@@ -135,7 +135,8 @@ def cmd_up(args: argparse.Namespace) -> int:
     from services.launcher import LocalFarm
 
     farm = LocalFarm(args.host, args.port, args.workers, os.environ.get("REDIS_URL") or None,
-                     threads=args.threads, api_processes=args.api_processes)
+                     threads=args.threads, api_processes=args.api_processes,
+                     tags=args.tags)
     try:
         farm.start(serve_in_thread=False)
         print(f"Lucent farm at {farm.url} (API docs {farm.url}/docs); Redis {farm.redis_url}"
@@ -154,7 +155,8 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
     from services.launcher import worker_command, worker_env
 
-    env = worker_env(args.redis, args.threads)
+    env = worker_env(args.redis, args.threads,
+                     {"LUCENT_WORKER_TAGS": ",".join(args.tags)} if args.tags else None)
     cmd = worker_command(args.concurrency, args.name, args.loglevel)
     os.execvpe(cmd[0], cmd, env)
     return 0  # not reached
@@ -168,6 +170,13 @@ def cmd_submit(args: argparse.Namespace) -> int:
                                  ("spp_per_pass", args.spp_per_pass),
                                  ("max_spp_per_pass", args.max_spp_per_pass),
                                  ("priority", args.priority)) if v is not None}
+    if args.tags:
+        options["tags"] = list(args.tags)
+    frames = _frames(args)
+    if isinstance(frames, int):
+        return frames
+    if frames is not None:
+        options["frames"] = frames
     return submit_and_wait(args.scene, args.server, token=os.environ.get("LUCENT_API_TOKEN"),
                            wait=args.wait, outputs=[args.output] if args.output else [],
                            quiet=args.quiet,
@@ -191,6 +200,46 @@ def cmd_demo(args: argparse.Namespace) -> int:
         print(f"Lucent farm at {farm.url} with {farm.workers} worker processes", file=sys.stderr)
         return submit_and_wait(args.scene, farm.url, wait=True, outputs=outputs,
                                quiet=args.quiet)
+
+
+def _frames(args: argparse.Namespace) -> list | int | None:
+    """``--sweep PATH=V1,V2,...`` or ``--frames patches.json`` as the job's ``frames``; an exit
+    code when they cannot be read."""
+    import json
+
+    from services.client import sweep_values
+    from services.farm.frames import sweep_patches
+
+    if args.sweep and args.frames:
+        print("give --sweep or --frames, not both", file=sys.stderr)
+        return 2
+    if args.sweep:
+        field, eq, values = args.sweep.partition("=")
+        if not eq or not field:
+            print("--sweep is PATH=V1,V2,... (e.g. materials.wax.density=1,2,4,8)",
+                  file=sys.stderr)
+            return 2
+        return sweep_patches(field, sweep_values(values))
+    if args.frames:
+        try:
+            return json.loads(Path(args.frames).read_text())
+        except (OSError, ValueError) as err:
+            print(f"{args.frames}: {err}", file=sys.stderr)
+            return 1
+    return None
+
+
+def _tags(text: str) -> tuple[str, ...]:
+    """``--tags gpu,bigmem``, checked as the settings check ``LUCENT_WORKER_TAGS``."""
+    from services.farm.pools import MAX_WORKER_TAGS, parse_tags
+
+    try:
+        tags = parse_tags(text)
+    except ValueError as err:
+        raise argparse.ArgumentTypeError(str(err)) from None
+    if len(tags) > MAX_WORKER_TAGS:
+        raise argparse.ArgumentTypeError(f"at most {MAX_WORKER_TAGS} tags")
+    return tags
 
 
 def build_parser() -> argparse.ArgumentParser:
@@ -222,6 +271,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--workers", type=int, default=None,
                    help="worker processes (default: one per core, measured fastest)")
     p.add_argument("--threads", type=int, default=1, help="numba threads per worker process")
+    p.add_argument("--tags", type=_tags, default=None,
+                   help="the worker node's pool tags, comma-separated (default: "
+                        "LUCENT_WORKER_TAGS): it also takes the jobs that require them")
     p.add_argument("--api-processes", type=int, default=API_PROCESSES,
                    help=f"processes serving the API (default {API_PROCESSES}; 1 serves it in "
                         "this process): the status polls one process answers are bounded by "
@@ -235,6 +287,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--threads", type=int, default=1, help="numba threads per worker process")
     p.add_argument("--name", help="Celery node name (default celery@HOST)")
     p.add_argument("--loglevel", default="INFO", help="Celery log level (default INFO)")
+    p.add_argument("--tags", type=_tags, default=None,
+                   help="pool tags, comma-separated, e.g. gpu,bigmem (default: "
+                        "LUCENT_WORKER_TAGS): the node takes untagged jobs and those whose "
+                        "tags it has all of")
     p.set_defaults(func=cmd_worker)
 
     p = sub.add_parser("submit", help="submit a scene to a farm")
@@ -250,6 +306,14 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--max-spp-per-pass", type=int,
                    help="the largest pass: passes double the samples so far up to it (default 64)")
     p.add_argument("--priority", type=int, help="0-9, 9 runs first (default 0)")
+    p.add_argument("--sweep", metavar="PATH=V1,V2,...",
+                   help="one frame a value of a scene field, e.g. materials.wax.density=1,2,4,8 "
+                        "(-o then writes OUT_0000.png, OUT_0001.png, ...)")
+    p.add_argument("--frames", metavar="PATCHES.json",
+                   help="a JSON list of RFC 6902 JSON Patches, one a frame")
+    p.add_argument("--tags", type=_tags, default=None,
+                   help="worker tags the job requires, comma-separated (only nodes with all "
+                        "of them render it)")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_submit)
 

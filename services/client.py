@@ -140,8 +140,10 @@ class Client:
         r.raise_for_status()
         return r.json()
 
-    def image(self, job_id: str, fmt: str) -> bytes:
-        r = self._request("GET", f"/api/jobs/{job_id}/image.{fmt}")
+    def image(self, job_id: str, fmt: str, frame: int | None = None) -> bytes:
+        """The job's image, or with ``frame`` that frame's (a job of frames)."""
+        where = f"frames/{frame}/" if frame is not None else ""
+        r = self._request("GET", f"/api/jobs/{job_id}/{where}image.{fmt}")
         r.raise_for_status()
         return r.content
 
@@ -220,10 +222,31 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
     print(f"job {job['id']} done in {time.perf_counter() - t0:.1f} s"
           + (f"; {job['dropped_samples']} non-finite samples dropped"
              if job["dropped_samples"] else ""), file=sys.stderr)
+    frames = job.get("frames", 1)
     for output in outputs:
-        out = Path(output)
-        out.parent.mkdir(parents=True, exist_ok=True)
-        out.write_bytes(client.image(job["id"], IMAGE_TYPES[out.suffix.lower()]))
-        print(f"wrote {out}", file=sys.stderr)
+        for frame in range(frames):
+            # a job of frames: one numbered file a frame, out.png -> out_0000.png, out_0001.png
+            out = numbered(Path(output), frame) if frames > 1 else Path(output)
+            out.parent.mkdir(parents=True, exist_ok=True)
+            out.write_bytes(client.image(job["id"], IMAGE_TYPES[out.suffix.lower()],
+                                         frame if frames > 1 else None))
+            print(f"wrote {out}", file=sys.stderr)
     print(job["id"])
     return 0
+
+
+def numbered(path: Path, frame: int) -> Path:
+    """``out.png`` -> ``out_0003.png`` for frame 3."""
+    return path.with_name(f"{path.stem}_{frame:04d}{path.suffix}")
+
+
+def sweep_values(text: str) -> list[Any]:
+    """``1,2,4,8`` -> numbers; ``[1,0,0],[0,1,0]`` -> lists; ``diffusion,volumetric`` (not JSON)
+    -> strings."""
+    try:
+        values = json.loads(f"[{text}]")
+    except ValueError:
+        values = [v.strip() for v in text.split(",")]
+    if not values:
+        raise ValueError("a sweep needs at least one value")
+    return values

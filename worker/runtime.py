@@ -24,6 +24,10 @@ from services.farm.store import JobStore
 
 log = logging.getLogger(__name__)
 
+# This worker node's Celery name (``n0@host``), set in the node's main process before the pool
+# forks (``worker.tasks``, ``worker_init``): the unit the blocklist counts failures of.
+NODE = ""
+
 # A scene small enough to render in milliseconds that still runs every kernel the tile renderer
 # calls (a quad light over a diffuse sphere), to load numba's cached machine code before the
 # first real task.
@@ -128,7 +132,7 @@ class WorkerState:
             self._store = JobStore.from_url(self.settings.redis_url, self.settings.key_prefix)
         return self._store
 
-    # --- compiled scenes (LRU by job id) --------------------------------------------------------
+    # --- compiled scenes (LRU by job id, or ``job/frame`` for a job of frames) ---------------
     def cached(self, job_id: str):
         """The job's ``CompiledScene`` if this process has compiled it, else None (a job's scene
         never changes, so a cached one needs no fetch of the scene from Redis: for a scene with
@@ -183,6 +187,8 @@ class WorkerState:
                 "tiles_done": self.tiles_done,
                 "paths_per_second": self.paths / self.render_seconds if self.render_seconds else 0,
                 "started_at": self.started,
+                "node": NODE,
+                "tags": ",".join(self.settings.worker_tags),
             }
         self.store.heartbeat(self.worker_id, fields, ttl=3 * self.settings.heartbeat_interval)
 

@@ -18,8 +18,19 @@ from celery import signals
 from celery.exceptions import Reject, SoftTimeLimitExceeded
 
 from renderer.film.buffer import SampleBuffer
-from services.farm.passes import begin_pass, converged, deliver, end_pass, pass_failed
+from services.farm.blocklist import HAND_BACK_PAUSE
+from services.farm.frames import PatchError, apply_patch
+from services.farm.passes import (
+    Delivery,
+    HandBack,
+    begin_pass,
+    converged,
+    deliver,
+    end_pass,
+    pass_failed,
+)
 from services.farm.planner import celery_priority
+from services.farm.pools import queue_for
 from services.farm.settings import get_settings
 from worker import runtime
 from worker.celery_app import app
@@ -28,8 +39,10 @@ log = logging.getLogger(__name__)
 
 
 @signals.worker_init.connect
-def _init_worker(**_: object) -> None:
-    """In the worker node's main process, before the pool forks: fill a cold kernel cache once."""
+def _init_worker(sender: object = None, **_: object) -> None:
+    """In the worker node's main process, before the pool forks: its name (the pool processes
+    inherit it), and a cold kernel cache filled once."""
+    runtime.NODE = str(getattr(sender, "hostname", "") or "")
     if not get_settings().prewarm:
         return
     seconds = runtime.prewarm_cache()
@@ -80,22 +93,33 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
     store = state.store
     settings = state.settings
 
-    delivery = begin_pass(store, settings, job_id, tile, pass_index, holder=state.worker_id)
+    node = runtime.NODE or state.worker_id
+    delivery = begin_pass(store, settings, job_id, tile, pass_index, holder=state.worker_id,
+                          node=node)
     try:
         if isinstance(delivery, str):
             return delivery
+        if isinstance(delivery, HandBack):
+            # Blocklisted for this job: the pass goes back to the job's queue for another node,
+            # and this process waits a moment before it takes a message again
+            render_pass.apply_async((job_id, tile, pass_index),
+                                    priority=celery_priority(delivery.meta.priority),
+                                    queue=queue_for(delivery.meta.tags))
+            time.sleep(HAND_BACK_PAUSE)
+            return "handed back (blocklisted)"
         state.set_task(f"{job_id}/{tile}/{pass_index}")
         return _render_and_merge(state, delivery.meta, tile, pass_index, t_task)
     except REDIS_DOWN:
         raise  # not the pass's fault: no try is spent on recording it
     except Exception as err:  # every other failure is recorded on the tile
-        assert not isinstance(delivery, str)
+        assert isinstance(delivery, Delivery)
         reason = ("timed out" if isinstance(err, SoftTimeLimitExceeded)
                   else f"{type(err).__name__}: {err}")
-        if not pass_failed(store, settings, delivery, tile, pass_index, reason):
+        if not pass_failed(store, settings, delivery, tile, pass_index, reason, node):
             return "failed"
         render_pass.apply_async((job_id, tile, pass_index), countdown=1.0,
-                                priority=celery_priority(delivery.meta.priority))
+                                priority=celery_priority(delivery.meta.priority),
+                                queue=queue_for(delivery.meta.tags))
         return "retrying"
     finally:
         state.set_task("")
@@ -112,14 +136,23 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
 
     store = state.store
     job_id = meta.id
-    compiled = state.cached(job_id)
+    # A job of frames: the frame's scene is the job's with the frame's patch applied, compiled
+    # once per process and frame
+    frame = meta.plan.frame_of(tile)
+    key = job_id if meta.plan.frames == 1 else f"{job_id}/{frame}"
+    compiled = state.cached(key)
     try:
         if compiled is None:
             scene_json = store.get_scene(job_id)
             if scene_json is None:
                 return "skipped: no scene"
-            compiled = state.compiled(job_id, scene_json)
-    except (SceneError, CompileError) as err:
+            if meta.plan.frames > 1:
+                patches = store.get_frames(job_id)
+                if patches is None:
+                    return "skipped: no frames"
+                scene_json = apply_patch(scene_json, patches[frame])
+            compiled = state.compiled(key, scene_json)
+    except (SceneError, CompileError, PatchError) as err:
         # Not renderable, whichever tile asks: fail the job with the reason, keep the worker.
         store.fail_job(job_id, str(err))
         return "failed"

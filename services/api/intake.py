@@ -95,13 +95,15 @@ def read_submission(body: bytes, content_type: str | None, limits: Limits,
         return Rejection(status.HTTP_422_UNPROCESSABLE_CONTENT, error_content(
             {**e, "loc": ("body", *e["loc"])} for e in err.errors(include_url=False)))
     # The scene
-    checked = check_scene(create.scene, limits, blob_root)
+    checked = check_scene(create.scene, limits, blob_root, create.frames)
     if isinstance(checked, Refusal):
         return Rejection(checked.status, error_content(
             {"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in checked.errors))
     options = JobOptions(name=create.name, priority=create.priority, tile_size=create.tile_size,
                          spp_per_pass=create.spp_per_pass,
-                         max_spp_per_pass=create.max_spp_per_pass)
+                         max_spp_per_pass=create.max_spp_per_pass,
+                         tags=tuple(sorted(set(create.tags))),
+                         check_workers=create.check_workers)
     return Submission(options, checked)
 
 

@@ -4,13 +4,17 @@ from __future__ import annotations
 
 from typing import Annotated, Any, Literal
 
-from pydantic import BaseModel, ConfigDict, Field, Strict
+from pydantic import AfterValidator, BaseModel, ConfigDict, Field, Strict
+
+from services.farm.pools import MAX_JOB_TAGS, check_tag
 
 JobStatus = Literal["queued", "running", "done", "failed", "cancelled"]
 
 # As in the scene (renderer/scene/schema.py): a JSON string ("32") or a float (32.0) is not an
 # integer.
 StrictInt = Annotated[int, Strict()]
+StrictBool = Annotated[bool, Strict()]
+Tag = Annotated[str, Field(max_length=32), AfterValidator(check_tag)]
 
 
 class JobCreate(BaseModel):
@@ -29,10 +33,26 @@ class JobCreate(BaseModel):
         description="the largest pass: passes grow from spp_per_pass, each as many samples as "
                     "all before it, up to this (default 64; equal to spp_per_pass: equal passes)")
     priority: StrictInt = Field(default=0, ge=0, le=9, description="9 runs first")
+    tags: list[Tag] = Field(default_factory=list, max_length=MAX_JOB_TAGS,
+                            description="worker tags the job requires: only worker nodes with "
+                                        "all of them (LUCENT_WORKER_TAGS) render it")
+    frames: list[list[dict[str, Any]]] | None = Field(
+        default=None, min_length=1, max_length=10_000,
+        description="frame i is the scene with the i-th JSON Patch (RFC 6902) applied: a camera "
+                    "path, a moving object, a sweep; every frame keeps the film size and spp")
+    check_workers: StrictBool = Field(
+        default=False, description="refuse the job (409) when no live worker has its tags; "
+                                   "otherwise it waits for one")
+
+
+class FramePublic(BaseModel):
+    index: int
+    progress: float = Field(description="samples merged / planned of this frame, 0–1")
 
 
 class TilePublic(BaseModel):
     index: int
+    frame: int = 0
     x0: int
     y0: int
     width: int
@@ -56,7 +76,8 @@ class JobPublic(BaseModel):
     passes: int = Field(description="passes per tile")
     largest_pass: int = Field(description="samples of the job's largest pass (at most "
                                           "max_spp_per_pass)")
-    tiles: int
+    tiles: int = Field(description="tiles of the whole job (tiles_per_frame x frames)")
+    frames: int = 1
     tasks_total: int
     tasks_merged: int
     samples_planned: int
@@ -74,11 +95,20 @@ class JobPublic(BaseModel):
                                     description="for translucent 'auto': the method chosen")
     submitter: str | None = Field(default=None, description="the name of the API token it was "
                                                             "submitted with (LUCENT_API_TOKENS)")
+    tags: list[str] = Field(default_factory=list, description="worker tags it requires")
+    waiting_for: str | None = Field(
+        default=None, description="queued or running with no live worker that has its tags: "
+                                  "'waiting for a worker with tags gpu'")
 
 
 class JobDetail(JobPublic):
+    frame_progress: list[FramePublic] = Field(default_factory=list)
     tile_states: list[TilePublic]
     errors: list[str]
+    blocklist: dict[str, int] = Field(
+        default_factory=dict, description="worker nodes that get none of this job's passes any "
+                                          "more -> its passes that failed on each "
+                                          "(LUCENT_BLOCKLIST_THRESHOLD)")
 
 
 class JobsPublic(BaseModel):
@@ -97,6 +127,10 @@ class WorkerPublic(BaseModel):
     tiles_done: int = 0
     paths_per_second: float = 0.0
     last_heartbeat: float | None = None
+    node: str | None = Field(default=None, description="its Celery worker node (the blocklist's "
+                                                       "unit)")
+    tags: list[str] = Field(default_factory=list, description="its node's tags "
+                                                              "(LUCENT_WORKER_TAGS)")
 
 
 class WorkersPublic(BaseModel):

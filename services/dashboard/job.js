@@ -155,6 +155,11 @@ export function renderJob(view, jobId) {
   function renderErrors() {
     const items = [];
     if (job.error) items.push(h("li", { class: "job-error" }, h("b", {}, "Job failed: "), job.error));
+    if (job.waiting_for) items.push(h("li", { class: "job-waiting" }, job.waiting_for));
+    for (const [node, n] of Object.entries(job.blocklist || {})) {
+      items.push(h("li", { class: "blocklisted", dataset: { node } },
+        h("b", {}, "Blocklisted: "), `${node} (${n} failed passes): it gets none of this job's passes`));
+    }
     for (const t of job.tile_states.filter((x) => x.error)) {
       items.push(h("li", { class: "tile-error", dataset: { tile: t.index } },
         h("b", {}, `Tile ${t.index} (${t.state}): `), t.error));

@@ -8,7 +8,8 @@ export function renderWorkers(view) {
   const summary = h("span", { class: "muted", id: "workers-summary" });
   const tbody = h("tbody");
   const table = h("table", { class: "workers cards", id: "workers-table" },
-    h("thead", {}, h("tr", {}, h("th", {}, "Worker"), h("th", {}, "Host"), h("th", {}, "State"),
+    h("thead", {}, h("tr", {}, h("th", {}, "Worker"), h("th", {}, "Host"), h("th", {}, "Tags"),
+      h("th", {}, "State"),
       h("th", {}, "Current tile"), h("th", { class: "num" }, "Tiles done"),
       h("th", { class: "num" }, "Paths/s"), h("th", { class: "num" }, "Last heartbeat"))),
     tbody);
@@ -37,6 +38,9 @@ export function renderWorkers(view) {
       return h("tr", { dataset: { id: w.id, state } },
         h("td", { "data-label": "Worker" }, h("code", {}, w.id)),
         h("td", { "data-label": "Host" }, w.host || "–"),
+        h("td", { "data-label": "Tags", class: "tags" },
+          ...(w.tags && w.tags.length ? w.tags.map((t) => h("span", { class: "tag" }, t))
+            : ["–"])),
         h("td", { "data-label": "State", class: "state" },
           h("span", { class: `badge w-${state}` }, state)),
         h("td", { "data-label": "Current tile" }, state === "lost" ? "–" : currentTile(w.current_task)),

@@ -79,20 +79,34 @@ def archive_job(store: JobStore, records: Records, blobs: BlobStore, job_id: str
     if meta is None or assembled is None:
         store.forget_archive(job_id)  # gone or retried: only takes it off the list to archive
         return False
-    image = assembled[0].mean()
-    data = {"exr": encode_image(image, "exr"), "png": encode_image(image, "png")}
-    images = {fmt: put_content(blobs, b) for fmt, b in data.items()}
+    # Each frame's image (a job of frames: the first is the job's image, the record's
+    # ``tiles`` lists them all)
+    frames_data = []
+    for f in range(meta.plan.frames):
+        frame = assembled if f == 0 else assemble(store, job_id, f)
+        if frame is None:  # deleted meanwhile
+            store.forget_archive(job_id)
+            return False
+        image = frame[0].mean()
+        frames_data.append({"exr": encode_image(image, "exr"), "png": encode_image(image, "png")})
+    frame_images = [{fmt: put_content(blobs, b) for fmt, b in data.items()}
+                    for data in frames_data]
+    images = frame_images[0]
     tiles = store.tiles_final(job_id, meta.plan.n_tiles)
-    if not records.archive(meta, images, tiles, sum(map(len, data.values()))):  # deleted
-        for key in images.values():  # written for nothing, unless another job's image
-            if not records.blob_in_use(key):
+    if meta.plan.frames > 1:
+        tiles["frame_images"] = frame_images
+    size = sum(len(b) for data in frames_data for b in data.values())
+    if not records.archive(meta, images, tiles, size):  # deleted
+        for key in {k for fi in frame_images for k in fi.values()}:
+            if not records.blob_in_use(key):  # written for nothing, unless another job's
                 blobs.delete(key)
         store.forget_archive(job_id)
         return False
     # A job with the same image deleted between our write and our record removed the blob
-    for fmt, key in images.items():
-        if not blobs.exists(key):
-            blobs.put(key, data[fmt])
+    for data, keys in zip(frames_data, frame_images, strict=True):
+        for fmt, key in keys.items():
+            if not blobs.exists(key):
+                blobs.put(key, data[fmt])
     store.delete_job(job_id, ("done",))
     return True
 
@@ -161,7 +175,8 @@ def unpark_job(store: JobStore, records: Records, blobs: BlobStore, meta: JobMet
     return True
 
 
-def assemble_parked(blobs: BlobStore, meta: JobMeta) -> tuple[SampleBuffer, int] | None:
+def assemble_parked(blobs: BlobStore, meta: JobMeta,
+                    frame_index: int = 0) -> tuple[SampleBuffer, int] | None:
     """A parked job's frame as it stood when it was parked, and its ``version``."""
     data = blobs.get(meta.parked) if meta.parked else None
     if data is None:
@@ -169,7 +184,8 @@ def assemble_parked(blobs: BlobStore, meta: JobMeta) -> tuple[SampleBuffer, int]
     snap = JobSnapshot.from_bytes(data)
     plan = snap.meta.plan
     frame = SampleBuffer.empty(0, 0, plan.width, plan.height)
-    for buf in snap.tile_buffers:
+    for buf in snap.tile_buffers[frame_index * plan.tiles_per_frame:
+                                 (frame_index + 1) * plan.tiles_per_frame]:
         if buf is not None:
             frame.add(SampleBuffer.from_bytes(buf))
     return frame, snap.meta.version
@@ -196,14 +212,15 @@ def keep_records(store: JobStore, records: Records, now: float | None = None,
 
 
 def final_image(blobs: BlobStore, meta: JobMeta, fmt: str, exposure: float,
-                tonemap: str) -> bytes | None:
-    """An archived job's image as ``encode_image`` makes it, from the blob store; None when the
-    job is not archived (its image is in Redis) or its blob is missing."""
+                tonemap: str, frame: int = 0) -> bytes | None:
+    """An archived job's image (of frame ``frame``) as ``encode_image`` makes it, from the blob
+    store; None when the job is not archived (its image is in Redis) or its blob is missing."""
     if not meta.images:
         return None
+    images = meta.tiles_final.get("frame_images", [meta.images])[frame] if frame else meta.images
     if fmt == "png" and exposure == DEFAULT_EXPOSURE and tonemap == DEFAULT_TONEMAP:
-        return blobs.get(meta.images["png"])
-    exr = blobs.get(meta.images["exr"])
+        return blobs.get(images["png"])
+    exr = blobs.get(images["exr"])
     if exr is None:
         return None
     return exr if fmt == "exr" else encode_image(decode_exr(exr), fmt, exposure, tonemap)

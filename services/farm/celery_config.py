@@ -22,6 +22,9 @@
   ``QoS.append``) never comes back this way: the service's sweeper re-queues the unmerged passes
   of a job stalled for ``Settings.stall_timeout`` (``services.farm.merge.requeue_stalled``), which
   also brings back a dead node's passes before the visibility timeout.
+- Worker pools: a node consumes the default queue and, with ``LUCENT_WORKER_TAGS``, the queue of
+  every subset of its tags (``task_queues`` below; ``services.farm.pools``); a job's passes are
+  sent to the queue of its tags.
 - Priorities: Redis emulates them with one list per level; 0 is served first.
   ``services.farm.planner.celery_priority`` maps a job's priority 0–9 (9 most urgent) onto them.
 """
@@ -30,6 +33,9 @@ from __future__ import annotations
 
 from typing import Any
 
+from kombu import Exchange, Queue
+
+from services.farm.pools import DEFAULT_QUEUE, worker_queues
 from services.farm.settings import Settings, get_settings
 
 
@@ -47,6 +53,11 @@ def celery_config(settings: Settings) -> dict[str, Any]:
         },
         "task_soft_time_limit": settings.task_soft_time_limit,
         "task_time_limit": settings.task_time_limit,
+        # As Celery creates a missing queue (a direct exchange of the queue's name), so that a
+        # sender's queue and a worker's are the same
+        "task_queues": [Queue(name, Exchange(name, "direct"), routing_key=name)
+                        for name in worker_queues(settings.worker_tags)],
+        "task_default_queue": DEFAULT_QUEUE,
     }
 
 
@@ -55,6 +66,8 @@ broker_url = _conf["broker_url"]
 broker_transport_options = _conf["broker_transport_options"]
 task_soft_time_limit = _conf["task_soft_time_limit"]
 task_time_limit = _conf["task_time_limit"]
+task_queues = _conf["task_queues"]
+task_default_queue = _conf["task_default_queue"]
 
 broker_connection_retry_on_startup = True
 

@@ -40,8 +40,8 @@ class CostError:
 
 
 def job_samples(plan: Plan) -> int:
-    """The pixel-samples (camera paths) of a job."""
-    return plan.width * plan.height * plan.spp
+    """The pixel-samples (camera paths) of a job, every frame's."""
+    return plan.width * plan.height * plan.spp * plan.frames
 
 
 def queued_samples(store: JobStore) -> int:
@@ -60,7 +60,8 @@ def check_cost(plan: Plan, store: JobStore, settings: Settings) -> CostError | N
     if samples > settings.max_samples_per_job:
         return CostError(
             422, (("body", "scene", "render", "spp"), ("body", "scene", "film")),
-            f"{plan.width} x {plan.height} pixels x {plan.spp} spp = {samples} pixel-samples "
+            f"{plan.width} x {plan.height} pixels x {plan.spp} spp"
+            f"{f' x {plan.frames} frames' if plan.frames > 1 else ''} = {samples} pixel-samples "
             f"exceed the limit {settings.max_samples_per_job} per job "
             "(LUCENT_MAX_SAMPLES_PER_JOB): lower spp or the film size")
     backlog = queued_samples(store)

@@ -30,7 +30,9 @@ from renderer.materials.auto import auto_choices
 from renderer.scene import Limits, SceneError, load_scene
 from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
+from services.farm.frames import PatchError, apply_patch
 from services.farm.planner import Plan
+from services.farm.pools import live_tag_sets, waiting_for
 from services.farm.queue import enqueue
 from services.farm.records import Records, RecordsUnavailable
 from services.farm.settings import Settings
@@ -69,6 +71,8 @@ class JobOptions:
     tile_size: int | None = None
     spp_per_pass: int | None = None
     max_spp_per_pass: int | None = None
+    tags: tuple[str, ...] = ()  # worker tags the job requires (services.farm.pools)
+    check_workers: bool = False  # refuse (409) when no live worker has the tags
 
 
 @dataclass(frozen=True)
@@ -80,24 +84,53 @@ class CheckedScene:
     spp: int
     methods: dict[str, str]  # what ``auto`` picks for each material, and why
     scene_json: bytes  # the scene as submitted, as the store keeps it (workers re-fetch it)
+    frames_json: bytes | None = None  # a job of frames: their JSON Patches
+    n_frames: int = 1
 
 
-def check_scene(scene: Any, limits: Limits,
-                blob_root: str | None = None) -> CheckedScene | Refusal:
+def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
+                frames: list | None = None) -> CheckedScene | Refusal:
     """Validate a scene document with ``limits`` (the farm's, read where the request came in).
     Its asset references (``{"asset": "sha256:…"}``) are read from the blob store in
     ``blob_root`` (a folder or ``s3://bucket/prefix``): an unknown one is refused by its field;
-    without a blob store, every one is."""
+    without a blob store, every one is. With ``frames`` (JSON Patches), every frame's scene is
+    validated the same way, and must keep the film size and spp: an error names the frame and
+    the operation (``["body", "frames", 2, 0, "path"]``) or the frame's scene field
+    (``["body", "frames", 2, "scene", "render", "spp"]``)."""
     assets = asset_reader(open_blob_store(blob_root)) if blob_root is not None else None
     try:
         parsed = load_scene(scene, limits=limits, assets=assets)  # mesh paths are refused
     except SceneError as err:
         return Refusal(422, [(scene_loc(p), m, "scene") for p, m in err.errors])
+    errors: list[tuple[Loc, str, str]] = []
+    for i, patch in enumerate(frames or []):
+        try:
+            frame = apply_patch(scene, patch)
+        except PatchError as err:
+            loc: Loc = ["body", "frames", i] + ([err.index] if err.index >= 0 else []) + \
+                ([err.field] if err.field else [])
+            errors.append((loc, f"frame {i}: operation {err.index}: {err.message}", "patch"))
+            continue
+        try:
+            fp = load_scene(frame, limits=limits, assets=assets)
+        except SceneError as err:
+            errors += [(["body", "frames", i, *scene_loc(p)[1:]], f"frame {i}: {m}", "scene")
+                       for p, m in err.errors]
+            continue
+        if (fp.film.width, fp.film.height, fp.render.spp) != \
+                (parsed.film.width, parsed.film.height, parsed.render.spp):
+            errors.append((["body", "frames", i], f"frame {i}: a frame keeps the scene's film "
+                           f"size and spp ({parsed.film.width}x{parsed.film.height}, "
+                           f"{parsed.render.spp} spp)", "patch"))
+    if errors:
+        return Refusal(422, errors)
     # What `auto` picks for each material (the workers compile the same choice)
     methods = {name: f"{c.method}: {c.reason}, expected relMSE {c.expected_error:.3g}"
                for name, c in auto_choices(parsed).items()}
     return CheckedScene(parsed.film.width, parsed.film.height, parsed.render.spp, methods,
-                        json.dumps(scene).encode())
+                        json.dumps(scene).encode(),
+                        json.dumps(frames).encode() if frames else None,
+                        len(frames) if frames else 1)
 
 
 def queue_job(store: JobStore, records: Records, celery: Celery, settings: Settings,
@@ -112,9 +145,10 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
                               f"the largest pass ({largest}) is smaller than the first "
                               f"(spp_per_pass {first})", "value_error")])
     plan = Plan(scene.width, scene.height, scene.spp,
-                options.tile_size or settings.default_tile_size, first, largest)
+                options.tile_size or settings.default_tile_size, first, largest, scene.n_frames)
     if plan.n_tasks > settings.max_tasks_per_job:
-        msg = (f"{plan.n_tiles} tiles x {plan.n_passes} passes = {plan.n_tasks} tasks exceed the "
+        msg = (f"{plan.n_tiles} tiles{f' ({plan.frames} frames)' if plan.frames > 1 else ''} x "
+               f"{plan.n_passes} passes = {plan.n_tasks} tasks exceed the "
                f"limit {settings.max_tasks_per_job} (LUCENT_MAX_TASKS_PER_JOB): use larger tiles "
                "or passes")
         return Refusal(422, [(["body", "tile_size"], msg, "limit"),
@@ -126,20 +160,27 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
         return Refusal(refused.status,
                        [(list(loc), refused.msg, "limit") for loc in refused.locs],
                        {"Retry-After": "60"} if refused.status == 429 else None)
+    if options.check_workers:
+        waiting = waiting_for(options.tags, live_tag_sets(store.workers()))
+        if waiting is not None:
+            return Refusal(409, [(["body", "tags"], f"no live worker has the tags "
+                                  f"{','.join(options.tags)} (LUCENT_WORKER_TAGS); without "
+                                  "check_workers the job would wait for one", "workers")])
     job_id = uuid.uuid4().hex  # store.JOB_ID's form
     # The record first: with the database away, nothing is queued (503) and the job is not run
     # unrecorded; with Redis away after it, the record goes again (the sweeper would fail it).
     created = JobMeta.new(job_id, options.name, options.priority, plan, scene.methods,
-                          time.time(), submitter)
+                          time.time(), submitter, options.tags)
     records.create(created)
     try:
         meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
-                                scene.methods, created.created_at, submitter)
+                                scene.methods, created.created_at, submitter, options.tags,
+                                scene.frames_json)
     except Exception:
         with contextlib.suppress(RecordsUnavailable):
             records.delete(job_id)
         raise
-    enqueue(celery, job_id, plan.order(), options.priority)
+    enqueue(celery, job_id, plan.order(), options.priority, options.tags)
     return meta
 
 
@@ -149,6 +190,6 @@ def retry_job(store: JobStore, celery: Celery, meta: JobMeta) -> str | None:
     if meta.status not in ("failed", "cancelled"):
         return f"job {meta.id} is {meta.status}: only failed or cancelled jobs can be retried"
     todo = store.reopen_job(meta.id)
-    enqueue(celery, meta.id, todo, meta.priority)
+    enqueue(celery, meta.id, todo, meta.priority, meta.tags)
     store.finish_if_complete(meta.id)  # nothing was left to render
     return None

@@ -47,7 +47,7 @@ def requeue_lost(store: JobStore, celery: Celery) -> list[tuple[str, int, int]]:
             continue
         if store.attempts(job_id, tile, pass_index) != attempt:
             continue  # delivered again since (the message put back when its process died)
-        enqueue(celery, job_id, [(tile, pass_index)], meta.priority)
+        enqueue(celery, job_id, [(tile, pass_index)], meta.priority, meta.tags)
         store.count(lost_requeues=1)
         log.warning("worker %s lost (heartbeat expired) while rendering job %s tile %d pass %d "
                     "(try %d): sent again", worker_id, job_id, tile, pass_index, attempt)

@@ -79,10 +79,10 @@ def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
     clock = store.stall_clock(job_id)
     if clock is None:
         return []
-    priority, since = clock
+    priority, since, tags = clock
     if now - since < rule.timeout:
         return []  # the cheap test first: the queue is looked at only for idle jobs
-    if waiting_ahead(rule.celery, store, priority):
+    if waiting_ahead(rule.celery, store, priority, tags):
         return []
     stalls = store.claim_stall(job_id, rule.timeout, now)
     if not stalls:
@@ -95,7 +95,7 @@ def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
     if meta is None:
         return []
     todo = store.unmerged(job_id, meta.plan)
-    enqueue(rule.celery, job_id, todo, priority)
+    enqueue(rule.celery, job_id, todo, priority, tags)
     store.count(stall_requeues=1, passes_requeued=len(todo))
     log.warning("job %s stalled for %.0f s (%d in a row): %d unmerged passes sent again",
                 job_id, now - since, stalls, len(todo))
@@ -165,14 +165,17 @@ class Sweeper:
             self._thread.join(timeout=10)
 
 
-def assemble(store: JobStore, job_id: str) -> tuple[SampleBuffer, int] | None:
-    """The frame's merged ``SampleBuffer`` as it stands, and the ``version`` it shows."""
+def assemble(store: JobStore, job_id: str, frame_index: int = 0
+             ) -> tuple[SampleBuffer, int] | None:
+    """A frame's merged ``SampleBuffer`` as it stands (the first, or the only one), and the
+    ``version`` it shows; None for an unknown job or frame."""
     meta = store.get_job(job_id)
-    if meta is None:
+    if meta is None or not 0 <= frame_index < meta.plan.frames:
         return None
     plan = meta.plan
     frame = SampleBuffer.empty(0, 0, plan.width, plan.height)
-    for data in store.tile_buffers(job_id, plan.n_tiles):
+    first = frame_index * plan.tiles_per_frame
+    for data in store.tile_buffers(job_id, plan.tiles_per_frame, first):
         if data is not None:
             frame.add(SampleBuffer.from_bytes(data))
     return frame, meta.version

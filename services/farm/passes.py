@@ -8,6 +8,8 @@ the rules are here, beside the store they read and write.
   past ``max_attempts`` fails its tile.
 - ``pass_failed``: a failed try is noted on the tile and tried again, or past ``max_attempts``
   fails the tile.
+- a delivery to a node blocklisted for the job is handed back (``services.farm.blocklist``), and a
+  failed try counts against its node as well as its pass.
 - ``deliver``: the buffer is stored under the pass's deterministic key and merged exactly once.
 """
 
@@ -17,6 +19,7 @@ from dataclasses import dataclass
 
 from renderer.film.adaptive import tile_converged
 from renderer.film.buffer import SampleBuffer
+from services.farm.blocklist import no_eligible_reason
 from services.farm.merge import merge_pass
 from services.farm.settings import Settings
 from services.farm.store import FINAL, JobMeta, JobStore
@@ -30,15 +33,29 @@ class Delivery:
     attempt: int
 
 
+@dataclass(frozen=True)
+class HandBack:
+    """A delivery to a node blocklisted for the job: send the pass again for another node."""
+
+    meta: JobMeta
+
+
 def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
-               pass_index: int, holder: str = "") -> Delivery | str:
-    """A ``Delivery`` to render, or what happened instead (``skipped: …``, ``duplicate``,
-    ``failed``), for the logs. ``holder``: the worker process, recorded as holding the pass
-    from the moment its delivery is counted until ``end_pass`` (a holder whose heartbeat expires
-    meanwhile has its pass sent again: ``services.farm.lost_workers``)."""
+               pass_index: int, holder: str = "", node: str = "") -> Delivery | HandBack | str:
+    """A ``Delivery`` to render, a ``HandBack``, or what happened instead (``skipped: …``,
+    ``duplicate``, ``failed``), for the logs. ``holder``: the worker process, recorded as holding
+    the pass from the moment its delivery is counted until ``end_pass`` (a holder whose heartbeat
+    expires meanwhile has its pass sent again: ``services.farm.lost_workers``). ``node``: its
+    worker node, the blocklist's unit."""
     meta = store.get_job(job_id)
     if meta is None or meta.status in FINAL:
         return f"skipped: {meta.status if meta else 'no such job'}"
+    if node and store.is_blocklisted(job_id, node):
+        reason = no_eligible_reason(store, meta, settings.blocklist_threshold)
+        if reason is not None:
+            store.fail_job(job_id, reason)
+            return "failed"
+        return HandBack(meta)
     # Not a pass of this job's plan (a message sent for another plan of the same id, by hand or
     # by an older service): nothing to render, and no reason to fail the job's tiles over it.
     if not (0 <= tile < meta.plan.n_tiles and 0 <= pass_index < meta.plan.n_passes):
@@ -66,10 +83,23 @@ def end_pass(store: JobStore, holder: str) -> None:
 
 
 def pass_failed(store: JobStore, settings: Settings, delivery: Delivery, tile: int,
-                pass_index: int, reason: str) -> bool:
-    """Record a try that raised; True if the pass is to be tried again, False if its tile
-    failed (the last try)."""
+                pass_index: int, reason: str, node: str = "") -> bool:
+    """Record a try that raised on ``node``; True if the pass is to be tried again, False if its
+    tile or job failed (the pass's last try; no eligible node left)."""
     job_id = delivery.meta.id
+    threshold = settings.blocklist_threshold
+    blocked = bool(node) and store.note_failure(job_id, node, threshold) >= threshold
+    why = no_eligible_reason(store, delivery.meta, threshold) if blocked else None
+    if blocked and why is None:
+        # The node's fault, not the pass's: the try is taken back, and another node renders it
+        store.forgive_attempt(job_id, tile, pass_index)
+        store.note_tile_error(job_id, tile, f"pass {pass_index} on {node}: {reason} (the node "
+                              f"is blocklisted for this job)")
+        return True
+    if delivery.attempt < settings.max_attempts and why is not None:
+        store.note_tile_error(job_id, tile, f"pass {pass_index} on {node}: {reason}")
+        store.fail_job(job_id, f"{why}; the last error: {reason}")
+        return False
     if delivery.attempt >= settings.max_attempts:
         store.fail_tile(job_id, tile, f"pass {pass_index}: {reason} "
                         f"(after {delivery.attempt} tries)")

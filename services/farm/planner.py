@@ -14,6 +14,12 @@ indices ``[start_p, start_p + count_p)`` of every pixel, so the passes of a tile
 
 The order: pass 0 of every tile first (a whole, coarse preview early), then pass 1 of every tile,
 ...; within a pass, tiles nearest the centre of the frame first (where the subject usually is).
+
+A job of ``frames`` frames (``services.farm.frames``) numbers its tiles across them: tile ``t``
+is tile ``t % tiles_per_frame`` of frame ``t // tiles_per_frame``, so that every per-tile key and
+rule of the store holds for frames unchanged. Its order interleaves tiles x passes x frames: pass
+0 of every tile of frame 0, then of frame 1, ..., then pass 1 of every frame: a coarse preview of
+every frame comes before any frame is refined.
 """
 
 from __future__ import annotations
@@ -31,6 +37,8 @@ class Plan:
     spp_per_pass: int
     max_spp_per_pass: int = 0
     """The largest pass; 0 or anything up to ``spp_per_pass``: every pass ``spp_per_pass``."""
+    frames: int = 1
+    """Frames of the job (each ``width x height``, the same spp)."""
 
     @property
     def pass_cap(self) -> int:
@@ -61,8 +69,20 @@ class Plan:
         return -(-self.height // self.tile_size)
 
     @property
-    def n_tiles(self) -> int:
+    def tiles_per_frame(self) -> int:
         return self.tiles_x * self.tiles_y
+
+    @property
+    def n_tiles(self) -> int:
+        """Tiles of the whole job, every frame's."""
+        return self.tiles_per_frame * self.frames
+
+    def frame_of(self, tile: int) -> int:
+        return tile // self.tiles_per_frame
+
+    def frame_tiles(self, frame: int) -> range:
+        """The job's tile numbers of one frame."""
+        return range(frame * self.tiles_per_frame, (frame + 1) * self.tiles_per_frame)
 
     @property
     def n_passes(self) -> int:
@@ -74,9 +94,11 @@ class Plan:
         return self.n_tiles * self.n_passes
 
     def tile_rect(self, tile: int) -> tuple[int, int, int, int]:
-        """``(x0, y0, width, height)`` of a tile; edge tiles are cut to the frame."""
+        """``(x0, y0, width, height)`` of a tile in its frame; edge tiles are cut to the
+        frame."""
         if not 0 <= tile < self.n_tiles:
             raise IndexError(f"tile {tile} out of range (0..{self.n_tiles - 1})")
+        tile %= self.tiles_per_frame
         x0 = (tile % self.tiles_x) * self.tile_size
         y0 = (tile // self.tiles_x) * self.tile_size
         return x0, y0, min(self.tile_size, self.width - x0), min(self.tile_size, self.height - y0)
@@ -88,19 +110,22 @@ class Plan:
         return self.passes[pass_index]
 
     def tiles_by_distance(self) -> list[int]:
-        """Tile indices, nearest the frame's centre first (ties in row-major order)."""
+        """Tile indices of a frame, nearest its centre first (ties in row-major order)."""
         cx, cy = self.width / 2.0, self.height / 2.0
 
         def distance_sq(tile: int) -> float:
             x0, y0, w, h = self.tile_rect(tile)
             return (x0 + w / 2.0 - cx) ** 2 + (y0 + h / 2.0 - cy) ** 2
 
-        return sorted(range(self.n_tiles), key=lambda t: (distance_sq(t), t))
+        return sorted(range(self.tiles_per_frame), key=lambda t: (distance_sq(t), t))
 
     def order(self) -> list[tuple[int, int]]:
-        """Every ``(tile, pass)`` in the order to enqueue them."""
+        """Every ``(tile, pass)`` in the order to enqueue them: passes, then frames, then tiles
+        nearest the centre first."""
         tiles = self.tiles_by_distance()
-        return [(t, p) for p in range(self.n_passes) for t in tiles]
+        per = self.tiles_per_frame
+        return [(f * per + t, p) for p in range(self.n_passes) for f in range(self.frames)
+                for t in tiles]
 
 
 def celery_priority(job_priority: int) -> int:

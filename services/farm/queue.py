@@ -6,6 +6,7 @@ from __future__ import annotations
 from celery import Celery
 
 from services.farm.planner import celery_priority
+from services.farm.pools import queue_for
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 
@@ -22,22 +23,25 @@ def celery_client(settings: Settings) -> Celery:
     return app
 
 
-def enqueue(app: Celery, job_id: str, tasks: list[tuple[int, int]], priority: int) -> None:
-    """Send ``render_pass(job_id, tile, pass)`` for each pair, in the given order."""
+def enqueue(app: Celery, job_id: str, tasks: list[tuple[int, int]], priority: int,
+            tags: tuple[str, ...] = ()) -> None:
+    """Send ``render_pass(job_id, tile, pass)`` for each pair, in the given order, to the queue
+    of the job's tags (``services.farm.pools``)."""
     level = celery_priority(priority)
+    queue = queue_for(tags)
     with app.producer_or_acquire() as producer:
         for tile, pass_index in tasks:
-            app.send_task(TASK, args=(job_id, tile, pass_index), priority=level,
+            app.send_task(TASK, args=(job_id, tile, pass_index), priority=level, queue=queue,
                           producer=producer)
 
 
-def waiting_ahead(app: Celery, store: JobStore, priority: int) -> int:
+def waiting_ahead(app: Celery, store: JobStore, priority: int, tags: tuple[str, ...] = ()) -> int:
     """Messages in Celery's queue that a worker takes before or along with the passes of a job of
     this priority: 0 means none of the job's passes is waiting in the queue (each is running,
     held by a worker, or lost). kombu keeps one Redis list per priority level (``celery``,
     ``celery:1``, ... ``celery:9``, with ``priority_steps`` 0..9 and ``sep`` ``:``) and serves
-    them in that order; a job's passes are all sent at its level."""
-    queue = app.conf.task_default_queue
+    them in that order; a job's passes are all sent at its level, to the queue of its tags."""
+    queue = queue_for(tags)
     sep = app.conf.broker_transport_options.get("sep", ":")
     return store.broker_messages([queue if level == 0 else f"{queue}{sep}{level}"
                                   for level in range(celery_priority(priority) + 1)])

@@ -25,6 +25,9 @@ timings                ``created_at``, ``started_at``, ``finished_at`` (Unix sec
 ``image_removed_at``   when the cap on stored images (``LUCENT_MAX_IMAGE_BYTES``) removed it
 ``state_blob``         a failed or cancelled job parked out of Redis: the blob of its tiles'
                        accumulations (``JobSnapshot``), what a retry goes on from
+``tags``               the worker tags it requires, comma-separated (``services.farm.pools``)
+``frames``             its frames (``services.farm.frames``); NULL for one. Once archived,
+                       ``tiles`` lists each frame's images (``frame_images``)
 =====================  ========================================================================
 
 ``job_counts`` holds the number of jobs of each status, kept by triggers on ``jobs`` (a listing's
@@ -112,6 +115,8 @@ jobs = Table(
     Column("image_bytes", BigInteger, nullable=False, server_default="0"),
     Column("image_removed_at", Double),
     Column("state_blob", String(71)),
+    Column("tags", String(300)),
+    Column("frames", Integer),
     Index("jobs_created_at", "created_at", "id"),
     Index("jobs_status_created_at", "status", "created_at", "id"),
     Index("jobs_finished_at", "finished_at"),
@@ -280,20 +285,26 @@ class Records:
         with self._begin() as conn:
             row = conn.execute(delete(jobs).where(jobs.c.id == job_id)
                                .returning(jobs.c.image_exr, jobs.c.image_png,
-                                          jobs.c.state_blob)).first()
+                                          jobs.c.state_blob, jobs.c.tiles)).first()
         with self._lock:
             self._synced.pop(job_id, None)
         if row is None:
             return None
-        return {name: key for name, key in zip(("exr", "png", "state"), row, strict=True)
+        keys = {name: key for name, key in zip(("exr", "png", "state"), row[:3], strict=True)
                 if key}
+        # a job of frames: each frame's images (``frame{i}.exr``, ``frame{i}.png``)
+        for i, images in enumerate(json.loads(row[3]).get("frame_images", []) if row[3] else []):
+            keys.update({f"frame{i}.{fmt}": key for fmt, key in images.items()})
+        return keys
 
     def blob_in_use(self, key: str) -> bool:
-        """Whether a job's image is this blob."""
+        """Whether a job's image is this blob (a frame's images are named in ``tiles``: that
+        test reads every archived job of frames, without an index; it runs on deletions)."""
         with self._begin() as conn:
             return conn.scalar(select(jobs.c.id).where(
                 or_(jobs.c.image_exr == key, jobs.c.image_png == key,
-                    jobs.c.state_blob == key)).limit(1)) is not None
+                    jobs.c.state_blob == key,
+                    (jobs.c.frames > 1) & jobs.c.tiles.contains(key))).limit(1)) is not None
 
     # --- listing --------------------------------------------------------------------------------
     def page(self, status: str | None = None, offset: int = 0,
@@ -450,6 +461,11 @@ def _row(meta: JobMeta) -> dict[str, Any]:
            "max_spp_per_pass": plan.max_spp_per_pass, "tasks_total": plan.n_tasks,
            "created_at": meta.created_at, "methods": json.dumps(meta.methods),
            **_progress(meta)}
+    # (columns of migrations 0003 and 0004: a row without them is written as before those)
+    if meta.tags:
+        row["tags"] = ",".join(meta.tags)
+    if plan.frames > 1:
+        row["frames"] = plan.frames
     if meta.images:  # archived before the farm kept records (the hash held the blob keys)
         row.update(tiles=json.dumps(meta.tiles_final), image_exr=meta.images.get("exr"),
                    image_png=meta.images.get("png"), archived_at=time.time())
@@ -469,10 +485,11 @@ def _meta(row: Any) -> JobMeta:
     return JobMeta(
         id=row["id"], name=row["name"], status=row["status"], priority=row["priority"],
         plan=Plan(row["width"], row["height"], row["spp"], row["tile_size"],
-                  row["spp_per_pass"], row["max_spp_per_pass"]),
+                  row["spp_per_pass"], row["max_spp_per_pass"], row.get("frames") or 1),
         tasks_merged=row["tasks_merged"], samples_merged=row["samples_merged"],
         dropped=row["dropped"], version=row["version"], created_at=row["created_at"],
         started_at=row["started_at"], finished_at=row["finished_at"], error=row["error"],
         methods=json.loads(row["methods"]), images=images,
         tiles_final=json.loads(tiles) if tiles else {}, submitter=row["submitter"],
-        image_removed=row["image_removed_at"] is not None, parked=row.get("state_blob"))
+        image_removed=row["image_removed_at"] is not None, parked=row.get("state_blob"),
+        tags=tuple(t for t in (row.get("tags") or "").split(",") if t))

@@ -193,6 +193,14 @@ class Settings(BaseSettings):
     sweeper removes the oldest (their records stay, their image routes answer 410). Unset: no
     cap."""
 
+    worker_tags: Annotated[tuple[str, ...], NoDecode] = ()
+    """This worker node's tags, comma-separated (``LUCENT_WORKER_TAGS=gpu,bigmem``): it takes
+    the jobs that require no tags and those whose tags it has all of (``services.farm.pools``)."""
+
+    blocklist_threshold: int = Field(default=3, ge=1)
+    """Failed passes of one job on one worker node after which that node gets none of the job's
+    passes any more (``services.farm.blocklist``)."""
+
     @property
     def database(self) -> str:
         """The job database's URL: ``DATABASE_URL``, else SQLite in the data folder."""
@@ -225,6 +233,16 @@ class Settings(BaseSettings):
         if isinstance(value, str):
             return [o.strip() for o in value.split(",") if o.strip()]
         return value
+
+    @field_validator("worker_tags", mode="before")
+    @classmethod
+    def _split_tags(cls, value: object) -> object:
+        from services.farm.pools import MAX_WORKER_TAGS, parse_tags
+
+        tags = parse_tags(value) if isinstance(value, (str, list, tuple)) else value
+        if isinstance(tags, tuple) and len(tags) > MAX_WORKER_TAGS:
+            raise ValueError(f"a worker has at most {MAX_WORKER_TAGS} tags")
+        return tags
 
     @model_validator(mode="after")
     def _check(self) -> Settings:

@@ -8,6 +8,7 @@ Key                                Type    What
 ``{p}:job:{id}``                   hash    the job: status, plan, counters, times, ``version``,
                                            ``active_at``, ``stalls`` (the stall re-queues)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
+``{p}:job:{id}:frames``            string  its frames' JSON Patches (a job of frames only)
 ``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass renders) / done / failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
@@ -15,6 +16,8 @@ Key                                Type    What
 ``{p}:job:{id}:merged``            set     ``tile:pass`` merged into the accumulation
 ``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (``to_bytes``)
 ``{p}:job:{id}:pass:{tile}:{pass}`` string a rendered pass, deleted once merged
+``{p}:job:{id}:failures``          hash    worker node -> passes of the job that failed on it
+``{p}:job:{id}:blocklist``         set     nodes that get none of the job's passes any more
 ``{p}:pending``                    set     pass keys written and not merged (the sweeper's)
 ``{p}:finished``                   zset    job id -> finished time, for done/failed/cancelled
 ``{p}:to_archive``                 set     done jobs whose image is not in the blob store yet
@@ -139,6 +142,16 @@ return 0
 """
 
 
+# Count a failed pass of a job on a worker node (KEYS[1] failures hash, KEYS[2] blocklist set,
+# ARGV[1] node, ARGV[2] threshold); at the threshold the node joins the job's blocklist. Returns
+# the node's failures.
+_NOTE_FAILURE = """
+local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
+if n >= tonumber(ARGV[2]) then redis.call('SADD', KEYS[2], ARGV[1]) end
+return n
+"""
+
+
 # A job id as ``submit_job`` makes it (``uuid4().hex``). The API refuses any other form before it
 # becomes part of a key: ``<id>:scene`` would otherwise name the job's other keys.
 JOB_ID = re.compile(r"[0-9a-f]{32}")
@@ -179,19 +192,21 @@ class JobMeta:
     submitter: str | None = None  # the name of the API token it was submitted with
     image_removed: bool = False  # its image removed by the cap on stored images (a record's)
     parked: str | None = None  # a record's: the blob of a failed or cancelled job's tiles
+    tags: tuple[str, ...] = ()  # the worker tags it requires (services.farm.pools)
 
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
-            created_at: float, submitter: str | None = None) -> JobMeta:
+            created_at: float, submitter: str | None = None,
+            tags: tuple[str, ...] = ()) -> JobMeta:
         """A job just submitted: queued, nothing merged (what ``create_job`` stores)."""
         return cls(id=job_id, name=name, status="queued", priority=priority, plan=plan,
                    tasks_merged=0, samples_merged=0, dropped=0, version=0,
                    created_at=created_at, started_at=None, finished_at=None, error=None,
-                   methods=methods, images={}, tiles_final={}, submitter=submitter)
+                   methods=methods, images={}, tiles_final={}, submitter=submitter, tags=tags)
 
     @property
     def samples_planned(self) -> int:
-        return self.plan.width * self.plan.height * self.plan.spp
+        return self.plan.width * self.plan.height * self.plan.spp * self.plan.frames
 
     @classmethod
     def from_hash(cls, h: dict[bytes, bytes]) -> JobMeta:
@@ -207,7 +222,8 @@ class JobMeta:
             priority=int(d.get("priority", 0)),
             # max_spp_per_pass: absent in jobs stored before passes grew (equal passes)
             plan=Plan(int(d["width"]), int(d["height"]), int(d["spp"]), int(d["tile_size"]),
-                      int(d["spp_per_pass"]), int(d.get("max_spp_per_pass", 0))),
+                      int(d["spp_per_pass"]), int(d.get("max_spp_per_pass", 0)),
+                      int(d.get("frames", 1))),
             tasks_merged=int(d.get("tasks_merged", 0)),
             samples_merged=int(d.get("samples_merged", 0)),
             dropped=int(d.get("dropped", 0)),
@@ -220,6 +236,7 @@ class JobMeta:
             images=json.loads(d.get("images") or "{}"),
             tiles_final=json.loads(d.get("tiles_final") or "{}"),
             submitter=d.get("submitter") or None,
+            tags=tuple(t for t in d.get("tags", "").split(",") if t),
         )
 
 
@@ -234,6 +251,7 @@ class JobSnapshot:
     tile_errors: dict[int, str]
     merged: list[str]  # ``tile:pass``
     tile_buffers: list[bytes | None]  # by tile; None before its first merge
+    frames_json: bytes | None = None  # a job of frames: their patches
 
     def to_bytes(self) -> bytes:
         """The snapshot as one blob: a JSON line (the job, its scene, its tiles), then the
@@ -242,10 +260,11 @@ class JobSnapshot:
         head = {"meta": {**{k: getattr(m, k) for k in (
                     "id", "name", "status", "priority", "tasks_merged", "samples_merged",
                     "dropped", "version", "created_at", "started_at", "finished_at", "error",
-                    "methods", "submitter")},
+                    "methods", "submitter", "tags")},
                     "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
-                             m.plan.spp_per_pass, m.plan.max_spp_per_pass]},
+                             m.plan.spp_per_pass, m.plan.max_spp_per_pass, m.plan.frames]},
                 "scene": self.scene_json.decode(),
+                "frames": self.frames_json.decode() if self.frames_json else None,
                 "tile_states": self.tile_states, "tile_samples": self.tile_samples,
                 "tile_errors": self.tile_errors, "merged": self.merged,
                 "buffers": [-1 if b is None else len(b) for b in self.tile_buffers]}
@@ -257,6 +276,7 @@ class JobSnapshot:
         line, _, rest = data.partition(b"\n")
         head = json.loads(line)
         d = head["meta"]
+        d["tags"] = tuple(d.get("tags", ()))
         meta = JobMeta(plan=Plan(*d.pop("plan")), images={}, tiles_final={}, **d)
         buffers: list[bytes | None] = []
         pos = 0
@@ -266,7 +286,8 @@ class JobSnapshot:
         return cls(meta, head["scene"].encode(),
                    {int(k): v for k, v in head["tile_states"].items()},
                    {int(k): v for k, v in head["tile_samples"].items()},
-                   {int(k): v for k, v in head["tile_errors"].items()}, head["merged"], buffers)
+                   {int(k): v for k, v in head["tile_errors"].items()}, head["merged"], buffers,
+                   head["frames"].encode() if head.get("frames") else None)
 
 
 class JobStore:
@@ -282,6 +303,7 @@ class JobStore:
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
         self._delete = client.register_script(_DELETE)
+        self._note_failure = client.register_script(_NOTE_FAILURE)
 
     @classmethod
     def from_url(cls, url: str, prefix: str = "lucent") -> JobStore:
@@ -303,7 +325,8 @@ class JobStore:
     def tile_keys(self, job_id: str, n_tiles: int) -> list[str]:
         """The job's keys that hold its tiles: what archiving deletes."""
         return [self.k("job", job_id, name)
-                for name in ("tile_state", "tile_samples", "tile_error", "attempts", "merged")] + \
+                for name in ("tile_state", "tile_samples", "tile_error", "attempts", "merged",
+                             "failures", "blocklist")] + \
             [self.acc_key(job_id, t) for t in range(n_tiles)]
 
     def pending_passes_of(self, job_id: str) -> list[str]:
@@ -314,7 +337,10 @@ class JobStore:
     # --- jobs -----------------------------------------------------------------------------------
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
                    scene_json: str | bytes, methods: dict[str, str] | None = None,
-                   created_at: float | None = None, submitter: str | None = None) -> JobMeta:
+                   created_at: float | None = None, submitter: str | None = None,
+                   tags: tuple[str, ...] = (), frames_json: bytes | None = None) -> JobMeta:
+        """Store a job, queued; ``frames_json``: the patches of a job of ``plan.frames``
+        frames."""
         now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -324,11 +350,13 @@ class JobStore:
             "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
-            "submitter": submitter or "",
+            "submitter": submitter or "", "tags": ",".join(tags), "frames": plan.frames,
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
         pipe.set(self.k("job", job_id, "scene"), scene_json)
+        if frames_json is not None:
+            pipe.set(self.k("job", job_id, "frames"), frames_json)
         pipe.hset(self.k("job", job_id, "tile_state"),
                   mapping={str(t): "queued" for t in range(plan.n_tiles)})
         pipe.zadd(self.k("jobs"), {job_id: now})
@@ -346,6 +374,11 @@ class JobStore:
 
     def get_scene(self, job_id: str) -> dict | None:
         raw = self.r.get(self.k("job", job_id, "scene"))
+        return json.loads(raw) if raw is not None else None
+
+    def get_frames(self, job_id: str) -> list | None:
+        """The patches of a job of frames (one a frame), None for a job of one frame."""
+        raw = self.r.get(self.k("job", job_id, "frames"))
         return json.loads(raw) if raw is not None else None
 
     def get_jobs(self, job_ids: list[str]) -> dict[str, JobMeta]:
@@ -366,9 +399,9 @@ class JobStore:
         """Pixel-samples that each queued or running job has still to render."""
         pipe = self.r.pipeline()
         for job_id in self.active_job_ids():
-            pipe.hmget(self.job_key(job_id), "width", "height", "spp", "samples_merged")
-        return [max(int(w) * int(h) * int(spp) - int(merged or 0), 0)
-                for w, h, spp, merged in pipe.execute() if w is not None]
+            pipe.hmget(self.job_key(job_id), "width", "height", "spp", "samples_merged", "frames")
+        return [max(int(w) * int(h) * int(spp) * int(frames or 1) - int(merged or 0), 0)
+                for w, h, spp, merged, frames in pipe.execute() if w is not None]
 
     def active_job_ids(self) -> list[str]:
         ids = [i.decode() for i in self.r.zrange(self.k("jobs"), 0, -1)]
@@ -436,14 +469,15 @@ class JobStore:
         self.transition(job_id, "running", ("failed", "cancelled"))
         return todo
 
-    def stall_clock(self, job_id: str) -> tuple[int, float] | None:
-        """(priority, when anything of the job last happened) for a queued or running job, else
-        None: the stall rule's inputs."""
-        h = self.r.hmget(self.job_key(job_id), "status", "priority", "created_at", "active_at",
-                         "requeued_at")
+    def stall_clock(self, job_id: str) -> tuple[int, float, tuple[str, ...]] | None:
+        """(priority, when anything of the job last happened, its tags) for a queued or running
+        job, else None: the stall rule's inputs."""
+        h = self.r.hmget(self.job_key(job_id), "status", "priority", "tags", "created_at",
+                         "active_at", "requeued_at")
         if h[0] is None or h[0].decode() not in ACTIVE:
             return None
-        return int(h[1] or 0), max(float(v) for v in h[2:] if v)
+        tags = tuple(t for t in (h[2] or b"").decode().split(",") if t)
+        return int(h[1] or 0), max(float(v) for v in h[3:] if v), tags
 
     def claim_stall(self, job_id: str, stall_timeout: float, now: float | None = None) -> int:
         """If the job is queued or running and nothing of it happened for ``stall_timeout``
@@ -473,19 +507,20 @@ class JobStore:
         pipe = self.r.pipeline(transaction=True)
         pipe.hgetall(self.job_key(job_id))
         pipe.get(self.k("job", job_id, "scene"))
+        pipe.get(self.k("job", job_id, "frames"))
         for name in ("tile_state", "tile_samples", "tile_error"):
             pipe.hgetall(self.k("job", job_id, name))
         pipe.smembers(self.k("job", job_id, "merged"))
         for t in range(meta.plan.n_tiles):
             pipe.get(self.acc_key(job_id, t))
-        h, scene, states, samples, errors, merged, *buffers = pipe.execute()
+        h, scene, frames, states, samples, errors, merged, *buffers = pipe.execute()
         if not h or scene is None:
             return None
         return JobSnapshot(
             JobMeta.from_hash(h), scene, {int(k): v.decode() for k, v in states.items()},
             {int(k): int(v) for k, v in samples.items()},
             {int(k): v.decode() for k, v in errors.items()}, sorted(m.decode() for m in merged),
-            buffers)
+            buffers, frames)
 
     def restore_job(self, snap: JobSnapshot) -> None:
         """Put a parked job back in Redis as it was when it was parked (its status, counters,
@@ -502,10 +537,13 @@ class JobStore:
             "created_at": meta.created_at, "started_at": meta.started_at or "",
             "finished_at": meta.finished_at or "", "error": meta.error or "",
             "methods": json.dumps(meta.methods), "submitter": meta.submitter or "",
+            "tags": ",".join(meta.tags), "frames": plan.frames,
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(meta.id), mapping=fields)
         pipe.set(self.k("job", meta.id, "scene"), snap.scene_json)
+        if snap.frames_json is not None:
+            pipe.set(self.k("job", meta.id, "frames"), snap.frames_json)
         pipe.hset(self.k("job", meta.id, "tile_state"),
                   mapping={str(t): snap.tile_states.get(t, "queued")
                            for t in range(plan.n_tiles)})
@@ -532,8 +570,13 @@ class JobStore:
         """The tiles' summary a job's record keeps once it is archived: samples per pixel of
         each tile, and the last error of those that had one."""
         samples = self.tile_samples(job_id)
-        return {"samples": [samples.get(t, 0) for t in range(n_tiles)],
-                "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
+        out: dict[str, Any] = {
+            "samples": [samples.get(t, 0) for t in range(n_tiles)],
+            "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
+        blocklist = self.blocklist(job_id)
+        if blocklist:
+            out["blocklist"] = blocklist
+        return out
 
     def delete_job(self, job_id: str, statuses: tuple[str, ...] = FINAL) -> bool:
         """Delete every key of the job, atomically, if its status is one of ``statuses`` (by
@@ -542,7 +585,8 @@ class JobStore:
         meta = self.get_job(job_id)
         if meta is None:
             return False
-        keys = [self.k("job", job_id, "scene"), *self.tile_keys(job_id, meta.plan.n_tiles),
+        keys = [self.k("job", job_id, "scene"), self.k("job", job_id, "frames"),
+                *self.tile_keys(job_id, meta.plan.n_tiles),
                 *self.pending_passes_of(job_id)]
         return bool(self._delete(
             keys=[self.job_key(job_id), self.k("jobs"), self.k("finished"),
@@ -550,20 +594,46 @@ class JobStore:
             args=[job_id, *statuses]))
 
     # --- tiles ----------------------------------------------------------------------------------
-    def job_view(self, job_id: str
-                 ) -> tuple[JobMeta, dict[int, str], dict[int, int], dict[int, str]] | None:
-        """The job and its tiles' states, samples and errors, as one snapshot in one round trip
-        (what a status answer shows); None for an unknown job."""
+    def job_view(self, job_id: str) -> tuple[JobMeta, dict[int, str], dict[int, int],
+                                             dict[int, str], dict[str, int]] | None:
+        """The job, its tiles' states, samples and errors, and its blocklist (node -> failed
+        passes), as one snapshot in one round trip (what a status answer shows); None for an
+        unknown job."""
         pipe = self.r.pipeline()
-        for part in ("tile_state", "tile_samples", "tile_error"):
+        for part in ("tile_state", "tile_samples", "tile_error", "failures"):
             pipe.hgetall(self.k("job", job_id, part))
+        pipe.smembers(self.k("job", job_id, "blocklist"))
         pipe.hgetall(self.job_key(job_id))
-        states, samples, errors, h = pipe.execute()
+        states, samples, errors, failures, blocked, h = pipe.execute()
         if not h:
             return None
         return (JobMeta.from_hash(h), {int(k): v.decode() for k, v in states.items()},
                 {int(k): int(v) for k, v in samples.items()},
-                {int(k): v.decode() for k, v in errors.items()})
+                {int(k): v.decode() for k, v in errors.items()},
+                {n.decode(): int(failures.get(n, 0)) for n in sorted(blocked)})
+
+    # --- the blocklist --------------------------------------------------------------------------
+    def note_failure(self, job_id: str, node: str, threshold: int) -> int:
+        """Count a pass of the job that failed on ``node``; at ``threshold`` failures the node
+        is blocklisted for the job. Returns the node's failures."""
+        return int(self._note_failure(
+            keys=[self.k("job", job_id, "failures"), self.k("job", job_id, "blocklist")],
+            args=[node, threshold]))
+
+    def is_blocklisted(self, job_id: str, node: str) -> bool:
+        return bool(self.r.sismember(self.k("job", job_id, "blocklist"), node))
+
+    def blocklist(self, job_id: str) -> dict[str, int]:
+        """Node -> failed passes, of the nodes blocklisted for the job."""
+        pipe = self.r.pipeline()
+        pipe.smembers(self.k("job", job_id, "blocklist"))
+        pipe.hgetall(self.k("job", job_id, "failures"))
+        blocked, failures = pipe.execute()
+        return {n.decode(): int(failures.get(n, 0)) for n in sorted(blocked)}
+
+    def forgive_attempt(self, job_id: str, tile: int, pass_index: int) -> None:
+        """Take back a counted try of the pass (it failed through its worker, not itself)."""
+        self.r.hincrby(self.k("job", job_id, "attempts"), pass_member(tile, pass_index), -1)
 
     def tile_states(self, job_id: str) -> dict[int, str]:
         h = self.r.hgetall(self.k("job", job_id, "tile_state"))
@@ -705,9 +775,10 @@ class JobStore:
         """The tile's merged buffer (``SampleBuffer.to_bytes``); None before its first merge."""
         return self.r.get(self.acc_key(job_id, tile))
 
-    def tile_buffers(self, job_id: str, n_tiles: int) -> list[bytes | None]:
+    def tile_buffers(self, job_id: str, n_tiles: int, first: int = 0) -> list[bytes | None]:
+        """The merged buffers of tiles ``first`` to ``first + n_tiles - 1``."""
         pipe = self.r.pipeline()
-        for t in range(n_tiles):
+        for t in range(first, first + n_tiles):
             pipe.get(self.acc_key(job_id, t))
         return pipe.execute()
 

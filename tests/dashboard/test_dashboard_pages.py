@@ -191,9 +191,12 @@ def test_workers_page_lists_the_workers_and_shows_a_lost_one(dashboard, page, ar
     # A worker that beats once and falls silent is shown as lost within 3 intervals.
     store.heartbeat("ghost@nowhere", {"host": "nowhere", "pid": 1, "state": "busy",
                                       "current_task": "", "tiles_done": 7,
-                                      "paths_per_second": 1.0}, ttl=3 * 0.5)
+                                      "paths_per_second": 1.0, "tags": "bigmem,gpu"},
+                    ttl=3 * 0.5)
     ghost = page.locator("tr[data-id='ghost@nowhere']")
     ghost.wait_for()
+    # its node's pool tags, one badge each
+    assert ghost.locator("td.tags .tag").all_inner_texts() == ["bigmem", "gpu"]
     t0 = time.monotonic()
     page.wait_for_selector("tr[data-id='ghost@nowhere'][data-state='lost']", timeout=10_000)
     assert time.monotonic() - t0 < 5.0
@@ -299,3 +302,24 @@ def api_wait(api, job_id, status, timeout=60.0):
             return
         time.sleep(0.1)
     raise AssertionError(f"job {job_id} did not reach {status}")
+
+
+def test_job_page_shows_what_a_job_waits_for_and_its_blocklist(dashboard, page):
+    """A job requiring a tag no worker has says what it waits for; a node blocklisted for it is
+    listed with its failed passes. (The job is made in the store, not queued: it stays so.)"""
+    import uuid
+
+    from services.farm.planner import Plan
+
+    store = dashboard.store()
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "waits", 0, Plan(16, 16, 4, 8, 4), b"{}", tags=("gpu",))
+    for _ in range(3):
+        store.note_failure(job_id, "bad@host", 3)
+    page.goto(f"{dashboard.url}/#/job/{job_id}")
+    waiting = page.wait_for_selector("#job-errors li.job-waiting")
+    assert waiting.inner_text() == "waiting for a worker with tags gpu"
+    listed = page.wait_for_selector("#job-errors li.blocklisted[data-node='bad@host']")
+    assert "bad@host (3 failed passes)" in listed.inner_text()
+    store.cancel_job(job_id)
+    no_page_errors(page)

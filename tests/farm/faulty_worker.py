@@ -1,6 +1,7 @@
 """The worker app of the fault tests: ``celery -A faulty_worker worker`` with ``tests/farm`` on
 ``PYTHONPATH``. It is ``worker.celery_app``'s app with one ``(tile, pass)`` made to misbehave,
-chosen by ``LUCENT_TEST_FAULT=<tile>:<pass>:<mode>`` in this worker's environment only. Neither
+chosen by ``LUCENT_TEST_FAULT=<tile>:<pass>:<mode>`` in this worker's environment only (``*:*``:
+every pass of every job, a node that fails all it is given). Neither
 the service nor the production worker imports this module or reads that variable, so no request
 can trigger a fault.
 
@@ -33,7 +34,8 @@ def _faulty_render_and_merge(state, meta, tile: int, pass_index: int, t_task: fl
     spec = os.environ.get("LUCENT_TEST_FAULT", "")
     if spec:
         fault_tile, fault_pass, mode = spec.split(":")
-        if (int(fault_tile), int(fault_pass)) == (tile, pass_index):
+        if (fault_tile, fault_pass) == ("*", "*") or \
+                (int(fault_tile), int(fault_pass)) == (tile, pass_index):
             store = state.store
             tries = int(store.r.hget(store.k("job", meta.id, "attempts"),
                                      f"{tile}:{pass_index}") or 0)

@@ -31,7 +31,7 @@ TOKEN = "correct-horse-battery-staple"
 # them, the dashboard's pages (``/``, ``/dashboard/...``, out of the schema) are static files.
 OPEN_PATHS = {"/healthz", "/readyz"}
 
-EXAMPLE_PARAMS = {"job_id": "nope", "fmt": "png", "name": "nope"}
+EXAMPLE_PARAMS = {"job_id": "nope", "fmt": "png", "name": "nope", "frame": "0"}
 
 
 @pytest.fixture

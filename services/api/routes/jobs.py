@@ -23,7 +23,15 @@ from services.api.deps import (
 )
 from services.api.guards import echo_text, error_content
 from services.api.intake import Rejection
-from services.api.models import JobCreate, JobDetail, JobPublic, JobsPublic, JobStatus, TilePublic
+from services.api.models import (
+    FramePublic,
+    JobCreate,
+    JobDetail,
+    JobPublic,
+    JobsPublic,
+    JobStatus,
+    TilePublic,
+)
 from services.farm.archive import (
     assemble_parked,
     delete_finished,
@@ -34,13 +42,16 @@ from services.farm.archive import (
 from services.farm.jobs import Refusal, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
+from services.farm.pools import live_tag_sets, waiting_for
 from services.farm.records import Records
 from services.farm.store import ACTIVE, JobMeta, JobStore, is_job_id
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
 
 
-def to_public(meta: JobMeta) -> JobPublic:
+def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> JobPublic:
+    """The job's public form; with ``live_tags`` (the tags of each live worker), an active job
+    that no live worker can take says what it waits for."""
     plan = meta.plan
     end = meta.finished_at or time.time()
     rate = None
@@ -57,14 +68,16 @@ def to_public(meta: JobMeta) -> JobPublic:
         spp_per_pass=plan.spp_per_pass,
         max_spp_per_pass=plan.pass_cap, passes=plan.n_passes,
         largest_pass=max(count for _, count in plan.passes),
-        tiles=plan.n_tiles, tasks_total=plan.n_tasks,
+        tiles=plan.n_tiles, frames=plan.frames, tasks_total=plan.n_tasks,
         tasks_merged=meta.tasks_merged, samples_planned=meta.samples_planned,
         samples_merged=meta.samples_merged,
         progress=meta.samples_merged / meta.samples_planned if meta.samples_planned else 1.0,
         samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
         created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
         error=meta.error, image_version=meta.version, methods=meta.methods,
-        submitter=meta.submitter,
+        submitter=meta.submitter, tags=list(meta.tags),
+        waiting_for=(waiting_for(meta.tags, live_tags)
+                     if live_tags is not None and meta.status in ACTIVE else None),
     )
 
 
@@ -123,7 +136,7 @@ async def create_job(request: Request, store: StoreDep, records: RecordsDep, cel
 @router.get("", response_model=JobsPublic)
 def list_jobs(store: StoreDep, records: RecordsDep,
               status_: Annotated[JobStatus | None, Query(alias="status")] = None,
-              offset: Annotated[int, Query(ge=0)] = 0,
+              offset: Annotated[int, Query(ge=0, le=2**62)] = 0,
               limit: Annotated[int, Query(ge=1, le=500)] = 50):
     """Jobs newest first, filtered by status, paged: read from the job records, on indexes.
     The records of the jobs in flight are brought up to date first (only those that changed
@@ -131,29 +144,41 @@ def list_jobs(store: StoreDep, records: RecordsDep,
     records.sync(store.jobs_in_flight())
     metas, total = records.page(status_, offset, limit)
     live = store.get_jobs([m.id for m in metas])
-    return JobsPublic(data=[to_public(live.get(m.id, m)) for m in metas], count=total,
+    tagged = any(m.tags and m.status in ACTIVE for m in live.values())
+    live_tags = live_tag_sets(store.workers()) if tagged else None
+    return JobsPublic(data=[to_public(live.get(m.id, m), live_tags) for m in metas], count=total,
                       offset=offset, limit=limit)
 
 
 def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
-               errors: dict[int, str]) -> JobDetail:
+               errors: dict[int, str], blocklist: dict[str, int],
+               live_tags: list[frozenset[str]] | None = None) -> JobDetail:
     if meta.tiles_final:  # out of Redis: its tiles' summary is in its record
         final = meta.tiles_final
+        blocklist = final.get("blocklist", {})
         states = ({int(t): s for t, s in final["states"].items()} if "states" in final
                   else dict.fromkeys(range(meta.plan.n_tiles), "done"))
         samples = dict(enumerate(final.get("samples", [])))
         errors = {int(t): e for t, e in final.get("errors", {}).items()}
+    plan = meta.plan
     tiles = []
-    for t in range(meta.plan.n_tiles):
-        x0, y0, w, h = meta.plan.tile_rect(t)
-        tiles.append(TilePublic(index=t, x0=x0, y0=y0, width=w, height=h,
-                                state=states.get(t, "queued"), samples=samples.get(t, 0),
-                                error=errors.get(t)))
+    merged = [0] * plan.frames  # pixel-samples of each frame
+    for t in range(plan.n_tiles):
+        x0, y0, w, h = plan.tile_rect(t)
+        tiles.append(TilePublic(index=t, frame=plan.frame_of(t), x0=x0, y0=y0, width=w,
+                                height=h, state=states.get(t, "queued"),
+                                samples=samples.get(t, 0), error=errors.get(t)))
+        merged[plan.frame_of(t)] += w * h * min(samples.get(t, 0), plan.spp)
+    per_frame = plan.width * plan.height * plan.spp
+    frames = [FramePublic(index=f, progress=n / per_frame if per_frame else 1.0)
+              for f, n in enumerate(merged)]
     tile_errors = [f"tile {t}: {e}" for t, e in sorted(errors.items())]
     # A failed tile fails its job with the same words: say it once.
     all_errors = ([meta.error] if meta.error and meta.error not in tile_errors else []) + \
         tile_errors
-    return JobDetail(**to_public(meta).model_dump(), tile_states=tiles, errors=all_errors)
+    return JobDetail(**to_public(meta, live_tags).model_dump(), frame_progress=frames,
+                     tile_states=tiles,
+                     errors=all_errors, blocklist=blocklist)
 
 
 @dataclass(frozen=True)
@@ -186,7 +211,11 @@ class StatusViews:
             record = self.records.get(job_id)
             if record is None:
                 return None
-            read = (record, {}, {}, {})
+            read = (record, {}, {}, {}, {})
+        # A job requiring tags that is waiting: the workers are part of what its answer says
+        live_tags = (live_tag_sets(self.store.workers())
+                     if read[0].tags and read[0].status in ACTIVE else None)
+        read = (*read, live_tags)
         with self._lock:
             view = self._views.get(job_id)
             if view is not None and view.state == read:
@@ -236,27 +265,47 @@ def get_image(job_id: JobId, fmt: Literal["png", "exr", "npy"], request: Request
               store: StoreDep, records: RecordsDep, blobs: BlobsDep, exposure: Exposure = 0.0,
               tonemap: Literal["clamp", "reinhard", "aces"] = "clamp"):
     """The merged image as it stands (progressive while running; a done job's from the blob
-    store, the same bytes). ``ETag`` changes with every merge; send it back in
-    ``If-None-Match`` to get 304 when nothing changed."""
+    store, the same bytes); a job of frames: its first frame. ``ETag`` changes with every merge;
+    send it back in ``If-None-Match`` to get 304 when nothing changed."""
+    return _image(job_id, 0, fmt, request, store, records, blobs, exposure, tonemap)
+
+
+@router.get("/{job_id}/frames/{frame}/image.{fmt}", responses={
+    200: {"content": {m: {} for m in _MEDIA.values()}}, 304: {"description": "not modified"}})
+def get_frame_image(job_id: JobId, frame: Annotated[int, Path(ge=0, le=1_000_000)],
+                    fmt: Literal["png", "exr", "npy"], request: Request, store: StoreDep,
+                    records: RecordsDep, blobs: BlobsDep, exposure: Exposure = 0.0,
+                    tonemap: Literal["clamp", "reinhard", "aces"] = "clamp"):
+    """Frame ``frame``'s image (0-based) of a job of frames, as ``image.{fmt}`` serves the
+    job's."""
+    return _image(job_id, frame, fmt, request, store, records, blobs, exposure, tonemap)
+
+
+def _image(job_id: str, frame: int, fmt: str, request: Request, store: JobStore,
+           records: Records, blobs, exposure: float, tonemap: str) -> Response:
     meta = _get_or_404(store, records, job_id)
+    if frame >= meta.plan.frames:
+        raise HTTPException(status.HTTP_404_NOT_FOUND,
+                            detail=f"job {job_id!r} has {meta.plan.frames} frame(s): no frame "
+                                   f"{frame}")
     if meta.image_removed:
         raise HTTPException(status.HTTP_410_GONE,
                             detail=f"the image of job {job_id!r} was removed to keep the stored "
                                    "images under LUCENT_MAX_IMAGE_BYTES")
-    etag = f'"{job_id}-{meta.version}-{fmt}-{exposure:g}-{tonemap}"'
+    etag = f'"{job_id}-{frame}-{meta.version}-{fmt}-{exposure:g}-{tonemap}"'
     headers = {"ETag": etag, "Cache-Control": "no-cache"}
     if etag_matches(request, etag):
         return Response(status_code=status.HTTP_304_NOT_MODIFIED, headers=headers)
-    content = final_image(blobs, meta, fmt, exposure, tonemap)
+    content = final_image(blobs, meta, fmt, exposure, tonemap, frame)
     if content is None:
         if meta.images:  # the blob store lost it: say so rather than serve a black frame
             raise HTTPException(status.HTTP_404_NOT_FOUND,
                                 detail=f"the image of job {job_id!r} is missing from the blob "
                                        "store")
         # The buffers are read after the version: the image is never older than its ETag says.
-        assembled = assemble(store, job_id)
+        assembled = assemble(store, job_id, frame)
         if assembled is None and meta.parked:  # out of Redis: its tiles are in the blob store
-            assembled = assemble_parked(blobs, meta)
+            assembled = assemble_parked(blobs, meta, frame)
         if assembled is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
         content = encode_image(assembled[0].mean(), fmt, exposure, tonemap)

@@ -15,7 +15,8 @@ router = APIRouter(prefix="/workers", tags=["workers"])
 @router.get("", response_model=WorkersPublic)
 def list_workers(store: StoreDep, settings: SettingsDep):
     """Each worker process: host, state (``idle``, ``busy``, ``starting``; ``lost`` once its
-    heartbeat has expired), current task, passes done, paths/s, last heartbeat."""
+    heartbeat has expired), current task, passes done, paths/s, last heartbeat, its node and the
+    node's tags."""
     out = []
     for w in store.workers():
         out.append(WorkerPublic(
@@ -24,6 +25,7 @@ def list_workers(store: StoreDep, settings: SettingsDep):
             tiles_done=int(w.get("tiles_done", 0)),
             paths_per_second=float(w.get("paths_per_second", 0.0)),
             last_heartbeat=float(w["last_heartbeat"]) if w.get("last_heartbeat") else None,
+            node=w.get("node") or None, tags=[t for t in w.get("tags", "").split(",") if t],
         ))
     return WorkersPublic(data=out, count=len(out), server_time=time.time(),
                          heartbeat_interval=settings.heartbeat_interval)
