@@ -58,7 +58,11 @@ JIT_OPTIONS = {"cache": True, "nogil": True, "fastmath": False, "error_model": "
 def _unliteral_calls(dispatcher):
     """Make jitted callers compile ``dispatcher`` for the plain types of their arguments, not once
     for each constant they pass (numba types a constant argument as a literal: ``Literal[int](3)``,
-    ``Literal[bool](False)``). Calls from Python are typed from values, never as literals."""
+    ``Literal[bool](False)``). Calls from Python are typed from values, never as literals.
+    Under ``NUMBA_DISABLE_JIT`` (the CUDA simulator's tests run the stages as Python) ``njit``
+    returns the function itself, and there is nothing to type."""
+    if not hasattr(dispatcher, "get_call_template"):
+        return dispatcher
     template = dispatcher.get_call_template
 
     def get_call_template(args, kws):

@@ -12,6 +12,9 @@ from renderer.film.adaptive import MIN_SAMPLES, pixels_converged
 from renderer.film.buffer import SampleBuffer
 from renderer.integrators.path import render_tile_kernel
 from renderer.scene.compile import CompiledScene, compile_scene
+from renderer.wavefront.cpu import render_tile_wavefront, unsupported
+
+KERNELS = ("scalar", "wavefront")  # render_tile's kernels (the CLI's --kernel)
 
 
 def render_tile(
@@ -23,13 +26,19 @@ def render_tile(
     sample_start: int,
     sample_count: int,
     active: np.ndarray | None = None,
+    kernel: str = "scalar",
 ) -> SampleBuffer:
     """Render samples [sample_start, sample_start + sample_count) of every pixel of a tile.
 
     Sample indices are global: the same (pixel, index) always gives the same sample, so a tile
     rendered as passes 0–7 and 8–15 adds up to the tile rendered as 0–15. ``active`` (h, w)
-    limits the pass to the pixels where it is true (adaptive sampling).
+    limits the pass to the pixels where it is true (adaptive sampling). ``kernel`` is
+    ``"scalar"`` (one path at a time, every method) or ``"wavefront"`` (batches of paths stage by
+    stage, ``renderer.wavefront``), which renders the scenes it covers (surface materials, the
+    independent sampler) and leaves the others to the scalar kernel.
     """
+    if kernel not in KERNELS:
+        raise ValueError(f"kernel must be one of {KERNELS}, not {kernel!r}")
     if width < 0 or height < 0 or sample_start < 0 or sample_count < 0:
         raise ValueError("tile sizes and sample ranges must be non-negative")
     if x0 < 0 or y0 < 0 or x0 + width > scene.width or y0 + height > scene.height:
@@ -41,6 +50,9 @@ def render_tile(
         active = np.ones((height, width), np.uint8)
     elif active.shape != (height, width):
         raise ValueError(f"active mask of shape {active.shape} for a {width}x{height} tile")
+    if kernel == "wavefront" and unsupported(scene) is None:
+        return render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_count,
+                                     np.ascontiguousarray(active, dtype=np.uint8))
     if width and height and sample_count:
         render_tile_kernel(
             scene.arrays, scene.width, scene.height, scene.seed, scene.max_depth,
@@ -68,13 +80,14 @@ def render_buffer(
     threads: int | None = None,
     pass_spp: int | None = None,
     progress: Callable[[int, int, float], None] | None = None,
+    kernel: str = "scalar",
 ) -> SampleBuffer:
     """Render a whole frame in passes of ``pass_spp`` samples per pixel.
 
     ``progress(samples_done, samples_total, seconds)`` is called after every pass (per pixel
     samples × pixels), which is what the CLI's progress bar shows. With the scene's
     ``render.target_error``, pixels that have converged (``renderer.film.adaptive``) get no more
-    passes; the render stops when all have, or at ``spp``.
+    passes; the render stops when all have, or at ``spp``. ``kernel``: see ``render_tile``.
     """
     cs = _as_compiled(scene)
     spp = cs.spp if spp is None else spp
@@ -92,7 +105,7 @@ def render_buffer(
         pass_spp = max(1, min(pass_spp, MIN_SAMPLES))
     while done < spp and active.any():
         n = min(pass_spp, spp - done)
-        frame.add(render_tile(cs, 0, 0, cs.width, cs.height, done, n, active))
+        frame.add(render_tile(cs, 0, 0, cs.width, cs.height, done, n, active, kernel))
         done += n
         if adaptive and done >= MIN_SAMPLES:
             # Once converged, a pixel stays stopped: every active pixel has exactly `done` samples
@@ -103,6 +116,8 @@ def render_buffer(
     return frame
 
 
-def render(scene, spp: int | None = None, *, threads: int | None = None) -> np.ndarray:
-    """Render a scene (dict, validated ``Scene`` or ``CompiledScene``) to an HxWx3 float32 image."""
-    return render_buffer(scene, spp, threads=threads).mean()
+def render(scene, spp: int | None = None, *, threads: int | None = None,
+           kernel: str = "scalar") -> np.ndarray:
+    """Render a scene (dict, validated ``Scene`` or ``CompiledScene``) to an HxWx3 float32 image
+    (``kernel``: see ``render_tile``)."""
+    return render_buffer(scene, spp, threads=threads, kernel=kernel).mean()

@@ -90,6 +90,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from renderer.render import render_buffer
     from renderer.scene.compile import CompileError, compile_scene
+    from renderer.wavefront.cpu import unsupported
 
     t0 = time.perf_counter()
     try:
@@ -108,6 +109,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         f"{threads} threads (scene compiled in {t_compile:.2f} s)",
         file=sys.stderr,
     )
+    if args.kernel == "wavefront" and (reason := unsupported(compiled)) is not None:
+        print(f"the wavefront kernel does not cover {reason}: the scalar kernel renders it",
+              file=sys.stderr)
     total = compiled.width * compiled.height * spp
     with tqdm(total=total, unit="samples", unit_scale=True, disable=args.quiet,
               file=sys.stderr, smoothing=0.3) as bar:
@@ -116,7 +120,8 @@ def cmd_render(args: argparse.Namespace) -> int:
             bar.update(done - bar.n)
 
         t0 = time.perf_counter()
-        buf = render_buffer(compiled, spp, threads=threads, progress=progress)
+        buf = render_buffer(compiled, spp, threads=threads, progress=progress,
+                            kernel=args.kernel)
         seconds = time.perf_counter() - t0
     write_image(out, buf.mean(), exposure=args.exposure, tonemap=args.tonemap)
     dropped = buf.total_dropped
@@ -254,6 +259,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampler", choices=["independent", "sobol"],
                    help="random numbers of a sample (default: the scene's render.sampler)")
     p.add_argument("--threads", type=int, help="render threads (default: all cores)")
+    p.add_argument("--kernel", choices=["scalar", "wavefront"], default="scalar",
+                   help="scalar: one path at a time, every method (default); wavefront: batches "
+                        "of paths stage by stage, surface materials only (others fall back to "
+                        "scalar)")
     p.add_argument("--exposure", type=float, default=0.0,
                    help="PNG only: exposure in stops, the image is scaled by 2^EV (default 0)")
     p.add_argument("--tonemap", choices=["clamp", "reinhard", "aces"], default="clamp",

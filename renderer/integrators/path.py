@@ -95,6 +95,19 @@ def surface_vertex(S, kind, geo, prim, mat, mk, o, d, t, u, v, scratch):
 
 
 @inline_kernel
+def escaped_radiance(S, env, d):
+    """What a ray leaving the scene along d sees of light ``env`` (the constant background or the
+    environment image): (radiance, the solid-angle density of its light sample for d, before the
+    light's choice probability)."""
+    if S.light_kind[env] == ENVIRONMENT:
+        u_env, v_env, _ = direction_to_uv(S.env_rotation, d)
+        le = environment_radiance(S.env_image, u_env, v_env)
+        return le, environment_pdf(S.env_image, S.env_marginal, S.env_conditional,
+                                   S.env_rotation, d)
+    return (S.background[0], S.background[1], S.background[2]), INV_4PI
+
+
+@inline_kernel
 def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     """Radiance arriving at o from direction −d along one sampled path. S is ``SceneArrays``;
     ``sidx`` (the sample's index) and ``sob`` (its pixel's sequence seeds) feed the sobol
@@ -141,14 +154,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         # light sample
         if prim < 0:
             if env >= 0 and not skip_emission:
-                if S.light_kind[env] == ENVIRONMENT:
-                    u_env, v_env, _ = direction_to_uv(S.env_rotation, d)
-                    le = environment_radiance(S.env_image, u_env, v_env)
-                    pdf_env = environment_pdf(S.env_image, S.env_marginal, S.env_conditional,
-                                              S.env_rotation, d)
-                else:
-                    le = (S.background[0], S.background[1], S.background[2])
-                    pdf_env = INV_4PI
+                le, pdf_env = escaped_radiance(S, env, d)
                 w = 1.0
                 if not unweighted:
                     w = power_heuristic(prev_pdf, S.light_pmf[env] * pdf_env)

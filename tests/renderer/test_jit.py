@@ -16,13 +16,17 @@ from numba.core.registry import CPUDispatcher
 import renderer
 
 ROOT = Path(__file__).resolve().parents[2]
-# The kernels that allocate arrays, so need the runtime (alloc_kernel, parallel_kernel).
+# The kernels that need the runtime: those that allocate arrays (alloc_kernel) and the parallel
+# ones (parallel_kernel).
 WITH_RUNTIME = {
     "renderer.geometry.bvh.build_bvh",
     "renderer.geometry.bvh.widen_bvh",
     "renderer.geometry.bvh.traversal_stack",
     "renderer.geometry.shapes.prim_bounds",
     "renderer.integrators.path.render_tile_kernel",
+    # the wavefront kernel's stages on the CPU: parallel loops (numba's thread pool runs on it)
+    *(f"renderer.wavefront.stages.{stage}"
+      for stage in ("generate", "trace_rays", "shade", "accumulate")),
 }
 
 
