@@ -100,7 +100,10 @@ def test_mesh_paths_are_read_relative_to_base_dir(tmp_path):
     write_ply(tmp_path / "shell.ply", verts, tris)
     scene = _scene({"type": "mesh", "path": "shell.ply"}, 5.0, 6.0, 8)
     d = to_mitsuba_dict(scene, variant=VARIANT, base_dir=tmp_path)
-    assert d["object_000"]["filename"] == str(tmp_path / "shell.ply")
+    # read by Lucent's reader from base_dir and given to Mitsuba inline
+    assert d["object_000"].face_count() == len(tris)
+    with pytest.raises(ValueError, match="shell.ply"):
+        to_mitsuba_dict(scene, variant=VARIANT, base_dir=tmp_path / "elsewhere")
     inline = {"type": "mesh", "vertices": verts.tolist(), "triangles": tris.tolist()}
     a = render_mitsuba(scene, spp=64, seed=1, variant=VARIANT, base_dir=tmp_path)
     b = render_mitsuba(_scene(inline, 5.0, 6.0, 8), spp=64, seed=1, variant=VARIANT)
