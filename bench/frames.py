@@ -128,8 +128,9 @@ def main() -> None:
     seed = 1
     rows = []
     with tempfile.TemporaryDirectory() as data:
+        # done jobs stay in Redis (not archived): the polling reads them there
         settings = Settings(redis_url=server.url, key_prefix=prefix, data_dir=Path(data),
-                            api_token=None)
+                            api_token=None, archive_done=False)
         worker = start_worker(server.url, concurrency=args.concurrency, extra_env={
             "LUCENT_KEY_PREFIX": prefix, "LUCENT_API_TOKEN": ""})
         store = JobStore(redis.Redis.from_url(server.url), prefix)
