@@ -1,5 +1,6 @@
 // A job: progressive preview (fetched only when its ETag changed), exposure, downloads, the tile
-// grid coloured by state or by samples, errors, the methods `auto` chose, cancel, retry, delete.
+// grid coloured by state or by samples, errors, the methods `auto` chose, cancel, retry, delete;
+// a job of frames: a strip of every frame (click one to preview it; Play runs the sequence).
 
 import {
   FINAL, api, authHeaders, elapsed, fmtDuration, fmtRate, fmtTime, h, poll, progressBar,
@@ -34,6 +35,9 @@ export function renderJob(view, jobId) {
   let fetching = false;
   let nextPreviewAt = 0;
   let poller = null;
+  let frame = 0;                                      // the frame the preview shows
+  let strip = { version: -1, at: 0, urls: [] };       // the frame strip's images
+  let player = null;
 
   const title = h("h1", { id: "job-title" }, "Job");
   const badge = h("span", { id: "job-status" });
@@ -59,12 +63,18 @@ export function renderJob(view, jobId) {
     h("option", { value: "state" }, "state"), h("option", { value: "samples" }, "samples"));
   const errors = h("div", { id: "job-errors" });
   const methods = h("div", { id: "job-methods" });
+  const frameStrip = h("div", { class: "frame-strip", id: "frame-strip" });
+  const playBtn = h("button", { id: "frames-play", type: "button" }, "Play");
+  const framesPanel = h("section", { class: "panel", id: "frames-panel", hidden: true },
+    h("div", { class: "toolbar" }, h("h2", {}, "Frames"), h("span", { class: "spacer" }), playBtn),
+    frameStrip);
 
   view.append(
     h("p", { class: "crumbs" }, h("a", { href: "#/jobs" }, "← Jobs")),
     h("div", { class: "toolbar" }, title, badge, h("span", { class: "spacer" }),
       h("span", { class: "group" }, cancelBtn, retryBtn, deleteBtn)),
     bar,
+    framesPanel,
     h("div", { class: "job-layout" },
       h("section", { class: "panel preview-panel" },
         h("div", { class: "preview-box" }, img),
@@ -84,14 +94,14 @@ export function renderJob(view, jobId) {
 
   function imageUrl(fmt, withView = true) {
     const q = withView ? `?exposure=${exposure.value}&tonemap=${tonemap.value}` : "";
-    return `/api/jobs/${jobId}/image.${fmt}${q}`;
+    return `/api/jobs/${jobId}${frame ? `/frames/${frame}` : ""}/image.${fmt}${q}`;
   }
 
   // Fetch the preview only if the image can have changed: a new merge (image_version) or a new
   // exposure / tone map. The server's ETag is sent back, so an unchanged image costs a 304.
   async function refreshPreview() {
     if (!job || job.samples_merged === 0 || fetching) return;
-    const key = `${exposure.value}/${tonemap.value}`;
+    const key = `${exposure.value}/${tonemap.value}/${frame}`;
     if (job.image_version === shown.version && key === shown.key) return;
     // A new exposure or the final image is fetched at once; merges of a running job are paced.
     const paced = key === shown.key && !FINAL.includes(job.status);
@@ -124,8 +134,10 @@ export function renderJob(view, jobId) {
 
   function renderTiles() {
     grid.style.aspectRatio = `${job.width} / ${job.height}`;
-    grid.setAttribute("aria-label", `${job.tiles} tiles coloured by ${colourBy}`);
-    const cells = job.tile_states.map((t) => {
+    // a job of frames: the tiles of the frame the preview shows (the legend counts them all)
+    const shownTiles = job.tile_states.filter((t) => (t.frame ?? 0) === frame);
+    grid.setAttribute("aria-label", `${shownTiles.length} tiles coloured by ${colourBy}`);
+    const cells = shownTiles.map((t) => {
       const fill = colourBy === "state" ? TILE_COLOURS[t.state] || "#888"
         : samplesColour(t.samples / job.spp);
       return h("div", {
@@ -208,10 +220,67 @@ export function renderJob(view, jobId) {
     renderMethods();
   }
 
+  // The frame strip: every frame's PNG, fetched again when merges landed, at most every
+  // PREVIEW_MIN_MS x frames (each is a preview's cost), once more when the job is over.
+  async function refreshStrip() {
+    if (!job || job.frames <= 1) return;
+    framesPanel.hidden = false;
+    const over = FINAL.includes(job.status);
+    if (job.image_version === strip.version) { renderStrip(); return; }
+    if (!over && performance.now() < strip.at) { renderStrip(); return; }
+    strip.at = performance.now() + PREVIEW_MIN_MS * job.frames;
+    const version = job.image_version;
+    const urls = [];
+    for (let i = 0; i < job.frames; i++) {
+      const r = await fetch(`/api/jobs/${jobId}/frames/${i}/image.png`,
+        { headers: authHeaders({}), cache: "no-store" });
+      urls.push(r.ok ? URL.createObjectURL(await r.blob()) : null);
+    }
+    strip.urls.forEach((u) => u && URL.revokeObjectURL(u));
+    strip = { ...strip, version, urls };
+    renderStrip();
+  }
+
+  function renderStrip() {
+    const progress = job.frame_progress || [];
+    frameStrip.replaceChildren(...Array.from({ length: job.frames }, (_, i) => h("button", {
+      type: "button", class: `frame-thumb${i === frame ? " selected" : ""}`,
+      dataset: { frame: String(i) }, title: `frame ${i}`,
+      onclick: () => { stopPlaying(); showFrame(i); },
+    }, strip.urls[i] ? h("img", { src: strip.urls[i], alt: `frame ${i}` }) : h("span", {}, "…"),
+    h("span", { class: "frame-caption" },
+      `${i} · ${Math.round(100 * (progress[i]?.progress ?? 0))} %`))));
+  }
+
+  function showFrame(i) {
+    frame = i;
+    renderStrip();
+    renderTiles();
+    updateLinks();
+    refreshPreview();
+  }
+
+  function stopPlaying() {
+    if (player) { clearInterval(player); player = null; playBtn.textContent = "Play"; }
+  }
+
+  playBtn.addEventListener("click", () => {
+    if (player) { stopPlaying(); return; }
+    playBtn.textContent = "Stop";
+    // The strip's images, one after the other (no fetch): the sequence as it stands
+    player = setInterval(() => {
+      if (!img.isConnected) { stopPlaying(); return; }  // the page was left
+      frame = (frame + 1) % job.frames;
+      if (strip.urls[frame]) img.src = strip.urls[frame];
+      renderStrip();
+    }, 250);
+  });
+
   async function refresh() {
     job = await api(`/api/jobs/${jobId}`);
     render();
     await refreshPreview();
+    await refreshStrip();
     const ms = FINAL.includes(job.status) ? FINAL_POLL_MS : POLL_MS;
     if (poller && poller.ms !== ms) poller.ms = ms;
   }

@@ -323,3 +323,31 @@ def test_job_page_shows_what_a_job_waits_for_and_its_blocklist(dashboard, page):
     assert "bad@host (3 failed passes)" in listed.inner_text()
     store.cancel_job(job_id)
     no_page_errors(page)
+
+
+def test_a_job_of_frames_shows_a_strip_and_plays_it(dashboard, page, api, artifacts):
+    """A 3-frame job: the strip shows every frame with its progress; a click previews that
+    frame (the frames route); Play runs through them."""
+    scene = json.loads(
+        (Path(__file__).resolve().parents[2] / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
+    scene["film"] = {"width": 32, "height": 24}
+    scene["render"]["spp"] = 4
+    frames = [[], [{"op": "replace", "path": "/camera/fov", "value": 60}],
+              [{"op": "replace", "path": "/camera/fov", "value": 20}]]
+    r = api.post("/api/jobs", json={"scene": scene, "frames": frames, "name": "frames"})
+    assert r.status_code == 201, r.text
+    job_id = r.json()["id"]
+    page.goto(f"{dashboard.url}/#/job/{job_id}")
+    page.wait_for_selector("#job-status .badge.s-done", timeout=60_000)
+    page.wait_for_function("document.querySelectorAll('#frame-strip .frame-thumb img').length"
+                           " === 3")
+    captions = page.locator("#frame-strip .frame-caption").all_inner_texts()
+    assert captions == ["0 · 100 %", "1 · 100 %", "2 · 100 %"]
+    with page.expect_response(lambda resp: f"/api/jobs/{job_id}/frames/2/image.png" in resp.url):
+        page.click("#frame-strip .frame-thumb[data-frame='2']")
+    assert "/frames/2/image.png" in page.get_attribute("#download-png", "href")
+    shot(page, artifacts, "frames")
+    page.click("#frames-play")
+    page.wait_for_selector("#frame-strip .frame-thumb.selected[data-frame='1']")
+    page.click("#frames-play")
+    no_page_errors(page)

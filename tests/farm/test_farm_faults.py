@@ -415,6 +415,40 @@ def test_workers_killed_repeatedly(own_redis, nodes, prefix, cornell):
         _assert_nothing_lost(api, store, job_id, scene)
 
 
+@pytest.mark.slow
+def test_a_node_killed_mid_sequence_loses_no_frame(own_redis, nodes, prefix, cornell):
+    """A job of three frames; its worker node SIGKILLed (main process and pool) at 40 % of it
+    and another started: the job ends done, every pixel of every frame with exactly ``spp``
+    samples and each frame the local render of its patched scene."""
+    from services.farm.frames import apply_patch
+
+    scene = _scene(cornell, 32, 24, 256)
+    frames = [[], [{"op": "replace", "path": "/camera/position/0", "value": 0.3}],
+              [{"op": "replace", "path": "/materials/white/albedo", "value": [0.4, 0.4, 0.4]}]]
+    node = nodes.start(2)
+    store = JobStore.from_url(own_redis.url, prefix)
+    nodes.wait_warm(store, node, 2)
+    with _api(own_redis.url, prefix) as api:
+        r = api.post("/api/jobs", json={"scene": scene, "frames": frames, "tile_size": 16,
+                                        "spp_per_pass": 8, "max_spp_per_pass": 8})
+        assert r.status_code == 201, r.text
+        job_id = r.json()["id"]
+        total = r.json()["tasks_total"]
+        _until(lambda: store.get_job(job_id).tasks_merged >= 0.4 * total, TIMEOUT, "40 %")
+        nodes.kill(node)
+        assert store.get_status(job_id) == "running"
+        nodes.start(2)
+        assert _finished(store, job_id) == "done", _stuck(store, job_id)
+        assert store.r.scard(store.k("job", job_id, "merged")) == total
+        for i, patch in enumerate(frames):
+            frame, _ = assemble(store, job_id, i)
+            assert (frame.count + frame.dropped == 256).all(), f"frame {i}"
+            image = np.load(io.BytesIO(
+                api.get(f"/api/jobs/{job_id}/frames/{i}/image.npy").content))
+            np.testing.assert_allclose(image, render(apply_patch(scene, patch)), rtol=1e-5,
+                                       atol=1e-7)
+
+
 # --- 2. a worker cut off from the network mid-task -----------------------------------------------
 class Partition:
     """A TCP proxy in front of Redis that can be cut and healed, for one worker node.

@@ -24,7 +24,7 @@ from services.farm.store import JobStore
 from services.launcher import EmbeddedRedis
 
 # Every operation of the OpenAPI document, with these path parameters.
-EXAMPLE_PARAMS = {"fmt": "png", "name": "cornell_box"}
+EXAMPLE_PARAMS = {"fmt": "png", "name": "cornell_box", "frame": 0}
 
 
 @pytest.fixture

@@ -142,3 +142,19 @@ def test_demo_says_it_compiles_on_a_cold_cache_only(tmp_path, monkeypatch, capsy
     cache.mkdir()
     marker.touch()
     assert "compiling" not in _demo_stderr(monkeypatch, capsys, cache)
+
+
+def test_worker_and_up_take_pool_tags(capsys):
+    import pytest
+
+    from services.cli import build_parser
+
+    parser = build_parser()
+    assert parser.parse_args(["worker", "--redis", "redis://x", "--tags", "gpu, bigmem"]).tags \
+        == ("bigmem", "gpu")
+    assert parser.parse_args(["up", "--tags", "gpu"]).tags == ("gpu",)
+    assert parser.parse_args(["submit", "s.json", "--tags", "gpu"]).tags == ("gpu",)
+    for bad in ("GPU", "a,b,c,d,e,f"):
+        with pytest.raises(SystemExit):
+            parser.parse_args(["worker", "--redis", "redis://x", "--tags", bad])
+    assert "--tags" in capsys.readouterr().err
