@@ -190,8 +190,9 @@ def test_on_a_mixed_scene_auto_keeps_within_its_stated_error(name):
     at the loosest target of the table auto's choice is an approximation whose object relMSE
     against the committed Mitsuba split reference (tests/data/<name>_ref.npy, 16384 spp) at 256
     spp is within the floor auto states (its expected_error); at the default target it is
-    volumetric, whose frame mean per channel at 1024 spp meets the reference's within 1 %
-    (measured: 0.2–0.4 % off; the object's pixels alone are heavy-tailed, 2–3 % at 1024 spp)."""
+    volumetric, whose frame mean per channel over four 1024-spp renders meets the reference's
+    within 1 % (one render's spreads by ~0.9 % on the backlit slab; four measured within 0.3 %;
+    the object's pixels alone are heavy-tailed, 2–3 % off at 1024 spp)."""
     from renderer.render import render
 
     scene, material = suite(chromatic=True)[name]
@@ -205,5 +206,9 @@ def test_on_a_mixed_scene_auto_keeps_within_its_stated_error(name):
     assert rel_mse(img, ref, mask) <= choice.expected_error
     tight = with_method(scene, material, "auto", 256)
     assert auto_choice(load_scene(tight), material).method == "volumetric"
-    img = render(with_method(scene, material, "volumetric", 1024))
-    np.testing.assert_allclose(img.mean(axis=(0, 1)), ref.mean(axis=(0, 1)), rtol=0.01)
+    means = []
+    for seed in (11, 12, 13, 14):
+        d = with_method(scene, material, "volumetric", 1024)
+        d["render"]["seed"] = seed
+        means.append(render(d).mean(axis=(0, 1)))
+    np.testing.assert_allclose(np.mean(means, axis=0), ref.mean(axis=(0, 1)), rtol=0.01)
