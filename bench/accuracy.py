@@ -42,9 +42,11 @@ auto is never the slower. ``--from-csv`` renders nothing and rewrites the charts
 from ``OUT/results.csv`` (after a change to auto's rule).
 
 ``--chromatic`` runs the chromatic suite instead (the wax sphere with σt 3/8/16 per channel, the
-jade slab with 12/25/50, a sphere of the ``skin1`` preset; references split by channel, three
-Mitsuba renders with the medium grey at each channel's σt, ``tests/data`` for the first two) and
-writes to ``docs/images/accuracy/chromatic``; auto's floors are not derived from it.
+jade slab with 12/25/50, a sphere of the ``skin1`` preset, and the mixed-regime ``mixed_wax`` and
+``mixed_slab``, blue made effectively opaque; references split by channel, three Mitsuba renders
+with the medium grey at each channel's σt, in ``tests/data`` but for the skin) and writes to
+``docs/images/accuracy/chromatic``; auto's ``CHROMATIC_FLOOR`` and ``MIXED_FLOOR`` come from it.
+``--scenes NAME ...`` renders only those suite scenes and replaces their rows in results.csv.
 
 ``--quick`` (< 60 s; references at 1024 spp) renders spp 4, 16, 64 once each, only the sphere,
 the slab and albedo 0.99, and writes to ``$LUCENT_CACHE/quick`` unless ``--out`` says otherwise.
@@ -487,7 +489,7 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 def write_tables(rows: list[dict], scenes: dict[str, tuple[dict, str]], out: Path,
                  floors_of_auto: bool = True) -> None:
     """Charts, failures.md, the auto table (auto.csv, auto.md) from the measured rows;
-    ``floors_of_auto``: the suite is the one auto's BIAS_FLOOR comes from (not the chromatic)."""
+    ``floors_of_auto``: the suite is the one auto's BIAS_FLOOR comes from (else the chromatic)."""
     sources = {r["scene"]: r["reference"] for r in rows}
     for name in sources:
         chart(name, rows, sources[name], out / f"{name}.png")
@@ -498,7 +500,7 @@ def write_tables(rows: list[dict], scenes: dict[str, tuple[dict, str]], out: Pat
         "crossover (time after which volumetric is more accurate)\n\n" + table
         + "\nLargest object relMSE at the highest spp"
         + (" (auto's BIAS_FLOOR): " if floors_of_auto
-           else " (not auto's floors, which are the grey suite's): ")
+           else " (with the grey suite's, by regime: auto's CHROMATIC_FLOOR, MIXED_FLOOR): ")
         + ", ".join(f"{m} {e:.3g}" for m, e in floors.items()) + "\n")
     print("\n" + table)
     autos = auto_rows(rows, {k: v for k, v in scenes.items() if k in sources})
