@@ -42,9 +42,11 @@ auto is never the slower. ``--from-csv`` renders nothing and rewrites the charts
 from ``OUT/results.csv`` (after a change to auto's rule).
 
 ``--chromatic`` runs the chromatic suite instead (the wax sphere with σt 3/8/16 per channel, the
-jade slab with 12/25/50, a sphere of the ``skin1`` preset; references split by channel, three
-Mitsuba renders with the medium grey at each channel's σt, ``tests/data`` for the first two) and
-writes to ``docs/images/accuracy/chromatic``; auto's floors are not derived from it.
+jade slab with 12/25/50, a sphere of the ``skin1`` preset, and the mixed-regime ``mixed_wax`` and
+``mixed_slab``, blue made effectively opaque; references split by channel, three Mitsuba renders
+with the medium grey at each channel's σt, in ``tests/data`` but for the skin) and writes to
+``docs/images/accuracy/chromatic``; auto's ``CHROMATIC_FLOOR`` and ``MIXED_FLOOR`` come from it.
+``--scenes NAME ...`` renders only those suite scenes and replaces their rows in results.csv.
 
 ``--quick`` (< 60 s; references at 1024 spp) renders spp 4, 16, 64 once each, only the sphere,
 the slab and albedo 0.99, and writes to ``$LUCENT_CACHE/quick`` unless ``--out`` says otherwise.
@@ -89,14 +91,32 @@ def _example(name: str) -> dict:
     return scene
 
 
-CHROMATIC_SUITE = {"chromatic_wax": "wax", "chromatic_slab": "jade", "skin_preset": "skin"}
+CHROMATIC_SUITE = {"chromatic_wax": "wax", "chromatic_slab": "jade", "skin_preset": "skin",
+                   "mixed_wax": "wax", "mixed_slab": "jade"}
+# Mixed-regime variants of the chromatic wax and jade (each channel in its own regime for auto,
+# renderer/materials/auto.py): blue made effectively opaque at 64×48 (σt 1000, albedo 0.5: 99 % of
+# its light leaves within 0.0032, under a pixel and a tenth of the object), red and green as they
+# were (translucent: deep in red).
+MIXED = {"mixed_wax": ("chromatic_wax", "wax", [0.97, 0.88, 0.5], [3.0, 8.0, 1000.0]),
+         "mixed_slab": ("chromatic_slab", "jade", [0.6, 0.95, 0.5], [12.0, 25.0, 1000.0])}
+
+# The spp of the references in tests/data that are not 16384
+STORED_SPP = {"mixed_slab": 4096}
+
+
+def _mixed(name: str) -> dict:
+    base, material, albedo, density = MIXED[name]
+    scene = _example(base)
+    scene["materials"][material].update(albedo=albedo, density=density)
+    return scene
 
 
 def suite(quick: bool = False, chromatic: bool = False) -> dict[str, tuple[dict, str]]:
     """Scene name → (scene dict at 64×48, name of its translucent material); ``chromatic``: the
     chromatic suite (the wax sphere at σt 3/8/16, the jade slab at 12/25/50, a skin1 sphere)."""
     if chromatic:
-        return {name: (_example(name), material) for name, material in CHROMATIC_SUITE.items()}
+        return {name: (_mixed(name) if name in MIXED else _example(name), material)
+                for name, material in CHROMATIC_SUITE.items()}
     scenes = {
         "translucent_sphere": (_example("translucent_sphere"), "wax"),
         "backlit_slab": (_example("backlit_slab"), "jade"),
@@ -129,10 +149,11 @@ def reference(name: str, scene: dict, material: str, spp: int) -> tuple[np.ndarr
     """The converged image of ``scene`` (its ``volumetric`` form) and where it came from."""
     scene = with_method(scene, material, "volumetric", spp)
     stored = ROOT / "tests" / "data" / f"{name}_ref.npy"
-    if stored.exists() and scene == with_method(_example(name), material, "volumetric", spp):
+    stock = _mixed(name) if name in MIXED else _example(name)
+    if stored.exists() and scene == with_method(stock, material, "volumetric", spp):
         split = " split by channel" if name in CHROMATIC_SUITE else ""
         return (np.load(stored).astype(np.float64),
-                f"mitsuba volpath 16384 spp{split} (tests/data)")
+                f"mitsuba volpath {STORED_SPP.get(name, 16384)} spp{split} (tests/data)")
     key = hashlib.sha256(json.dumps(scene, sort_keys=True).encode()).hexdigest()[:16]
     try:
         import mitsuba  # noqa: F401  (fail here, not half-way through a render)
@@ -468,7 +489,7 @@ def write_csv(path: Path, rows: list[dict]) -> None:
 def write_tables(rows: list[dict], scenes: dict[str, tuple[dict, str]], out: Path,
                  floors_of_auto: bool = True) -> None:
     """Charts, failures.md, the auto table (auto.csv, auto.md) from the measured rows;
-    ``floors_of_auto``: the suite is the one auto's BIAS_FLOOR comes from (not the chromatic)."""
+    ``floors_of_auto``: the suite is the one auto's BIAS_FLOOR comes from (else the chromatic)."""
     sources = {r["scene"]: r["reference"] for r in rows}
     for name in sources:
         chart(name, rows, sources[name], out / f"{name}.png")
@@ -479,7 +500,7 @@ def write_tables(rows: list[dict], scenes: dict[str, tuple[dict, str]], out: Pat
         "crossover (time after which volumetric is more accurate)\n\n" + table
         + "\nLargest object relMSE at the highest spp"
         + (" (auto's BIAS_FLOOR): " if floors_of_auto
-           else " (not auto's floors, which are the grey suite's): ")
+           else " (with the grey suite's, by regime: auto's CHROMATIC_FLOOR, MIXED_FLOOR): ")
         + ", ".join(f"{m} {e:.3g}" for m, e in floors.items()) + "\n")
     print("\n" + table)
     autos = auto_rows(rows, {k: v for k, v in scenes.items() if k in sources})
@@ -506,6 +527,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="the chromatic suite, to docs/images/accuracy/chromatic")
     parser.add_argument("--from-csv", action="store_true",
                         help="render nothing: redo the charts and tables from OUT/results.csv")
+    parser.add_argument("--scenes", nargs="+", default=None,
+                        help="only these suite scenes; their rows replace theirs in results.csv")
     args = parser.parse_args(argv)
     if args.out is None:
         args.out = CACHE / "quick" if args.quick else ROOT / "docs" / "images" / "accuracy"
@@ -530,7 +553,10 @@ def main(argv: list[str] | None = None) -> int:
     print(f"{'scene':<20} {'method':<15} {'spp':>5} {'seconds':>8} {'relMSE':>9} "
           f"{'obj relMSE':>9} {'1-SSIM':>8} {'mean/ref':>8}")
     scenes = suite(args.quick, args.chromatic)
-    for name, (scene, material) in scenes.items():
+    todo = {k: v for k, v in scenes.items() if args.scenes is None or k in args.scenes}
+    if args.scenes is not None and (args.out / "results.csv").exists():
+        rows = [r for r in read_rows(args.out / "results.csv") if r["scene"] not in todo]
+    for name, (scene, material) in todo.items():
         ref, source = reference(name, scene, material, ref_spp)
         source = source.removesuffix(" (cached)")
         mask = object_mask(scene, material)

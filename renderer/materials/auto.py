@@ -23,6 +23,15 @@ Three regimes need no subsurface model at all, and are rendered as what they are
   size: an opaque surface, a Fresnel coat over the semi-infinite medium's exact albedo
   (renderer/materials/opaque.py), whose error against ``volumetric`` on dense spheres is
   ``OPAQUE_ERROR`` (``python -m bench.opaque``, docs/images/accuracy/opaque.csv).
+
+A chromatic medium (σt per channel) is judged channel by channel (``channel_regimes``: each
+channel absorbing, clear, opaque or translucent, as a grey medium at that channel's albedo and σt
+would be), and takes the cheapest method acceptable in every channel (``choose_chromatic``): a
+dielectric when each channel is absorbing or clear, the opaque surface when each is opaque, an
+approximation when the channels are translucent, or translucent and opaque (nearly opaque in
+blue, deep in red), and its floor, measured on the chromatic and mixed-regime scenes too
+(``CHROMATIC_FLOOR``, ``MIXED_FLOOR``; ``python -m bench.accuracy --chromatic``), meets the target;
+else ``volumetric``.
 """
 
 from __future__ import annotations
@@ -60,6 +69,30 @@ SUITE_CLASSES = {"translucent_sphere": "solid", "sphere_albedo_0.5": "solid",
                  "sphere_albedo_0.9": "solid", "sphere_albedo_0.99": "solid",
                  "backlit_slab": "backlit", "translucent_torus": "mesh",
                  "translucent_shell": "mesh"}
+# Chromatic media (σt per channel), by the regimes of their channels (``channel_regimes``): the
+# floors of the grey suite's scenes of each scene regime and of the chromatic suite's
+# (docs/images/accuracy/chromatic/results.csv, ``python -m bench.accuracy --chromatic``; the
+# approximations take each channel's own mean free path), the largest, rounded up. Every channel
+# translucent: the chromatic wax and the skin1 sphere (solid), the chromatic jade slab (backlit).
+# No chromatic mesh was measured: a chromatic mesh gets volumetric. test_auto_evidence.py ties
+# every number to the CSVs.
+CHROMATIC_FLOOR = {
+    "backlight": {"solid": 0.314, "backlit": 0.197},
+    "diffusion": {"solid": 0.344, "backlit": 0.514},
+    "single_scatter": {"solid": 0.236, "backlit": 0.436},
+}
+# Translucent and opaque channels: the same, with the mixed-regime scenes as well (bench.accuracy
+# MIXED: the chromatic wax and jade with blue at σt 1000, albedo 0.5, effectively opaque at
+# 64×48). They raise only the backlit floors, and only a little (the mixed slab's backlight
+# 0.198, single_scatter 0.4362): the opaque channel is the one an approximation gets right.
+MIXED_FLOOR = {
+    "backlight": {"solid": 0.314, "backlit": 0.199},
+    "diffusion": {"solid": 0.344, "backlit": 0.514},
+    "single_scatter": {"solid": 0.236, "backlit": 0.437},
+}
+CHROMATIC_CLASSES = {"chromatic_wax": "solid", "skin_preset": "solid",
+                     "chromatic_slab": "backlit", "mixed_wax": "solid", "mixed_slab": "backlit"}
+CHANNEL_REGIMES = ("absorbing", "clear", "opaque", "translucent")
 # Largest object relMSE of the opaque surface against volumetric over the dense spheres of
 # docs/images/accuracy/opaque.csv (tests/renderer/materials/test_opaque.py ties it to the CSV).
 OPAQUE_ERROR = 0.00847
@@ -98,6 +131,53 @@ def expected_floor(method: str, regimes: frozenset[str] | None) -> float:
     return max(REGIME_FLOOR[method][r] for r in {"solid", *regimes})
 
 
+def channel_regimes(albedo, density, size: float, target: float, *, g: float = 0.0,
+                    ior: float = 1.0, footprint: float = 0.0) -> tuple[str, ...]:
+    """Each channel's regime (one of ``CHANNEL_REGIMES``), judged from that channel's own albedo
+    and σt alone, as if the medium were grey at them: "absorbing" (albedo 0), "clear" (the
+    scattered fraction albedo·σt·size at or below the target), "opaque" (``OPAQUE_QUANTILE`` of
+    its light leaves within ``opaque_limit``: a pixel and a tenth of the object; only with a
+    known ``footprint`` and ``OPAQUE_ERROR`` within the target), else "translucent"."""
+    a = np.broadcast_to(np.asarray(albedo, dtype=np.float64), (3,))
+    sigma_t = np.broadcast_to(np.asarray(density, dtype=np.float64), (3,))
+    reach = None
+    if footprint > 0.0 and OPAQUE_ERROR <= target and a.max() > 0.0:
+        _, d, _ = diffusion_parameters(a, sigma_t, g, ior)
+        reach = [float(burley_r_max(float(x), OPAQUE_QUANTILE)) for x in d]
+    out = []
+    for k in range(3):
+        if a[k] == 0.0:
+            out.append("absorbing")
+        elif a[k] * sigma_t[k] * size <= target:
+            out.append("clear")
+        elif reach is not None and reach[k] <= opaque_limit(footprint, size):
+            out.append("opaque")
+        else:
+            out.append("translucent")
+    return tuple(out)
+
+
+def chromatic_floor(method: str, regimes: frozenset[str] | None,
+                    mixed: bool) -> float | None:
+    """A method's expected bias floor on a chromatic medium in a scene of these regimes:
+    ``CHROMATIC_FLOOR`` (every channel translucent) or ``MIXED_FLOOR`` (translucent and opaque
+    channels); None where no chromatic scene of a regime was measured (meshes, unknown)."""
+    if regimes is None or not regimes <= {"solid", "backlit"}:
+        return None
+    table = MIXED_FLOOR if mixed else CHROMATIC_FLOOR
+    return max(table[method][r] for r in {"solid", *regimes})
+
+
+def cheapest_within(floors: dict[str, float], target: float, where: str,
+                    kind: str) -> AutoChoice:
+    """The first (cheapest) approximation whose floor meets the target, else ``volumetric``."""
+    for method, floor in floors.items():
+        if floor <= target:
+            return AutoChoice(method, f"{where}: {kind} {floor:g} <= target {target:g}", floor)
+    return AutoChoice("volumetric", f"{where}: no approximation's {kind} (lowest "
+                      f"{min(floors.values()):g}) meets target {target:g}", 0.0)
+
+
 def choose_method(albedo, density, size: float, target: float | None, *, g: float = 0.0,
                   ior: float = 1.0, footprint: float = 0.0,
                   regimes: frozenset[str] | None = None, rough: bool = False) -> AutoChoice:
@@ -107,17 +187,14 @@ def choose_method(albedo, density, size: float, target: float | None, *, g: floa
     opaque), ``regimes`` the scene's (``scene_regimes``; None: unknown, every method's worst
     floor).
 
-    A chromatic medium (σt differs between channels) is judged by its worst channel: clear only
-    if the densest channel is, opaque only if the channel that reaches farthest is. Between those
-    it is rendered by ``volumetric``: the approximations' bias floors were measured on grey media
-    only (docs/speed-accuracy.md), and a material whose channels fall into different regimes
-    (nearly opaque in blue, deep in red) is the case where they are least to be trusted.
-
-    A rough boundary (``rough``) is rendered by ``volumetric`` (or, clear, by a rough glass):
-    the approximations and the opaque limit have a smooth coat."""
+    A chromatic medium (σt differs between channels) is judged channel by channel
+    (``choose_chromatic``). A rough boundary (``rough``) is rendered by ``volumetric`` (or,
+    clear, by a rough glass): the approximations and the opaque limit have a smooth coat."""
     target = DEFAULT_TARGET if target is None else target
     sigma_t = np.broadcast_to(np.asarray(density, dtype=np.float64), (3,))
-    chromatic = len(set(sigma_t.tolist())) > 1
+    if len(set(sigma_t.tolist())) > 1:
+        return choose_chromatic(albedo, sigma_t, size, target, g=g, ior=ior,
+                                footprint=footprint, regimes=regimes, rough=rough)
     tau = float(sigma_t.max()) * size
     a = max(albedo)
     where = f"optical radius {tau:.3g}, albedo {a:.3g}"
@@ -137,17 +214,58 @@ def choose_method(albedo, density, size: float, target: float | None, *, g: floa
                               f"the light leaves within {reach:.3g} of where it entered, under a "
                               f"pixel ({footprint:.3g}); measured error {OPAQUE_ERROR:g} <= target "
                               f"{target:g}", OPAQUE_ERROR)
-    if chromatic:
-        return AutoChoice("volumetric", f"{where}, chromatic (σt {format_rgb(sigma_t)}): the "
-                          "approximations' bias floors are measured on grey media only", 0.0)
     floors = {method: expected_floor(method, regimes) for method in BIAS_FLOOR}
     kind = "" if regimes is None else f" ({', '.join(sorted({'solid', *regimes}))})"
-    for method, floor in floors.items():
-        if floor <= target:
-            return AutoChoice(method, f"{where}: measured bias floor{kind} {floor:g} <= target "
-                              f"{target:g}", floor)
-    return AutoChoice("volumetric", f"{where}: no approximation's measured bias floor{kind} "
-                      f"(lowest {min(floors.values()):g}) meets target {target:g}", 0.0)
+    return cheapest_within(floors, target, where, f"measured bias floor{kind}")
+
+
+def choose_chromatic(albedo, sigma_t, size: float, target: float, *, g: float, ior: float,
+                     footprint: float, regimes: frozenset[str] | None,
+                     rough: bool) -> AutoChoice:
+    """``choose_method`` for a chromatic medium: each channel in its regime
+    (``channel_regimes``), then the cheapest method whose error is acceptable in every channel:
+
+    - every channel absorbing or clear: a ``dielectric`` absorbing σa = σt·(1 − albedo) per
+      channel (exact where albedo is 0; the scattered fraction, the largest albedo·σt·size, where
+      clear);
+    - a rough boundary: ``volumetric``;
+    - every channel opaque: the ``opaque`` surface (``OPAQUE_ERROR``);
+    - every channel translucent: an approximation whose floor over the chromatic suite and the
+      grey suite's scenes of the scene's regimes (``CHROMATIC_FLOOR``) meets the target;
+    - translucent and opaque channels (nearly opaque in blue, deep in red): the same, with the
+      floors that include the mixed-regime scenes (``MIXED_FLOOR``);
+    - otherwise ``volumetric``: a clear or absorbing channel beside a scattering one (the
+      approximations fail on clear media, docs/speed-accuracy.md, failure map), a mesh (no
+      chromatic mesh was measured), or no floor within the target."""
+    a = np.broadcast_to(np.asarray(albedo, dtype=np.float64), (3,))
+    kinds = channel_regimes(a, sigma_t, size, target, g=g, ior=ior, footprint=footprint)
+    where = (f"chromatic, optical radius {format_rgb(sigma_t * size)}, albedo {format_rgb(a)}: "
+             + ", ".join(f"{c} {k}" for c, k in zip("RGB", kinds, strict=True)))
+    present = set(kinds)
+    if present <= {"absorbing", "clear"}:
+        scattered = float(np.max(a * sigma_t * size))
+        if present == {"absorbing"}:
+            return AutoChoice("dielectric", f"{where}: nothing scatters, an absorbing glass is "
+                              "exact", 0.0)
+        return AutoChoice("dielectric", f"{where}: every channel absorbing or effectively clear, "
+                          f"scattered fraction {scattered:.3g} <= target {target:g}", scattered)
+    if rough:
+        return AutoChoice("volumetric", f"{where}: a rough boundary (the approximations have a "
+                          "smooth coat)", 0.0)
+    if present == {"opaque"}:
+        return AutoChoice("opaque", f"{where}: every channel effectively opaque, under a pixel "
+                          f"({footprint:.3g}); measured error {OPAQUE_ERROR:g} <= target "
+                          f"{target:g}", OPAQUE_ERROR)
+    if not present <= {"opaque", "translucent"}:
+        return AutoChoice("volumetric", f"{where}: a clear or absorbing channel beside a "
+                          "scattering one, where no approximation's floor was measured", 0.0)
+    mixed = "opaque" in present
+    floors = {m: chromatic_floor(m, regimes, mixed) for m in BIAS_FLOOR}
+    if None in floors.values():
+        return AutoChoice("volumetric", f"{where}: no chromatic scene of these regimes "
+                          f"({', '.join(sorted(regimes or {'unknown'}))}) was measured", 0.0)
+    kind = f"{'mixed' if mixed else 'chromatic'} floor ({', '.join(sorted({'solid', *regimes}))})"
+    return cheapest_within(floors, target, where, f"measured {kind}")
 
 
 def _object_half_extent(obj) -> float:

@@ -76,11 +76,16 @@ def test_chromatic_weights_give_each_channel_its_own_medium(rng, probs, t):
             assert abs(values.mean() - exact) < 5 * se + 1e-12, (k, values.mean(), exact, se)
 
 
-def test_channel_probabilities_follow_the_throughput():
-    assert channel_probabilities(2.0, 1.0, 1.0) == pytest.approx((0.5, 0.25, 0.25))
-    assert channel_probabilities(0.0, 0.0, 3.0) == (0.0, 0.0, 1.0)
+def test_channel_probabilities_follow_throughput_times_mean_free_path():
+    # equal σt: the throughput alone
+    assert channel_probabilities(2.0, 1.0, 1.0, 5.0, 5.0, 5.0) == pytest.approx((0.5, 0.25, 0.25))
+    # equal throughput: the mean free path, 1/3 : 1/8 : 1/16 (the chromatic wax)
+    w = np.array([1 / 3, 1 / 8, 1 / 16])
+    assert channel_probabilities(1.0, 1.0, 1.0, 3.0, 8.0, 16.0) == pytest.approx(w / w.sum())
+    assert channel_probabilities(2.0, 1.0, 1.0, 4.0, 1.0, 2.0) == pytest.approx((0.25, 0.5, 0.25))
+    assert channel_probabilities(0.0, 0.0, 3.0, 1.0, 2.0, 3.0) == (0.0, 0.0, 1.0)
     for bad in ((0.0, 0.0, 0.0), (math.inf, 1.0, 1.0), (math.nan, 1.0, 1.0)):
-        assert channel_probabilities(*bad) == pytest.approx((1 / 3, 1 / 3, 1 / 3))
+        assert channel_probabilities(*bad, 1.0, 10.0, 100.0) == pytest.approx((1 / 3,) * 3)
 
 
 def test_a_sampled_channel_with_no_share_is_never_used():

@@ -10,8 +10,12 @@ import pytest
 
 from renderer.materials.auto import (
     BIAS_FLOOR,
+    CHROMATIC_FLOOR,
     DEFAULT_TARGET,
+    MIXED_FLOOR,
+    REGIME_FLOOR,
     auto_choice,
+    channel_regimes,
     choose_method,
     scene_regimes,
 )
@@ -109,28 +113,106 @@ def test_an_absorbing_only_material_is_rendered_as_absorbing_glass():
     np.testing.assert_allclose(a.mean(axis=(0, 1)), b.mean(axis=(0, 1)), rtol=0.02)
 
 
-def test_chromatic_media_are_judged_by_their_worst_channel():
-    """Clear only if the densest channel is; opaque only if the farthest-reaching channel is;
-    in between volumetric, whatever the target: the approximations' floors are grey-measured."""
-    # Clear in red and green, not in blue: not clear
-    assert choose_method((0.9,) * 3, (0.001, 0.001, 8.0), 0.5, 0.5).method == "volumetric"
+@pytest.mark.parametrize(("albedo", "density", "footprint", "expected"), [
+    # the chromatic wax of the examples: deep in red, translucent in every channel
+    ((0.97, 0.88, 0.7), (3.0, 8.0, 16.0), 0.05, ("translucent",) * 3),
+    # blue made nearly opaque (reach 0.0032 under the pixel 0.05): deep in red, opaque in blue
+    ((0.97, 0.88, 0.5), (3.0, 8.0, 1000.0), 0.05, ("translucent", "translucent", "opaque")),
+    # the same with the pixel unknown: nothing is opaque
+    ((0.97, 0.88, 0.5), (3.0, 8.0, 1000.0), 0.0, ("translucent",) * 3),
+    # thin in red (scattered fraction 0.9·0.01·0.5 = 0.0045 <= 0.01), absorbing in green
+    ((0.9, 0.0, 0.9), (0.01, 8.0, 8.0), 0.05, ("clear", "absorbing", "translucent")),
+    # every channel dense: opaque in each
+    ((0.95, 0.95, 0.95), (2000.0, 3000.0, 4000.0), 0.05, ("opaque",) * 3),
+])
+def test_each_channel_is_classified_by_its_own_albedo_and_density(albedo, density, footprint,
+                                                                  expected):
+    assert channel_regimes(albedo, density, 0.5, 0.01, ior=1.4, footprint=footprint) == expected
+
+
+def test_a_channel_is_in_the_regime_a_grey_medium_at_its_values_would_be():
+    """Channel k's regime is the grey medium's at (albedo_k, σt_k): what choose_method picks for
+    that grey medium (dielectric for clear/absorbing, opaque, else a subsurface method)."""
+    albedo, density = (0.97, 0.0, 0.5), (0.004, 8.0, 1000.0)
+    kinds = channel_regimes(albedo, density, 0.5, 0.01, ior=1.4, footprint=0.05)
+    grey = {"clear": "dielectric", "absorbing": "dielectric", "opaque": "opaque",
+            "translucent": "volumetric"}
+    for k in range(3):
+        c = choose_method((albedo[k],) * 3, density[k], 0.5, None, ior=1.4, footprint=0.05)
+        assert c.method == grey[kinds[k]], (k, kinds[k], c.reason)
+
+
+def test_chromatic_media_take_the_method_whose_floor_holds_in_every_channel():
+    solid, backlit, mesh = frozenset(), frozenset({"backlit"}), frozenset({"mesh"})
+    wax = ((0.97, 0.88, 0.7), (3.0, 8.0, 16.0))
+    # Every channel translucent: the chromatic floors (the grey suite's and the chromatic's)
+    c = choose_method(*wax, 0.5, 0.35, regimes=solid, footprint=0.05)
+    assert (c.method, c.expected_error) == ("backlight", CHROMATIC_FLOOR["backlight"]["solid"])
+    assert "R translucent, G translucent, B translucent" in c.reason
+    assert "chromatic floor" in c.reason
+    # backlit: the chromatic slab's floors (single_scatter 0.436 > grey 0.377)
+    assert choose_method(*wax, 0.5, 0.4, regimes=backlit).method == "backlight"
+    assert CHROMATIC_FLOOR["single_scatter"]["backlit"] > REGIME_FLOOR["single_scatter"][
+        "backlit"]
+    # no chromatic mesh measured, unknown regimes: the reference
+    for regimes in (mesh, None):
+        c = choose_method(*wax, 0.5, 1.0, regimes=regimes)
+        assert c.method == "volumetric" and "was measured" in c.reason
+    # the default target: no approximation is close enough
+    assert choose_method(*wax, 0.5, None, regimes=solid).method == "volumetric"
+    # rough: volumetric
+    assert choose_method(*wax, 0.5, 1.0, regimes=solid, rough=True).method == "volumetric"
+
+
+def test_mixed_regimes_take_the_floors_measured_on_mixed_scenes():
+    """Nearly opaque in blue, deep in red: an approximation only where its floor over the
+    mixed-regime scenes meets the target; a clear or absorbing channel beside a scattering one,
+    volumetric; every channel clear or absorbing, a dielectric; every channel opaque, opaque."""
+    solid = frozenset()
+    mixed = ((0.97, 0.88, 0.5), (3.0, 8.0, 1000.0))
+    for target in (0.01, 0.2, 0.3, 0.5, 1.0):
+        c = choose_method(*mixed, 0.5, target, regimes=solid, footprint=0.05)
+        assert "R translucent, G translucent, B opaque" in c.reason
+        ok = [m for m in BIAS_FLOOR if MIXED_FLOOR[m]["solid"] <= target]
+        assert c.method == (ok[0] if ok else "volumetric"), (target, c.reason)
+        if ok:
+            assert "mixed floor" in c.reason
+    for m in BIAS_FLOOR:
+        for regime in ("solid", "backlit"):
+            assert MIXED_FLOOR[m][regime] >= CHROMATIC_FLOOR[m][regime]
+    # clear in red beside scattering green and blue: volumetric, at any target
+    c = choose_method((0.9, 0.9, 0.9), (0.001, 8.0, 16.0), 0.5, 1.0, regimes=solid)
+    assert c.method == "volumetric" and "clear or absorbing" in c.reason
+    # absorbing in blue beside scattering red: volumetric
+    assert choose_method((0.9, 0.9, 0.0), (3.0, 8.0, 16.0), 0.5, 1.0,
+                         regimes=solid).method == "volumetric"
+    # clear in red and green, absorbing in blue: an absorbing glass
+    c = choose_method((0.9, 0.9, 0.0), (0.001, 0.002, 8.0), 0.5, None)
+    assert c.method == "dielectric" and c.expected_error == pytest.approx(0.9 * 0.002 * 0.5)
     assert choose_method((0.9,) * 3, (0.001, 0.001, 0.002), 0.5, 0.5).method == "dielectric"
-    # At a target the grey wax meets with backlight, the chromatic one still gets the reference
-    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.5).method == "backlight"
-    c = choose_method((0.9,) * 3, (4.0, 8.0, 16.0), 0.5, 0.5)
-    assert c.method == "volumetric" and "chromatic" in c.reason
-    # Nearly opaque in blue, deep in red: the red channel's reach decides, not opaque
+    # opaque in every channel, each judged by its own reach
     footprint = 0.05
-    assert choose_method((0.95,) * 3, (3000.0,) * 3, 0.5, None, footprint=footprint,
+    assert choose_method((0.95,) * 3, (2000.0, 3000.0, 4000.0), 0.5, None, footprint=footprint,
                          ior=1.4).method == "opaque"
     assert choose_method((0.95,) * 3, (3.0, 300.0, 3000.0), 0.5, None, footprint=footprint,
                          ior=1.4).method == "volumetric"
-    assert choose_method((0.95,) * 3, (2000.0, 3000.0, 4000.0), 0.5, None, footprint=footprint,
-                         ior=1.4).method == "opaque"
+
+
+def test_grey_media_keep_the_grey_rule():
+    """One σt: the rule of the grey suite, whatever the channels' albedos."""
+    assert choose_method((0.9,) * 3, 8.0, 0.5, 0.5).method == "backlight"
+    assert choose_method((0.97, 0.88, 0.7), 8.0, 0.5, 0.3,
+                         regimes=frozenset()).method == "single_scatter"
+    assert "translucent" not in choose_method((0.9,) * 3, 8.0, 0.5, 0.5).reason
 
 
 def test_auto_on_a_chromatic_scene_renders_what_it_chose():
     scene = load_scene(wax_scene("auto", target=0.5, density=[4.0, 8.0, 16.0]))
     choice = auto_choice(scene, "wax")
-    assert choice.method == "volumetric"
-    assert compile_scene(scene).info["auto"]["wax"]["method"] == "volumetric"
+    assert choice.method == "backlight" and "chromatic floor (solid)" in choice.reason
+    cs = compile_scene(scene)
+    assert cs.info["auto"]["wax"]["method"] == "backlight"
+    np.testing.assert_array_equal(
+        render(cs), render(wax_scene("backlight", target=0.5, density=[4.0, 8.0, 16.0])))
+    tight = load_scene(wax_scene("auto", density=[4.0, 8.0, 16.0]))
+    assert compile_scene(tight).info["auto"]["wax"]["method"] == "volumetric"
