@@ -56,18 +56,22 @@ def work_list(active: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.ascontiguousarray(active).ravel()).astype(np.int64)
 
 
+def batching(active: np.ndarray, sample_count: int, batch_paths: int):
+    """(work list, paths in all, paths a batch): batches of whole pixels, so that a pixel's
+    samples are summed in order, as the scalar kernel sums them."""
+    work = work_list(active)
+    total = len(work) * sample_count
+    return work, total, min(total, max(1, batch_paths // sample_count) * sample_count)
+
+
 def render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_count, active,
                           batch_paths: int = BATCH_PATHS) -> SampleBuffer:
     """``render_tile`` (arguments checked there) by the wavefront kernel."""
     S = scene.arrays
     buf = SampleBuffer.empty(x0, y0, width, height)
-    work = work_list(active)
-    total = len(work) * sample_count
+    work, total, n_max = batching(active, sample_count, batch_paths)
     if total == 0:
         return buf
-    # Batches of whole pixels, so a pixel's samples are summed in order, as the scalar kernel does
-    pixels = max(1, batch_paths // sample_count)
-    n_max = min(total, pixels * sample_count)
     P = path_state(n_max)
     live = np.empty(n_max, np.int64)
     threads = numba.get_num_threads()
