@@ -78,13 +78,13 @@ def render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_cou
     for g0 in range(0, total, n_max):
         n = min(n_max, total - g0)
         generate(S, P, scene.width, scene.height, scene.seed, x0, y0, width, work, sample_start,
-                 sample_count, g0, n, live)
+                 sample_count, g0, n, live, threads)
         n_live = n
         for _ in range(MAX_SEGMENTS):
             if n_live == 0:
                 break
             intersect(S, P, live, n_live, scene.stack_size, threads)
-            shade(S, P, live, n_live, scene.max_depth)
+            shade(S, P, live, n_live, scene.max_depth, threads)
             shadow(S, P, live, n_live, scene.stack_size, threads)
             n_live = compact(P, live, n_live)
         accumulate(P, g0, g0 + n, sample_count, work, buf.sum, buf.sum_sq, buf.count,
