@@ -18,6 +18,7 @@ import numpy as np
 
 from renderer.film.buffer import SampleBuffer
 from renderer.integrators.path import MAX_SEGMENTS
+from renderer.materials import bsdf
 from renderer.materials.bsdf import (
     CONDUCTOR,
     DIELECTRIC,
@@ -43,7 +44,8 @@ def unsupported(scene) -> str | None:
     used = set(np.unique(S.mat_kind[S.prim_material]).tolist()) if len(S.prim_material) else set()
     other = sorted(used - SURFACE_KINDS)
     if other:
-        return f"material kinds {other} (not surface materials)"
+        names = {v: k.lower() for k, v in vars(bsdf).items() if k.isupper() and type(v) is int}
+        return "the material kinds " + ", ".join(names.get(k, str(k)) for k in other)
     if S.null_media[0]:
         return "surfaces a shadow ray crosses"
     if S.sampler[0] != 0:
