@@ -19,6 +19,7 @@ import numpy as np
 
 from renderer.film.buffer import SampleBuffer
 from renderer.integrators.path import MAX_SEGMENTS
+from renderer.materials import bsdf
 from renderer.materials.bsdf import (
     CONDUCTOR,
     DIELECTRIC,
@@ -44,7 +45,8 @@ def unsupported(scene) -> str | None:
     used = set(np.unique(S.mat_kind[S.prim_material]).tolist()) if len(S.prim_material) else set()
     other = sorted(used - SURFACE_KINDS)
     if other:
-        return f"material kinds {other} (not surface materials)"
+        names = {v: k.lower() for k, v in vars(bsdf).items() if k.isupper() and type(v) is int}
+        return "the material kinds " + ", ".join(names.get(k, str(k)) for k in other)
     if S.null_media[0]:
         return "surfaces a shadow ray crosses"
     if len(S.prim_material) and (S.mat_tex[np.unique(S.prim_material), 1] >= 0.0).any():
@@ -61,31 +63,35 @@ def work_list(active: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.ascontiguousarray(active).ravel()).astype(np.int64)
 
 
+def batching(active: np.ndarray, sample_count: int, batch_paths: int):
+    """(work list, paths in all, paths a batch): batches of whole pixels, so that a pixel's
+    samples are summed in order, as the scalar kernel sums them."""
+    work = work_list(active)
+    total = len(work) * sample_count
+    return work, total, min(total, max(1, batch_paths // sample_count) * sample_count)
+
+
 def render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_count, active,
                           batch_paths: int = BATCH_PATHS) -> SampleBuffer:
     """``render_tile`` (arguments checked there) by the wavefront kernel."""
     S = scene.arrays
     buf = SampleBuffer.empty(x0, y0, width, height)
-    work = work_list(active)
-    total = len(work) * sample_count
+    work, total, n_max = batching(active, sample_count, batch_paths)
     if total == 0:
         return buf
-    # Batches of whole pixels, so a pixel's samples are summed in order, as the scalar kernel does
-    pixels = max(1, batch_paths // sample_count)
-    n_max = min(total, pixels * sample_count)
     P = path_state(n_max)
     live = np.empty(n_max, np.int64)
     threads = numba.get_num_threads()
     for g0 in range(0, total, n_max):
         n = min(n_max, total - g0)
         generate(S, P, scene.width, scene.height, scene.seed, x0, y0, width, work, sample_start,
-                 sample_count, g0, n, live)
+                 sample_count, g0, n, live, threads)
         n_live = n
         for _ in range(MAX_SEGMENTS):
             if n_live == 0:
                 break
             intersect(S, P, live, n_live, scene.stack_size, threads)
-            shade(S, P, live, n_live, scene.max_depth)
+            shade(S, P, live, n_live, scene.max_depth, threads)
             shadow(S, P, live, n_live, scene.stack_size, threads)
             n_live = compact(P, live, n_live)
         accumulate(P, g0, g0 + n, sample_count, work, buf.sum, buf.sum_sq, buf.count,

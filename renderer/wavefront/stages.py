@@ -254,30 +254,50 @@ def accumulate_one(P, w, g0, g1, sample_count, work, out_sum, out_sum_sq, out_co
 
 
 # --- the CPU stages: each a parallel loop over a queue of path slots ------------------------------
+# Each parallel stage cuts the queue into one contiguous run a thread and hands each run to a
+# serial kernel (``*_run``) compiled without numba's runtime: inside a parallel loop every array
+# taken out of the ``S`` and ``P`` tuples is reference-counted (an atomic increment and decrement
+# an access, renderer/jit.py), which made each stage cost about what the scalar kernel's whole
+# path does.
 
-@parallel_kernel
-def generate(S, P, width, height, seed, x0, y0, tile_w, work, sample_start, sample_count, g0,
-             n, live):
-    """Start paths 0 … n − 1 as samples g0 … g0 + n − 1 of the work; all of them are live."""
-    for i in prange(n):
+
+@kernel
+def generate_run(S, P, width, height, seed, x0, y0, tile_w, work, sample_start, sample_count,
+                 g0, lo, hi, live):
+    for i in range(lo, hi):
         generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, sample_start,
                      sample_count, g0 + i)
         live[i] = i
 
 
 @parallel_kernel
+def generate(S, P, width, height, seed, x0, y0, tile_w, work, sample_start, sample_count, g0,
+             n, live, n_threads):
+    """Start paths 0 … n − 1 as samples g0 … g0 + n − 1 of the work; all of them are live."""
+    n_chunks = max(1, min(n, n_threads))
+    for c in prange(n_chunks):
+        generate_run(S, P, width, height, seed, x0, y0, tile_w, work, sample_start,
+                     sample_count, g0, c * n // n_chunks, (c + 1) * n // n_chunks, live)
+
+
+@kernel
+def trace_run(S, P, live, lo, hi, stack, shadow_rays):
+    for j in range(lo, hi):
+        if shadow_rays:
+            shadow_one(S, P, live[j], stack)
+        else:
+            intersect_one(S, P, live[j], stack)
+
+
+@parallel_kernel
 def trace_rays(S, P, live, n_live, stack_size, n_threads, shadow_rays):
-    """The live paths' ray queries in ``n_threads`` contiguous runs of the queue, each with its
-    traversal stack: their closest hits (``intersect_one``), or with ``shadow_rays`` their light
-    samples' shadow rays (``shadow_one``)."""
+    """The live paths' ray queries, each run of the queue with its traversal stack: their
+    closest hits (``intersect_one``), or with ``shadow_rays`` their light samples' shadow rays
+    (``shadow_one``)."""
     n_chunks = max(1, min(n_live, n_threads))
     for c in prange(n_chunks):
-        stack = traversal_stack(stack_size)
-        for j in range(c * n_live // n_chunks, (c + 1) * n_live // n_chunks):
-            if shadow_rays:
-                shadow_one(S, P, live[j], stack)
-            else:
-                intersect_one(S, P, live[j], stack)
+        trace_run(S, P, live, c * n_live // n_chunks, (c + 1) * n_live // n_chunks,
+                  traversal_stack(stack_size), shadow_rays)
 
 
 def intersect(S, P, live, n_live, stack_size, n_threads):
@@ -285,15 +305,22 @@ def intersect(S, P, live, n_live, stack_size, n_threads):
     trace_rays(S, P, live, n_live, stack_size, n_threads, False)
 
 
-@parallel_kernel
-def shade(S, P, live, n_live, max_depth):
-    for j in prange(n_live):
-        shade_one(S, P, live[j], max_depth)
-
-
 def shadow(S, P, live, n_live, stack_size, n_threads):
     """The shadow rays of the live paths' light samples."""
     trace_rays(S, P, live, n_live, stack_size, n_threads, True)
+
+
+@kernel
+def shade_run(S, P, live, lo, hi, max_depth):
+    for j in range(lo, hi):
+        shade_one(S, P, live[j], max_depth)
+
+
+@parallel_kernel
+def shade(S, P, live, n_live, max_depth, n_threads):
+    n_chunks = max(1, min(n_live, n_threads))
+    for c in prange(n_chunks):
+        shade_run(S, P, live, c * n_live // n_chunks, (c + 1) * n_live // n_chunks, max_depth)
 
 
 @kernel

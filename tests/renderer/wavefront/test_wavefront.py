@@ -226,7 +226,7 @@ def test_generate_stage_against_numpy():
     n = len(work) * 3
     P = path_state(n)
     live = np.empty(n, np.int64)
-    generate(S, P, cs.width, cs.height, cs.seed, 2, 3, 5, work, 11, 3, 0, n, live)
+    generate(S, P, cs.width, cs.height, cs.seed, 2, 3, 5, work, 11, 3, 0, n, live, 2)
     np.testing.assert_array_equal(live, np.arange(n))
     slot = np.repeat(work, 3)
     x, y = 2 + slot % 5, 3 + slot // 5

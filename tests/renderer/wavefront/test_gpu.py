@@ -1,0 +1,73 @@
+"""The wavefront stages as CUDA kernels, run on numba's CUDA simulator against the CPU kernel."""
+
+from __future__ import annotations
+
+import json
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from renderer.scene import load_scene
+from renderer.scene.compile import compile_scene
+from renderer.wavefront.cpu import render_tile_wavefront
+
+ROOT = Path(__file__).resolve().parents[3]
+
+# In a subprocess: the simulator must be chosen before numba.cuda is imported, and with
+# NUMBA_DISABLE_JIT the per-path functions the kernels share with the CPU stages run as Python
+# (the simulator passes its own array type, which compiled CPU functions do not take)
+SIMULATED = r"""
+import json, sys, warnings
+import numpy as np
+warnings.simplefilter("ignore")  # SplitMix64's uint64 products wrap, as intended, in NumPy too
+from renderer.scene import load_scene
+from renderer.scene.compile import compile_scene
+from renderer.wavefront.gpu import render_tile_gpu
+out = {}
+for name, data in json.loads(sys.argv[1]).items():
+    cs = compile_scene(load_scene(data))
+    active = np.ones((cs.height, cs.width), np.uint8)
+    active[0, :3] = 0
+    b = render_tile_gpu(cs, 0, 0, cs.width, cs.height, 2, 6, active, batch_paths=60)
+    out[name] = {"sum": b.sum.tolist(), "sum_sq": b.sum_sq.tolist(), "count": b.count.tolist()}
+print(json.dumps(out))
+"""
+
+
+def scenes() -> dict:
+    out = {}
+    for name in ("cornell_box", "glass_sphere"):
+        data = json.loads((ROOT / "examples" / f"{name}.json").read_text())
+        data["film"] = {"width": 8, "height": 6}
+        out[name] = data
+    return out
+
+
+@pytest.mark.slow
+def test_cuda_kernels_on_the_simulator_match_the_cpu_kernel():
+    """An 8×6 Cornell box and glass sphere, 6 spp from sample 2, three pixels masked off, in
+    batches of 10 pixels: the CUDA kernels (queues compacted with an atomic counter, so in a
+    varying order) give the CPU wavefront kernel's sample buffers to rounding — the same paths,
+    as they run the same per-path code; a stage that lost a path, or read another path's slot,
+    would change whole pixels."""
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", NUMBA_DISABLE_JIT="1", PYTHONPATH=str(ROOT))
+    run = subprocess.run([sys.executable, "-c", SIMULATED, json.dumps(scenes())], env=env,
+                         cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    simulated = json.loads(run.stdout)
+    for name, data in scenes().items():
+        cs = compile_scene(load_scene(data))
+        active = np.ones((cs.height, cs.width), np.uint8)
+        active[0, :3] = 0
+        cpu = render_tile_wavefront(cs, 0, 0, cs.width, cs.height, 2, 6, active)
+        gpu = simulated[name]
+        np.testing.assert_array_equal(np.array(gpu["count"]), cpu.count)
+        assert cpu.count.sum() == 6 * (8 * 6 - 3)
+        np.testing.assert_allclose(np.array(gpu["sum"]), cpu.sum, rtol=1e-12, atol=1e-300)
+        np.testing.assert_allclose(np.array(gpu["sum_sq"]), cpu.sum_sq, rtol=1e-12,
+                                   atol=1e-300)
+        assert cpu.sum.mean() > 0.1  # lit pixels, not a blank image matching a blank image
