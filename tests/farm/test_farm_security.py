@@ -181,7 +181,7 @@ def test_no_request_field_can_name_a_server_path():
         "AssetRef.asset",  # the same content address, in a file reference
         # a file reference: a path is refused without allow_paths, by name
         # (tests/renderer/scene/test_environment_load.py)
-        "Environment.image",
+        "Environment.image", "BitmapTexture.image",
         "Mesh.material", "Sphere.material", "Quad.material", "Box.material",  # names in
         "Scene.materials.*",  # `materials`, looked up there, never opened
     }
@@ -222,6 +222,17 @@ def test_a_request_never_opens_a_path_it_names(client, tiny_scene, tmp_path, fil
                                                                           mesh]}, "name": name})
         assert r.status_code == 422
         assert "command line" in r.text
+    # A texture's or the environment's image named by a path: refused by its field, unread
+    for path in (name, traversal, f"file://{name}"):
+        textured = {**scene, "materials": {**scene["materials"], "tex": {
+            "type": "diffuse", "albedo": {"type": "bitmap", "image": path}}}}
+        r = client.post("/api/jobs", json={"scene": textured, "name": name})
+        assert r.status_code == 422 and "command line" in r.text, r.text
+        assert "materials" in r.text and "image" in r.text
+        lit = {k: v for k, v in scene.items() if k != "background"}
+        r = client.post("/api/jobs", json={"scene": {**lit, "environment": {"image": path}}})
+        assert r.status_code == 422 and "command line" in r.text, r.text
+        assert "environment" in r.text
     # An asset is a content address, never a path: a name that is not one is refused by its
     # field, and a well-formed one the farm does not have (never uploaded) by its field too.
     for asset in (name, traversal, "sha256:" + "0" * 64):
