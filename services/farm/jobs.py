@@ -107,8 +107,11 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
         try:
             frame = apply_patch(scene, patch)
         except PatchError as err:
-            loc: Loc = ["body", "frames", i] + ([err.index] if err.index >= 0 else []) + \
-                ([err.field] if err.field else [])
+            loc: Loc = ["body", "frames", i]
+            if err.index >= 0:
+                loc.append(err.index)
+            if err.field:
+                loc.append(err.field)
             errors.append((loc, f"frame {i}: operation {err.index}: {err.message}", "patch"))
             continue
         try:

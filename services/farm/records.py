@@ -425,22 +425,30 @@ class Records:
             return out
 
     def remove_image(self, job_id: str) -> dict[str, str]:
-        """Forget the job's image (its record stays, ``image_removed_at`` set); the blob keys it
-        named (the caller deletes those no other record names), {} when it had none."""
+        """Forget the job's image, every frame's of a job of frames (its record stays,
+        ``image_removed_at`` set); the blob keys it named (the caller deletes those no other
+        record names), {} when it had none."""
         with self._begin() as conn:
-            row = conn.execute(select(jobs.c.image_exr, jobs.c.image_png)
+            row = conn.execute(select(jobs.c.image_exr, jobs.c.image_png, jobs.c.tiles)
                                .where(jobs.c.id == job_id, jobs.c.image_bytes > 0)).first()
             if row is None:
                 return {}
+            # a job of frames: its frames' images leave ``tiles`` too (blob_in_use reads them)
+            tiles = json.loads(row[2]) if row[2] else None
+            frame_images = tiles.pop("frame_images", []) if tiles is not None else []
             # only if it still names those blobs (a second sweeper, a deletion meanwhile)
             done = conn.execute(update(jobs).where(jobs.c.id == job_id,
                                                    jobs.c.image_exr == row[0],
                                                    jobs.c.image_bytes > 0)
                                 .values(image_exr=None, image_png=None, image_bytes=0,
+                                        tiles=json.dumps(tiles) if tiles is not None else None,
                                         image_removed_at=time.time())).rowcount
         if not done:
             return {}
-        return {fmt: key for fmt, key in zip(("exr", "png"), row, strict=True) if key}
+        keys = {fmt: key for fmt, key in zip(("exr", "png"), row[:2], strict=True) if key}
+        for i, images in enumerate(frame_images):
+            keys.update({f"frame{i}.{fmt}": key for fmt, key in images.items()})
+        return keys
 
     def set_finished_at(self, job_id: str, when: float) -> None:
         """Move a finished job's finishing time (an import, or a test of retention)."""

@@ -131,6 +131,26 @@ def test_the_image_cap_removes_the_oldest_images_and_keeps_the_records(client, s
     assert client.get("/api/jobs").json()["count"] == 3
 
 
+def test_the_image_cap_removes_every_frame_of_a_job_of_frames(client, settings):
+    """A job of frames over the cap loses every frame's image, not only the first: each
+    frame's blobs are deleted, and a frame's route answers 410 as the job's image does."""
+    records = records_of(settings)
+    blobs = FileBlobStore(settings.blob_path)
+    base = _meta(time.time() - 100, "done", "a sequence")
+    meta = dataclasses.replace(base, plan=dataclasses.replace(base.plan, frames=3))
+    records.create(meta)
+    frame_images = [{fmt: put_content(blobs, f"{fmt} of frame {f}".encode() * 100)
+                     for fmt in ("exr", "png")} for f in range(3)]
+    assert records.archive(meta, frame_images[0], {"samples": [], "errors": {},
+                                                   "frame_images": frame_images}, 6000)
+    assert client.get(f"/api/jobs/{meta.id}/frames/2/image.png").content == b"png of frame 2" * 100
+    assert cap_images(records, blobs, 1000) == 1
+    assert not [p for p in settings.blob_path.rglob("*") if p.is_file()]
+    for url in (f"/api/jobs/{meta.id}/image.png", f"/api/jobs/{meta.id}/frames/2/image.png"):
+        assert client.get(url).status_code == 410, url
+    assert client.get(f"/api/jobs/{meta.id}").json()["status"] == "done"
+
+
 def test_a_named_token_is_recorded_as_the_submitter(redis_base_url, tmp_path, tiny_scene):
     prefix = f"lucent-test-{uuid.uuid4().hex[:10]}"
     settings = Settings(redis_url=redis_base_url, key_prefix=prefix,

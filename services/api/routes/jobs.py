@@ -215,14 +215,14 @@ class StatusViews:
         # A job requiring tags that is waiting: the workers are part of what its answer says
         live_tags = (live_tag_sets(self.store.workers())
                      if read[0].tags and read[0].status in ACTIVE else None)
-        read = (*read, live_tags)
+        state = (*read, live_tags)
         with self._lock:
             view = self._views.get(job_id)
-            if view is not None and view.state == read:
+            if view is not None and view.state == state:
                 self._views.move_to_end(job_id)
                 return view
-        body = job_detail(*read).model_dump_json().encode()
-        view = StatusView(read, body, f'"{hashlib.blake2b(body, digest_size=12).hexdigest()}"')
+        body = job_detail(*state).model_dump_json().encode()
+        view = StatusView(state, body, f'"{hashlib.blake2b(body, digest_size=12).hexdigest()}"')
         if read[0].status != "running":
             with self._lock:
                 self._views[job_id] = view
