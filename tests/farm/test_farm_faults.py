@@ -785,8 +785,11 @@ def test_a_lost_nodes_pass_is_requeued_once_its_heartbeat_expires(own_redis, pre
     heartbeat = 0.5
     nodes = TwoNodes(own_redis.url, prefix, heartbeat, tmp_path)
     store = JobStore.from_url(own_redis.url, prefix)
+    # archive_done off, as the other fault tests' API: the checks below read the job's keys,
+    # which the sweeper (every 0.2 s) would otherwise remove once the job is done
     settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None,
-                        heartbeat_interval=heartbeat, sweep_interval=0.2, **TIMINGS)
+                        heartbeat_interval=heartbeat, sweep_interval=0.2, archive_done=False,
+                        **TIMINGS)
     scene = long_pass_scene(1024)
     try:
         nodes.start("a")
