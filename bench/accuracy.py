@@ -149,8 +149,8 @@ def reference(name: str, scene: dict, material: str, spp: int) -> tuple[np.ndarr
     """The converged image of ``scene`` (its ``volumetric`` form) and where it came from."""
     scene = with_method(scene, material, "volumetric", spp)
     stored = ROOT / "tests" / "data" / f"{name}_ref.npy"
-    stock = _mixed(name) if name in MIXED else _example(name)
-    if stored.exists() and scene == with_method(stock, material, "volumetric", spp):
+    stock = (_mixed(name) if name in MIXED else _example(name)) if stored.exists() else None
+    if stock is not None and scene == with_method(stock, material, "volumetric", spp):
         split = " split by channel" if name in CHROMATIC_SUITE else ""
         return (np.load(stored).astype(np.float64),
                 f"mitsuba volpath {STORED_SPP.get(name, 16384)} spp{split} (tests/data)")

@@ -1,0 +1,158 @@
+"""``render.target_error`` against uniform sampling: achieved error / target, and time / uniform
+time at the same error, per scene and target.
+
+    .venv/bin/python -m bench.target_error [--scenes ...] [--targets 0.1 0.03 ...] [--out CSV]
+                                           [--chart PNG]
+
+The scenes: the chart suite (``bench.accuracy.suite``: wax sphere, backlit slab, concave torus,
+thin shell, spheres at albedo 0.5/0.9/0.99, 64×48, the translucent material ``volumetric``,
+Mitsuba 3 volpath references at 16384 spp), plus two scenes outside it with committed Mitsuba
+references: the glass sphere (a caustic: very uneven noise) and the diffuse Cornell box (even
+noise). The error is the chart suite's frame relMSE, mean((x − ref)²/(ref² + 0.01)), the quantity
+``render.target_error`` is defined as (renderer/film/adaptive.py).
+
+Each scene is rendered uniformly at 16 … 4096 spp and with each target (``render.spp`` 8192, which
+no target here reaches); wall time of the whole ``render_buffer`` call (the allocation's
+bookkeeping included), best of ``--repeat`` after a warm-up. "uniform s" is the uniform time at
+the target run's achieved error, interpolated on the uniform log–log curve (slope −1 beyond its
+ends); "time ratio" is the target run's time over it (below 1: the target run was faster at equal
+error). "error/target" should lie in [0.5, 1.1].
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from bench.accuracy import ROOT, _loglog, reference, rel_mse, suite, with_method
+
+UNIFORM_SPP = (16, 64, 256, 1024, 4096)
+TARGETS = (0.1, 0.03, 0.01, 0.003, 0.002)
+CAP = 8192
+EXTRA = ("glass_sphere", "cornell_box")  # outside the chart suite, references in tests/data
+
+
+def scenes() -> dict[str, tuple[dict, str | None]]:
+    out: dict[str, tuple[dict, str | None]] = dict(suite())
+    for name in EXTRA:
+        scene = json.loads((ROOT / "examples" / f"{name}.json").read_text())
+        scene["film"] = {"width": 64, "height": 48}
+        out[name] = (scene, None)
+    return out
+
+
+def scene_at(scene: dict, material: str | None, spp: int, target: float | None) -> dict:
+    if material is not None:
+        data = with_method(scene, material, "volumetric", spp)
+    else:
+        data = json.loads(json.dumps(scene))
+        data["render"].update(spp=spp, seed=7)
+    data["render"]["target_error"] = target
+    return data
+
+
+def timed(data: dict, repeat: int) -> tuple[float, np.ndarray, float]:
+    """(best wall time, image, mean spp)."""
+    from renderer.render import render_buffer
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    cs = compile_scene(load_scene(data))
+    best = np.inf
+    for _ in range(repeat):
+        t = time.perf_counter()
+        buf = render_buffer(cs)
+        best = min(best, time.perf_counter() - t)
+    return best, buf.mean().astype(np.float64), float(buf.count.mean())
+
+
+def main(argv: list[str] | None = None) -> int:
+    all_scenes = scenes()
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--scenes", nargs="+", default=list(all_scenes),
+                        choices=list(all_scenes))
+    parser.add_argument("--targets", nargs="+", type=float, default=list(TARGETS))
+    parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--out", type=Path, default=None, help="write the rows to this CSV")
+    parser.add_argument("--chart", type=Path, default=None, help="draw the chart to this PNG")
+    args = parser.parse_args(argv)
+    from renderer.render import render_buffer
+
+    rows = []
+    print(f"{'scene':<20} {'target':>7} {'mean spp':>8} {'seconds':>8} {'relMSE':>9} "
+          f"{'err/target':>10} {'uniform s':>9} {'time ratio':>10}", flush=True)
+    for name in args.scenes:
+        scene, material = all_scenes[name]
+        if material is not None:
+            ref, _ = reference(name, scene, material, 16384)
+        else:
+            ref = np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+        render_buffer(scene_at(scene, material, 1, None))  # warm the JIT
+        ut, ue = [], []
+        for spp in UNIFORM_SPP:
+            t, img, _ = timed(scene_at(scene, material, spp, None), args.repeat)
+            ut.append(t)
+            ue.append(rel_mse(img, ref))
+            rows.append({"scene": name, "mode": "uniform", "target": "", "mean_spp": spp,
+                         "seconds": t, "rel_mse": ue[-1], "ratio": "", "uniform_seconds": t,
+                         "time_ratio": 1.0})
+        for target in args.targets:
+            t, img, mean_spp = timed(scene_at(scene, material, CAP, target), args.repeat)
+            e = rel_mse(img, ref)
+            t_uniform = _loglog(e, np.array(ue), np.array(ut))
+            rows.append({"scene": name, "mode": "target", "target": target,
+                         "mean_spp": mean_spp, "seconds": t, "rel_mse": e, "ratio": e / target,
+                         "uniform_seconds": t_uniform, "time_ratio": t / t_uniform})
+            print(f"{name:<20} {target:>7} {mean_spp:>8.0f} {t:>8.3f} {e:>9.5f} "
+                  f"{e / target:>10.2f} {t_uniform:>9.3f} {t / t_uniform:>10.2f}", flush=True)
+    target_rows = [r for r in rows if r["mode"] == "target"]
+    ratios = np.array([r["ratio"] for r in target_rows])
+    times = np.array([r["time_ratio"] for r in target_rows])
+    print(f"error/target {ratios.min():.2f}–{ratios.max():.2f} "
+          f"({np.mean((ratios >= 0.5) & (ratios <= 1.1)):.0%} in [0.5, 1.1]); "
+          f"time/uniform {times.min():.2f}–{times.max():.2f} (median {np.median(times):.2f})")
+    if args.out is not None:
+        with open(args.out, "w", newline="") as f:
+            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+            writer.writeheader()
+            writer.writerows(rows)
+    if args.chart is not None:
+        chart(target_rows, args.chart)
+    return 0
+
+
+def chart(rows: list[dict], path: Path) -> None:
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    for name in dict.fromkeys(r["scene"] for r in rows):
+        mine = [r for r in rows if r["scene"] == name]
+        x = [r["target"] for r in mine]
+        a.plot(x, [r["ratio"] for r in mine], "o-", label=name)
+        b.plot(x, [r["time_ratio"] for r in mine], "o-", label=name)
+    for ax in (a, b):
+        ax.set_xscale("log")
+        ax.set_xlabel("render.target_error")
+        ax.grid(True, which="both", alpha=0.3)
+    a.axhspan(0.5, 1.1, color="green", alpha=0.1)
+    a.set_ylabel("achieved relMSE / target")
+    a.set_title("achieved error / target (band: 0.5–1.1)")
+    b.axhline(1.0, color="k", lw=0.8)
+    b.set_yscale("log")
+    b.set_ylabel("time / uniform time at equal error")
+    b.set_title("time against uniform sampling (below 1: faster)")
+    b.legend(fontsize=7, loc="best")
+    fig.tight_layout()
+    fig.savefig(path, dpi=110)
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
