@@ -17,7 +17,7 @@ Mitsuba, Lucent's own ``volumetric`` at ``--ref-spp`` stands in (said in the out
 For every method and spp in 4, 16, 64, 256, 1024 (seed 7) it records the wall time (best of two,
 after a 1-spp render that warms the JIT) and these errors against the reference:
 
-- relative MSE, mean((x − ref)² / (ref² + 0.01)) over pixels and channels (as bench.adaptive),
+- relative MSE, mean((x − ref)² / (ref² + 0.01)) over pixels and channels (as bench.target_error),
   over the whole frame (``rel_mse``) and over the pixels that see the translucent object
   (``object_rel_mse``: the walls and floor are the same for every method, so their noise hides
   the methods' bias in the frame figure);

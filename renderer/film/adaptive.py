@@ -247,6 +247,13 @@ def expected_error(buf: SampleBuffer) -> float:
     return float(np.mean(v / buf.count))
 
 
+def stopping_error(buf: SampleBuffer) -> float:
+    """The frame's expected relMSE as the loop judges it (what it stops on, the CLI reports and
+    the farm's tile summaries add up): the corrected estimate of ``small_sample_error`` on the
+    unfloored neighbour variances; conservative where the radiance is not heavy-tailed."""
+    return small_sample_error(neighbour_variance(buf, floor=0.0), buf.count)
+
+
 def tile_summary(buf: SampleBuffer) -> tuple[float, float, float, int]:
     """What the farm keeps of a tile's merged buffer for the frame's allocation and its error:
     (Σ e_p, Σ √v_p, Σ v_p^¼, pixels), over the pixels with at least 2 samples, v_p the

@@ -16,13 +16,13 @@ from renderer.film.adaptive import (
     PILOT,
     allocate,
     expected_error,
+    frame_scale,
     neighbour_variance,
+    pass_counts,
     sample_to_target,
     sample_variance,
-    frame_scale,
-    pass_counts,
-    tile_summary,
     tile_converged,
+    tile_summary,
 )
 from renderer.film.buffer import SampleBuffer
 from renderer.render import render_buffer, render_tile
