@@ -89,9 +89,14 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--chart", type=Path, default=None, help="draw the chart to this PNG")
     parser.add_argument("--oracle", action="store_true",
                         help="print the time ratio an allocation could reach at best instead")
+    parser.add_argument("--farm", action="store_true",
+                        help="the farm's rule instead: each scene and target as a job on an "
+                             "embedded farm (2 worker processes, tiles of 16 px)")
     args = parser.parse_args(argv)
     if args.oracle:
         return oracle(args.scenes, all_scenes)
+    if args.farm:
+        return farm(args.scenes, all_scenes, args.targets)
     from renderer.render import render_buffer
 
     rows = []
@@ -169,6 +174,67 @@ def oracle(names: list[str], all_scenes: dict) -> int:
         print(f"{name:<22} {(c * root).mean() * root.mean() / uniform:>8.2f} "
               f"{np.sqrt(v * c).mean() ** 2 / uniform:>11.2f} "
               f"{(c * shape).mean() * (v / shape).mean() / uniform:>10.2f}", flush=True)
+    return 0
+
+
+def farm(names: list[str], all_scenes: dict, targets: list[float]) -> int:
+    """Each scene and target as a farm job (an embedded Redis, one worker node of 2 processes,
+    tiles of 16 px, passes growing from 8 spp): the achieved relMSE of the merged frame against
+    the reference, the job's reported ``expected_error``, the mean samples a pixel, the wall
+    time from submission to done."""
+    import os
+
+    import redis
+    from fastapi.testclient import TestClient
+
+    from services.api.main import create_app
+    from services.farm.merge import assemble
+    from services.farm.settings import Settings
+    from services.farm.store import JobStore
+    from services.launcher import EmbeddedRedis, start_worker, terminate
+
+    server = EmbeddedRedis().start()
+    # done jobs keep their tiles in Redis (the frame is read from them)
+    settings = Settings(redis_url=server.url, key_prefix="bench", archive_done=False)
+    proc = start_worker(server.url, 2, 1, log=open(os.devnull, "w"),
+                        extra_env={"LUCENT_KEY_PREFIX": "bench"})
+    store = JobStore(redis.Redis.from_url(server.url), "bench")
+    print(f"{'scene':<20} {'target':>7} {'mean spp':>8} {'seconds':>8} {'relMSE':>9} "
+          f"{'err/target':>10} {'reported':>9}", flush=True)
+    try:
+        while sum(w.get("state") == "idle" for w in store.workers()) < 2:
+            time.sleep(0.2)
+        with TestClient(create_app(settings)) as client:
+            def run(data: dict) -> tuple[dict, float]:
+                t = time.perf_counter()
+                job_id = client.post("/api/jobs", json={"scene": data,
+                                                         "tile_size": 16}).json()["id"]
+                while (job := client.get(f"/api/jobs/{job_id}").json())["status"] not in (
+                        "done", "failed", "cancelled"):
+                    time.sleep(0.05)
+                return job, time.perf_counter() - t
+
+            for name in names:
+                scene, material = all_scenes[name]
+                if material is not None:
+                    ref, _ = reference(name, scene, material, 16384)
+                else:
+                    ref = np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+                run(scene_at(scene, material, 8, None))  # compiles in both processes
+                for target in targets:
+                    job, seconds = run(scene_at(scene, material, CAP, target))
+                    assembled = assemble(store, job["id"])
+                    assert assembled is not None and job["status"] == "done", job
+                    buf = assembled[0]
+                    e = rel_mse(buf.mean().astype(np.float64), ref)
+                    print(f"{name:<20} {target:>7} {buf.count.mean():>8.0f} {seconds:>8.2f} "
+                          f"{e:>9.5f} {e / target:>10.2f} {job['expected_error']:>9.5f}",
+                          flush=True)
+                    client.delete(f"/api/jobs/{job['id']}")
+    finally:
+        terminate(proc, 30)
+        store.r.close()
+        server.stop()
     return 0
 
 
