@@ -55,6 +55,7 @@ from renderer.materials.bsdf import (
     N_PARAMS,
     PHONG,
     ROUGH_CONDUCTOR,
+    ROUGH_DIFFUSE_ENTRY,
     SINGLE_SCATTER,
 )
 from renderer.materials.conductor import SPECULAR
@@ -83,6 +84,7 @@ PARAM_SLOTS = {DIFFUSE: {"albedo": ((ALBEDO, -1),)},
                ROUGH_CONDUCTOR: {"specular": ((SPECULAR, -1),)},
                SINGLE_SCATTER: {"albedo": ((translucent.ALBEDO, -1),)},
                DIFFUSE_ENTRY: {"albedo": ((translucent.ALBEDO, -1),)},
+               ROUGH_DIFFUSE_ENTRY: {"albedo": ((translucent.ALBEDO, -1),)},
                BACKLIGHT: {"albedo": ((translucent.ALBEDO, -1),
                                       (translucent.REFLECTED, translucent.SCALE))},
                DIFFUSION: {"albedo": ((translucent.ALBEDO, -1),)}}

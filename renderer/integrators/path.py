@@ -47,10 +47,12 @@ from renderer.materials.bsdf import (
     DIFFUSION,
     N_PARAMS,
     ROUGH_DIELECTRIC,
+    ROUGH_DIFFUSE_ENTRY,
     ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
     is_delta,
+    rough_boundary,
 )
 from renderer.materials.dielectric import absorbed
 from renderer.materials.shading import bent_normal, shaded_sample, uses_shading_normal
@@ -208,7 +210,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         delta = is_delta(mk)
         if n_lights > 0 and not delta:
             # (a rough translucent boundary's light sample may go either side: its medium)
-            c = surface_direct(S, mk, mp, p, n, ns, wo, scale, mat if mk == ROUGH_TRANSLUCENT
+            c = surface_direct(S, mk, mp, p, n, ns, wo, scale, mat if rough_boundary(mk)
                                else medium, null_media, br, bg, bb, key, dim, sidx, sob, stack)
             lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
         if mk == DIFFUSE_ENTRY and mp[DIRECT_LIGHT] > 0.0 and cos_o > 0.0 and n_lights > 0:
@@ -220,7 +222,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         wi, weight, pdf, ok = shaded_sample(mk, mp, wo, n, ns, draw(S, key, dim, 3, sidx, sob),
                                             draw(S, key, dim, 4, sidx, sob),
                                             draw(S, key, dim, 5, sidx, sob))
-        if ok and mk == DIFFUSE_ENTRY:
+        if ok and (mk == DIFFUSE_ENTRY or mk == ROUGH_DIFFUSE_ENTRY):
             ok, wi, weight, skip_emission, eta_scale = entry_scatter(
                 S, mp, n, cos_o, wi, weight, eta_scale, key, dim, sidx, sob)
         if not ok:
@@ -228,7 +230,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         br, bg, bb = br * weight[0], bg * weight[1], bb * weight[2]
         if br == 0.0 and bg == 0.0 and bb == 0.0:
             break
-        if mk == TRANSLUCENT or mk == DIFFUSE_ENTRY or mk == ROUGH_TRANSLUCENT:
+        if (mk == TRANSLUCENT or mk == DIFFUSE_ENTRY or mk == ROUGH_TRANSLUCENT
+                or mk == ROUGH_DIFFUSE_ENTRY):
             # Refracted in or out, or reflected: the side wi leaves on decides the medium
             medium = mat if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0 else -1
         if (mk == DIELECTRIC or mk == TRANSLUCENT) and weight[0] != 1.0:
@@ -236,6 +239,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         elif (mk == ROUGH_DIELECTRIC or mk == ROUGH_TRANSLUCENT) and (cos_o > 0.0) != (
                 wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0.0):
             eta_scale *= mp[IOR] * mp[IOR] if cos_o > 0.0 else 1.0 / (mp[IOR] * mp[IOR])
+        if mk == ROUGH_DIFFUSE_ENTRY and cos_o > 0.0 and medium == mat:
+            delta = True  # entered: the sampled direction was replaced by the entry scattering
         unweighted, prev_pdf, prev_p, depth = delta, pdf, p, depth + 1
         o, d = spawn_offset(p, n, wi, scale), wi
 

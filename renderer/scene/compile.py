@@ -33,6 +33,7 @@ from renderer.materials.bsdf import (
     PHONG,
     ROUGH_CONDUCTOR,
     ROUGH_DIELECTRIC,
+    ROUGH_DIFFUSE_ENTRY,
     ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
@@ -167,6 +168,8 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         kind = ROUGH_DIELECTRIC
     if kind == TRANSLUCENT and m.roughness > 0.0 and m.ior != 1.0:
         kind = ROUGH_TRANSLUCENT  # (at ior 1 the boundary is null, rough or not)
+    if kind == DIFFUSE_ENTRY and m.roughness > 0.0 and m.ior != 1.0:
+        kind = ROUGH_DIFFUSE_ENTRY
     p = np.zeros(N_PARAMS)
     pack(p, m)
     return kind, p

@@ -582,11 +582,19 @@ class TranslucentMaterial(SceneModel):
 
     @model_validator(mode="after")
     def _check_roughness(self) -> TranslucentMaterial:
-        if self.roughness > 0.0 and self.method not in ROUGH_METHODS:
+        if self.roughness > 0.0 and self.method in NO_BOUNDARY_METHODS:
             raise scene_error(
-                f"roughness (a rough boundary) is rendered by method volumetric (or auto) only; "
-                f"method {self.method!r} has a smooth coat"
+                f"roughness (a rough boundary) is rendered by methods {', '.join(ROUGH_METHODS)}; "
+                f"method {self.method!r} has no dielectric boundary to roughen "
+                f"({NO_BOUNDARY_METHODS[self.method]})"
             )
+        if self.roughness > 0.0 and self.method == "diffuse_entry":
+            for knob, why in (("specular_exponent", "a Phong coat, which roughness replaces"),
+                              ("direct_light", "its entry weight 1 − F is the smooth coat's")):
+                if knob in self.model_fields_set and getattr(self, knob):
+                    raise scene_error(
+                        f"{knob} and roughness cannot be combined on method 'diffuse_entry' "
+                        f"({knob}: {why})")
         return self
 
     @model_validator(mode="after")
@@ -614,8 +622,14 @@ def _texture_mean_or(texture, default) -> tuple[float, float, float]:
     return texture_mean(texture)
 
 
-# The methods that render a rough boundary (``roughness`` > 0).
-ROUGH_METHODS = ("volumetric", "auto")
+# The methods that render a rough boundary (``roughness`` > 0): docs/methods/, "Rough coat".
+ROUGH_METHODS = ("volumetric", "diffuse_entry", "auto")
+# The methods whose surface is no dielectric boundary, with the reason roughness has no meaning
+NO_BOUNDARY_METHODS = {
+    "single_scatter": "its surface is a Lambertian share and light enters straight, unrefracted",
+    "backlight": "its surface is Lambertian and its transmitted light an empirical lobe",
+    "diffusion": "not yet: its coat is smooth",
+}
 
 # Which method each knob belongs to.
 METHOD_KNOBS = {
