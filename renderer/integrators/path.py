@@ -48,6 +48,7 @@ from renderer.materials.bsdf import (
     N_PARAMS,
     ROUGH_DIELECTRIC,
     ROUGH_DIFFUSE_ENTRY,
+    ROUGH_DIFFUSION,
     ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
@@ -191,24 +192,35 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
             S, mk, mp, mat, cos_o, medium, single_done, skip_emission, key, dim, sidx, sob)
         if not crossed and max_depth >= 0 and depth >= max_depth:
             break
-        if crossed or (mk == DIFFUSION and cos_o <= 0.0):
+        diffusion = mk == DIFFUSION or mk == ROUGH_DIFFUSION
+        if crossed or (diffusion and cos_o <= 0.0):
             o = spawn_offset(p, n, d, scale)
             dim += DIMS_PER_BOUNCE
             continue
 
         # Under the surface (diffusion): the coat reflects, or the path goes on from the exit
-        if mk == DIFFUSION:
-            ended, p, n, wo, mk, scale, br, bg, bb, depth = diffusion_exit(
+        coat_lit = False
+        if diffusion:
+            if mk == ROUGH_DIFFUSION and n_lights > 0:
+                # The rough coat's reflection, lit by a light sample here, before the coat
+                # decides whether the path reflects or goes under (its value is the reflection
+                # lobe alone: what enters leaves elsewhere)
+                c = surface_direct(S, mk, mp, p, n, n, wo, scale, medium, null_media, br, bg,
+                                   bb, key, dim, sidx, sob, stack)
+                lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
+                coat_lit = True
+            ended, p, n, wo, mk, scale, br, bg, bb, depth, dim = diffusion_exit(
                 S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, max_depth, key, dim,
                 sidx, sob, stack)
             if ended:
                 break
             ns = n  # the exit point's: diffusion keeps the geometric normal
+            coat_lit = coat_lit and mk == ROUGH_DIFFUSION  # (the exit vertex takes its own)
 
         # Next-event estimation: one light sample, MIS-weighted against the BSDF (backlight:
         # the light from behind comes through)
         delta = is_delta(mk)
-        if n_lights > 0 and not delta:
+        if n_lights > 0 and not delta and not coat_lit:
             # (a rough translucent boundary's light sample may go either side: its medium)
             c = surface_direct(S, mk, mp, p, n, ns, wo, scale, mat if rough_boundary(mk)
                                else medium, null_media, br, bg, bb, key, dim, sidx, sob, stack)

@@ -49,6 +49,8 @@ ROUGH_TRANSLUCENT = 13  # method "volumetric" behind a rough boundary: GGX as RO
 # α in translucent's BOUNDARY_ROUGHNESS slot; the medium in the integrator, as TRANSLUCENT
 ROUGH_DIFFUSE_ENTRY = 14  # method "diffuse_entry" behind a rough coat: GGX reflection, and an
 # entry through a GGX refraction that scatters at once (integrators/subsurface/diffuse_entry.py)
+ROUGH_DIFFUSION = 15  # method "diffusion" behind a rough coat: GGX reflection, and an entry
+# through the sampled GGX refraction, weighted by its transmittance, into the profile
 BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo (slots REFLECTED), plus
 # the integrator's transmitted direct light (integrators/subsurface/backlight.py), which falls
 # with thickness at the per-channel rate in the SIGMA_EFF slots
@@ -94,8 +96,9 @@ def bsdf_eval(kind, param, wo, wi, n):
         return rough_dielectric_eval(param, wo, wi, n)
     if kind == ROUGH_TRANSLUCENT:
         return rough_boundary_eval(param, wo, wi, n)
-    if kind == ROUGH_DIFFUSE_ENTRY:
-        if _enters(wo, wi, n):  # what enters is scattered at once: no straight path to a light
+    if kind == ROUGH_DIFFUSE_ENTRY or kind == ROUGH_DIFFUSION:
+        # What enters is scattered at once, or carried to an exit: no straight path to a light
+        if _enters(wo, wi, n):
             return (0.0, 0.0, 0.0)
         return rough_boundary_eval(param, wo, wi, n)
     ns = _facing(wo, n)
@@ -125,7 +128,7 @@ def bsdf_pdf(kind, param, wo, wi, n):
         return rough_dielectric_pdf(param, wo, wi, n)
     if kind == ROUGH_TRANSLUCENT:
         return rough_boundary_pdf(param, wo, wi, n)
-    if kind == ROUGH_DIFFUSE_ENTRY:
+    if kind == ROUGH_DIFFUSE_ENTRY or kind == ROUGH_DIFFUSION:
         if _enters(wo, wi, n):
             return 0.0
         return rough_boundary_pdf(param, wo, wi, n)
@@ -148,7 +151,7 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
         return wi, (w, w, w), 0.0, True
     if kind == ROUGH_DIELECTRIC:
         return rough_dielectric_sample(param, wo, n, uc, u1, u2)
-    if kind == ROUGH_TRANSLUCENT or kind == ROUGH_DIFFUSE_ENTRY:
+    if kind == ROUGH_TRANSLUCENT or kind == ROUGH_DIFFUSE_ENTRY or kind == ROUGH_DIFFUSION:
         return rough_boundary_sample(param, wo, n, uc, u1, u2)
     ns = _facing(wo, n)
     if kind == MIRROR:

@@ -34,6 +34,7 @@ from renderer.materials.bsdf import (
     ROUGH_CONDUCTOR,
     ROUGH_DIELECTRIC,
     ROUGH_DIFFUSE_ENTRY,
+    ROUGH_DIFFUSION,
     ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
@@ -170,6 +171,8 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         kind = ROUGH_TRANSLUCENT  # (at ior 1 the boundary is null, rough or not)
     if kind == DIFFUSE_ENTRY and m.roughness > 0.0 and m.ior != 1.0:
         kind = ROUGH_DIFFUSE_ENTRY
+    if kind == DIFFUSION and m.roughness > 0.0 and m.ior != 1.0:
+        kind = ROUGH_DIFFUSION
     p = np.zeros(N_PARAMS)
     pack(p, m)
     return kind, p

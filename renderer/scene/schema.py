@@ -480,8 +480,8 @@ class TranslucentMaterial(SceneModel):
     """Henyey-Greenstein anisotropy: > 0 forward, < 0 backward."""
     roughness: Float = Field(default=0.0, ge=0, le=1)
     """GGX α of the boundary, as Mitsuba writes it; 0 is the smooth boundary. Rendered by the
-    methods volumetric and auto only (the approximations have a smooth coat); no effect at
-    ior 1 (an index-matched boundary neither reflects nor refracts)."""
+    methods in ROUGH_METHODS (single_scatter and backlight have no dielectric boundary); no
+    effect at ior 1 (an index-matched boundary neither reflects nor refracts)."""
 
     # Method-specific knobs (docs/methods/*.md); each is an error with any other method.
     surface_fraction: Float | None = Field(default=None, ge=0, le=1)
@@ -623,12 +623,11 @@ def _texture_mean_or(texture, default) -> tuple[float, float, float]:
 
 
 # The methods that render a rough boundary (``roughness`` > 0): docs/methods/, "Rough coat".
-ROUGH_METHODS = ("volumetric", "diffuse_entry", "auto")
+ROUGH_METHODS = ("volumetric", "diffuse_entry", "diffusion", "auto")
 # The methods whose surface is no dielectric boundary, with the reason roughness has no meaning
 NO_BOUNDARY_METHODS = {
     "single_scatter": "its surface is a Lambertian share and light enters straight, unrefracted",
     "backlight": "its surface is Lambertian and its transmitted light an empirical lobe",
-    "diffusion": "not yet: its coat is smooth",
 }
 
 # Which method each knob belongs to.
