@@ -571,8 +571,8 @@ class TranslucentMaterial(SceneModel):
         if is_texture(self.albedo) and self.method not in TEXTURE_METHODS:
             raise scene_error(
                 f"a texture on albedo is rendered by methods {', '.join(TEXTURE_METHODS)} (the "
-                f"surface's colour); method {self.method!r} takes an RGB albedo (volumetric: the "
-                "albedo belongs to the medium; auto: its choice rests on one albedo)")
+                f"surface's colour); method {self.method!r} takes an RGB albedo (the albedo "
+                "belongs to the medium)")
         return self
 
     def _read_texture(self) -> None:
@@ -609,8 +609,9 @@ class TranslucentMaterial(SceneModel):
         return self
 
 
-# The methods whose albedo may be a texture: it colours their surface.
-TEXTURE_METHODS = ("single_scatter", "diffuse_entry", "backlight", "diffusion")
+# The methods whose albedo may be a texture: it colours their surface (auto: it chooses one of
+# them, ``renderer.materials.auto.for_a_texture``).
+TEXTURE_METHODS = ("single_scatter", "diffuse_entry", "backlight", "diffusion", "auto")
 
 
 def _texture_mean_or(texture, default) -> tuple[float, float, float]:
