@@ -43,7 +43,8 @@ def test_a_textured_albedo_takes_the_approximation_with_the_lowest_floor():
     choice = c.info["auto"]["wax"]
     lowest = min(REGIME_FLOOR, key=lambda m: REGIME_FLOOR[m]["solid"])
     assert lowest == "single_scatter" and choice["expected_error"] == REGIME_FLOOR[lowest]["solid"]
-    assert "albedo 0.5:" in choice["reason"] and "textured albedo colours a surface" in choice["reason"]
+    assert "albedo 0.5:" in choice["reason"]
+    assert "textured albedo colours a surface" in choice["reason"]
     assert (c.arrays.mat_tex[0] >= 0).any()  # the texture is bound, not dropped
     # the same material with an RGB albedo: volumetric
     plain = compile_scene(load_scene(scene_with({"density": 5.0, "albedo": [0.5, 0.5, 0.5]})))
