@@ -112,11 +112,10 @@ def escaped_radiance(S, env, d):
 
 @inline_kernel
 def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
-    """Radiance arriving at o from direction −d along one sampled path, and the path's segments
-    (rays traced to the closest surface: its cost, which adaptive sampling weighs). S is
-    ``SceneArrays``; ``sidx`` (the sample's index) and ``sob`` (its pixel's sequence seeds) feed
-    the sobol sampler's first vertices (``draw``); ``scratch`` (N_PARAMS) holds a textured
-    material's row at the current vertex (``textured_row``)."""
+    """Radiance arriving at o from direction −d along one sampled path, and its segments (rays
+    to the closest surface: its cost). S is ``SceneArrays``; ``sidx`` (the sample's index) and
+    ``sob`` (its pixel's seeds) feed the sobol sampler's first vertices (``draw``); ``scratch``
+    (N_PARAMS) holds a textured material's row at the current vertex (``textured_row``)."""
     lr = lg = lb = 0.0  # radiance gathered so far
     br = bg = bb = 1.0  # throughput β
     depth = 0  # scattering events so far
@@ -134,9 +133,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     n_lights = S.light_kind.shape[0]
     env = S.env_light[0]
     null_media = S.null_media[0]
-    segments = 0
-    for _ in range(MAX_SEGMENTS):
-        segments += 1
+    for segment in range(MAX_SEGMENTS):
         # The closest surface along the ray
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
                                           S.prim_kind, S.prim_geo, o, d, math.inf, stack)
@@ -205,9 +202,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         coat_lit = False
         if diffusion:
             if mk == ROUGH_DIFFUSION and n_lights > 0:
-                # The rough coat's reflection, lit by a light sample here, before the coat
-                # decides whether the path reflects or goes under (its value is the reflection
-                # lobe alone: what enters leaves elsewhere)
+                # The rough coat's reflection lobe alone, lit here before the coat decides
                 c = surface_direct(S, mk, mp, p, n, n, wo, scale, medium, null_media, br, bg,
                                    bb, key, dim, sidx, sob, stack)
                 lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
@@ -264,7 +259,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         if not alive:
             break
         dim += DIMS_PER_BOUNCE
-    return lr, lg, lb, segments
+    return lr, lg, lb, segment + 1
 
 
 @kernel
