@@ -133,7 +133,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     n_lights = S.light_kind.shape[0]
     env = S.env_light[0]
     null_media = S.null_media[0]
-    for segment in range(MAX_SEGMENTS):
+    for segment in range(MAX_SEGMENTS):  # noqa: B007 (the count after the loop)
         # The closest surface along the ray
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
                                           S.prim_kind, S.prim_geo, o, d, math.inf, stack)
