@@ -17,7 +17,7 @@ Mitsuba, Lucent's own ``volumetric`` at ``--ref-spp`` stands in (said in the out
 For every method and spp in 4, 16, 64, 256, 1024 (seed 7) it records the wall time (best of two,
 after a 1-spp render that warms the JIT) and these errors against the reference:
 
-- relative MSE, mean((x − ref)² / (ref² + 0.01)) over pixels and channels (as bench.adaptive),
+- relative MSE, mean((x − ref)² / (ref² + 0.01)) over pixels and channels (as bench.target_error),
   over the whole frame (``rel_mse``) and over the pixels that see the translucent object
   (``object_rel_mse``: the walls and floor are the same for every method, so their noise hides
   the methods' bias in the frame figure);
@@ -149,8 +149,8 @@ def reference(name: str, scene: dict, material: str, spp: int) -> tuple[np.ndarr
     """The converged image of ``scene`` (its ``volumetric`` form) and where it came from."""
     scene = with_method(scene, material, "volumetric", spp)
     stored = ROOT / "tests" / "data" / f"{name}_ref.npy"
-    stock = _mixed(name) if name in MIXED else _example(name)
-    if stored.exists() and scene == with_method(stock, material, "volumetric", spp):
+    stock = (_mixed(name) if name in MIXED else _example(name)) if stored.exists() else None
+    if stock is not None and scene == with_method(stock, material, "volumetric", spp):
         split = " split by channel" if name in CHROMATIC_SUITE else ""
         return (np.load(stored).astype(np.float64),
                 f"mitsuba volpath {STORED_SPP.get(name, 16384)} spp{split} (tests/data)")

@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from renderer.film.adaptive import MIN_SAMPLES, pixels_converged
+from renderer.film.adaptive import sample_to_target
 from renderer.film.buffer import SampleBuffer
 from renderer.integrators.path import render_tile_kernel
 from renderer.scene.compile import CompiledScene, compile_scene
@@ -32,7 +32,8 @@ def render_tile(
 
     Sample indices are global: the same (pixel, index) always gives the same sample, so a tile
     rendered as passes 0–7 and 8–15 adds up to the tile rendered as 0–15. ``active`` (h, w)
-    limits the pass to the pixels where it is true (adaptive sampling). ``kernel`` is
+    limits the pass to the pixels where it is true (a bool or uint8 mask), or gives each pixel
+    its number of samples, the first ones of the range (integers; adaptive sampling). ``kernel`` is
     ``"scalar"`` (one path at a time, every method) or ``"wavefront"`` (batches of paths stage by
     stage, ``renderer.wavefront``), which renders the scenes it covers (surface materials, the
     independent sampler) and leaves the others to the scalar kernel.
@@ -47,18 +48,25 @@ def render_tile(
         )
     buf = SampleBuffer.empty(x0, y0, width, height)
     if active is None:
-        active = np.ones((height, width), np.uint8)
+        counts = np.full((height, width), sample_count, np.int32)
     elif active.shape != (height, width):
         raise ValueError(f"active mask of shape {active.shape} for a {width}x{height} tile")
+    elif active.dtype in (np.bool_, np.uint8):
+        counts = np.where(active.astype(bool), sample_count, 0).astype(np.int32)
+    else:
+        counts = np.clip(active, 0, sample_count).astype(np.int32)
     if kernel == "wavefront" and unsupported(scene) is None:
-        return render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_count,
-                                     np.ascontiguousarray(active, dtype=np.uint8))
+        # The wavefront kernel takes a mask: one call per distinct count
+        for c in np.unique(counts[counts > 0]):
+            buf.add(render_tile_wavefront(scene, x0, y0, width, height, sample_start, int(c),
+                                          np.ascontiguousarray(counts == c, dtype=np.uint8)))
+        return buf
     if width and height and sample_count:
         render_tile_kernel(
             scene.arrays, scene.width, scene.height, scene.seed, scene.max_depth,
             scene.stack_size, x0, y0, width, height, sample_start, sample_count,
-            np.ascontiguousarray(active, dtype=np.uint8), buf.sum, buf.sum_sq, buf.count,
-            buf.dropped, numba.get_num_threads(),
+            np.ascontiguousarray(counts), buf.sum, buf.sum_sq, buf.count,
+            buf.dropped, buf.segments, numba.get_num_threads(),
         )
     return buf
 
@@ -81,13 +89,16 @@ def render_buffer(
     pass_spp: int | None = None,
     progress: Callable[[int, int, float], None] | None = None,
     kernel: str = "scalar",
+    plan: Callable[[float], None] | None = None,
 ) -> SampleBuffer:
     """Render a whole frame in passes of ``pass_spp`` samples per pixel.
 
     ``progress(samples_done, samples_total, seconds)`` is called after every pass (per pixel
     samples × pixels), which is what the CLI's progress bar shows. With the scene's
-    ``render.target_error``, pixels that have converged (``renderer.film.adaptive``) get no more
-    passes; the render stops when all have, or at ``spp``. ``kernel``: see ``render_tile``.
+    ``render.target_error`` (the frame's expected relMSE, ``renderer.film.adaptive``) a pilot
+    is followed by passes to the pixels whose allocation exceeds what they have, each pixel at
+    most ``spp`` samples; ``plan(mean_spp)`` is told the pilot's allocation. ``kernel``: see
+    ``render_tile``.
     """
     cs = _as_compiled(scene)
     spp = cs.spp if spp is None else spp
@@ -98,18 +109,22 @@ def render_buffer(
         pass_spp = max(1, min(spp, 2_000_000 // max(1, cs.width * cs.height)))
     frame = SampleBuffer.empty(0, 0, cs.width, cs.height)
     start = time.perf_counter()
+    if cs.target_error is not None:
+        def render_pass(index: int, counts: np.ndarray) -> SampleBuffer:
+            return render_tile(cs, 0, 0, cs.width, cs.height, index, int(counts.max()), counts,
+                               kernel)
+
+        def report(done: int, planned: int) -> None:
+            if progress is not None:
+                progress(done, planned, time.perf_counter() - start)
+
+        return sample_to_target(render_pass, (cs.height, cs.width), cs.target_error, spp,
+                                plan=plan, progress=report, max_pass=pass_spp)
     done = 0
-    active = np.ones((cs.height, cs.width), np.uint8)
-    adaptive = cs.target_error is not None
-    if adaptive:
-        pass_spp = max(1, min(pass_spp, MIN_SAMPLES))
-    while done < spp and active.any():
+    while done < spp:
         n = min(pass_spp, spp - done)
-        frame.add(render_tile(cs, 0, 0, cs.width, cs.height, done, n, active, kernel))
+        frame.add(render_tile(cs, 0, 0, cs.width, cs.height, done, n, None, kernel))
         done += n
-        if adaptive and done >= MIN_SAMPLES:
-            # Once converged, a pixel stays stopped: every active pixel has exactly `done` samples
-            active &= ~pixels_converged(frame, cs.target_error)
         if progress is not None:
             progress(done * cs.width * cs.height, spp * cs.width * cs.height,
                      time.perf_counter() - start)

@@ -119,11 +119,24 @@ def cmd_render(args: argparse.Namespace) -> int:
         def progress(done: int, _total: int, _seconds: float) -> None:
             bar.update(done - bar.n)
 
+        def plan(mean_spp: float) -> None:
+            bar.write(f"target relMSE {compiled.target_error:g}: after the pilot the allocation "
+                      f"plans {mean_spp:.0f} spp a pixel on average (at most {spp})",
+                      file=sys.stderr)
+
         t0 = time.perf_counter()
         buf = render_buffer(compiled, spp, threads=threads, progress=progress,
-                            kernel=args.kernel)
+                            kernel=args.kernel,
+                            plan=plan if compiled.target_error is not None else None)
         seconds = time.perf_counter() - t0
     write_image(out, buf.mean(), exposure=args.exposure, tonemap=args.tonemap)
+    if compiled.target_error is not None:
+        from renderer.film.adaptive import stopping_error
+
+        print(f"reached: expected relMSE {stopping_error(buf):.3g} (target "
+              f"{compiled.target_error:g}), {buf.count.mean():.0f} spp a pixel on average "
+              f"({int(buf.count.min())}–{int(buf.count.max())})", file=sys.stderr)
+        total = int(buf.count.sum() + buf.dropped.sum())
     dropped = buf.total_dropped
     print(
         f"wrote {out}: {total / seconds:,.0f} samples/s over {seconds:.2f} s"

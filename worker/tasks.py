@@ -23,8 +23,8 @@ from services.farm.frames import PatchError, apply_patch
 from services.farm.passes import (
     Delivery,
     HandBack,
+    adaptive_counts,
     begin_pass,
-    converged,
     deliver,
     end_pass,
     pass_failed,
@@ -159,21 +159,25 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
 
     x0, y0, w, h = meta.plan.tile_rect(tile)
     start, count = meta.plan.sample_range(pass_index)
-    if compiled.target_error is not None and converged(store, job_id, tile,
-                                                       compiled.target_error):
-        # Adaptive sampling: this pass adds no samples. It is still stored and merged, empty,
-        # so the job's task count completes as planned.
-        merged = deliver(store, state.settings, job_id, tile, pass_index,
-                         SampleBuffer.empty(x0, y0, w, h))
-        store.set_tile_state(job_id, tile, "done")
-        return "converged" if merged else "duplicate"
+    counts = None
+    if compiled.target_error is not None:
+        # Adaptive sampling: each pixel's share of this pass, from the tile's merged buffer
+        counts = adaptive_counts(store, meta, tile, compiled.target_error, count)
+        if counts is not None and not counts.any():
+            # Nothing to add: the pass is still stored and merged, empty, so the job's task
+            # count completes as planned.
+            merged = deliver(store, state.settings, job_id, tile, pass_index,
+                             SampleBuffer.empty(x0, y0, w, h))
+            store.set_tile_state(job_id, tile, "done")
+            return "converged" if merged else "duplicate"
     t0 = time.perf_counter()
-    buf = render_tile(compiled, x0, y0, w, h, start, count)
+    buf = render_tile(compiled, x0, y0, w, h, start, count, counts)
     seconds = time.perf_counter() - t0
-    state.count_pass(w * h * count, seconds)
+    paths = w * h * count if counts is None else int(counts.sum())
+    state.count_pass(paths, seconds)
 
     merged = deliver(store, state.settings, job_id, tile, pass_index, buf)
     # task_seconds - render_seconds: the per-task overhead (Redis, buffers, merge, bookkeeping).
-    store.count(tasks_done=1, render_seconds=seconds, paths=w * h * count,
+    store.count(tasks_done=1, render_seconds=seconds, paths=paths,
                 task_seconds=time.perf_counter() - t_task)
     return "merged" if merged else "duplicate"

@@ -27,6 +27,9 @@ class SampleBuffer:
     sum_sq: np.ndarray  # (h, w, 3) float64: Σ L²
     count: np.ndarray  # (h, w) int64: samples added
     dropped: np.ndarray  # (h, w) int64: non-finite samples left out
+    # (h, w) int64: path segments traced for the pixel's samples (their cost, which adaptive
+    # sampling weighs); not serialized: None in a buffer read back by ``from_bytes``
+    segments: np.ndarray | None = None
 
     @classmethod
     def empty(cls, x0: int, y0: int, width: int, height: int) -> SampleBuffer:
@@ -37,6 +40,7 @@ class SampleBuffer:
             sum_sq=np.zeros((height, width, 3)),
             count=np.zeros((height, width), np.int64),
             dropped=np.zeros((height, width), np.int64),
+            segments=np.zeros((height, width), np.int64),
         )
 
     @property
@@ -60,6 +64,10 @@ class SampleBuffer:
         self.sum_sq[window] += other.sum_sq
         self.count[window] += other.count
         self.dropped[window] += other.dropped
+        if self.segments is not None and other.segments is not None:
+            self.segments[window] += other.segments
+        else:
+            self.segments = None  # a part without its cost: the whole has none
         return self
 
     def __add__(self, other: SampleBuffer) -> SampleBuffer:

@@ -112,10 +112,11 @@ def escaped_radiance(S, env, d):
 
 @inline_kernel
 def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
-    """Radiance arriving at o from direction −d along one sampled path. S is ``SceneArrays``;
-    ``sidx`` (the sample's index) and ``sob`` (its pixel's sequence seeds) feed the sobol
-    sampler's first vertices (``draw``); ``scratch`` (N_PARAMS) holds a textured material's row
-    at the current vertex (``textured_row``)."""
+    """Radiance arriving at o from direction −d along one sampled path, and the path's segments
+    (rays traced to the closest surface: its cost, which adaptive sampling weighs). S is
+    ``SceneArrays``; ``sidx`` (the sample's index) and ``sob`` (its pixel's sequence seeds) feed
+    the sobol sampler's first vertices (``draw``); ``scratch`` (N_PARAMS) holds a textured
+    material's row at the current vertex (``textured_row``)."""
     lr = lg = lb = 0.0  # radiance gathered so far
     br = bg = bb = 1.0  # throughput β
     depth = 0  # scattering events so far
@@ -133,7 +134,9 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     n_lights = S.light_kind.shape[0]
     env = S.env_light[0]
     null_media = S.null_media[0]
+    segments = 0
     for _ in range(MAX_SEGMENTS):
+        segments += 1
         # The closest surface along the ray
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
                                           S.prim_kind, S.prim_geo, o, d, math.inf, stack)
@@ -261,7 +264,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         if not alive:
             break
         dim += DIMS_PER_BOUNCE
-    return lr, lg, lb
+    return lr, lg, lb, segments
 
 
 @kernel
@@ -278,13 +281,14 @@ def camera_ray(cam, width, height, x, y, jx, jy):
 
 @kernel
 def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_start,
-               sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, stack, sob,
-               scratch):
+               sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, out_segments,
+               stack, sob, scratch):
     """Add the samples of one row of a tile (``render_tile_kernel``'s unit of work). ``sob`` is
     (SOBOL_BLOCKS, 3) scratch for the sobol sampler's seeds of a pixel, ``scratch`` (N_PARAMS)
     for a textured material's row."""
     for col in range(tile_w):
-        if active[row, col] == 0:
+        n_samples = min(sample_count, active[row, col])
+        if n_samples <= 0:
             continue
         x = x0 + col
         pixel = y * width + x
@@ -295,7 +299,8 @@ def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_sta
         qr = qg = qb = 0.0
         good = 0
         bad = 0
-        for s in range(sample_start, sample_start + sample_count):
+        segments = 0
+        for s in range(sample_start, sample_start + n_samples):
             key = sample_key(seed, pixel, s)
             if S.sampler[0] == 1:
                 jx = sobol_value(s, sob[0, 0], sob[0, 1], 0)
@@ -304,7 +309,8 @@ def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_sta
                 jx = uniform(key, 0)
                 jy = uniform(key, 1)
             o, d = camera_ray(S.camera, width, height, x, y, jx, jy)
-            r, g, b = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
+            r, g, b, n_seg = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
+            segments += n_seg
             # Dropped also when the square overflows, so the variance sums stay finite
             if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
                 sr += r
@@ -324,18 +330,20 @@ def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_sta
         out_sum_sq[row, col, 2] += qb
         out_count[row, col] += good
         out_dropped[row, col] += bad
+        out_segments[row, col] += segments
 
 
 @parallel_kernel
 def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, tile_w, tile_h,
                        sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
-                       out_dropped, n_threads):
+                       out_dropped, out_segments, n_threads):
     """Add samples [sample_start, sample_start + sample_count) of every pixel of a tile.
 
     Rows are shared among ``n_threads`` of numba's threads; a sample whose radiance is not finite
     (or whose square overflows, |L| > 1e154) is not added but counted in ``out_dropped``, so a bad
-    path can never turn a pixel into NaN or inf unnoticed. Pixels whose ``active`` flag is 0
-    (adaptive sampling: converged) get no samples.
+    path can never turn a pixel into NaN or inf unnoticed. ``active`` (tile_h, tile_w) int32 is
+    how many of the samples each pixel takes (the first min(sample_count, active) of the range;
+    adaptive sampling: 0 for a pixel that takes none).
     """
     # Rows are dealt out in turn (thread c takes rows c, c + n, c + 2n, …) rather than in n
     # contiguous blocks, so a thread whose block holds the costly part of the frame (a translucent
@@ -349,4 +357,4 @@ def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, ti
         for row in range(chunk, tile_h, n_chunks):
             render_row(S, width, height, seed, max_depth, x0, y0 + row, row, tile_w,
                        sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
-                       out_dropped, stack, sob, scratch)
+                       out_dropped, out_segments, stack, sob, scratch)

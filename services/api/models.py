@@ -96,6 +96,13 @@ class JobPublic(BaseModel):
     submitter: str | None = Field(default=None, description="the name of the API token it was "
                                                             "submitted with (LUCENT_API_TOKENS)")
     tags: list[str] = Field(default_factory=list, description="worker tags it requires")
+    target_error: float | None = Field(
+        default=None, description="the scene's render.target_error: the frame's expected relMSE "
+                                  "asked for (docs/adaptive-sampling.md)")
+    expected_error: float | None = Field(
+        default=None, description="a job with a target: the frames' expected relMSE estimated "
+                                  "from the samples merged so far, once every pixel has one "
+                                  "(the quantity target_error bounds)")
     waiting_for: str | None = Field(
         default=None, description="queued or running with no live worker that has its tags: "
                                   "'waiting for a worker with tags gpu'")

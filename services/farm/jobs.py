@@ -86,6 +86,7 @@ class CheckedScene:
     scene_json: bytes  # the scene as submitted, as the store keeps it (workers re-fetch it)
     frames_json: bytes | None = None  # a job of frames: their JSON Patches
     n_frames: int = 1
+    target_error: float | None = None  # render.target_error (the frame's expected relMSE)
 
 
 def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
@@ -133,7 +134,7 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
     return CheckedScene(parsed.film.width, parsed.film.height, parsed.render.spp, methods,
                         json.dumps(scene).encode(),
                         json.dumps(frames).encode() if frames else None,
-                        len(frames) if frames else 1)
+                        len(frames) if frames else 1, parsed.render.target_error)
 
 
 def queue_job(store: JobStore, records: Records, celery: Celery, settings: Settings,
@@ -178,7 +179,7 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     try:
         meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
                                 scene.methods, created.created_at, submitter, options.tags,
-                                scene.frames_json)
+                                scene.frames_json, scene.target_error)
     except Exception:
         with contextlib.suppress(RecordsUnavailable):
             records.delete(job_id)

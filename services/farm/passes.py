@@ -17,7 +17,9 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-from renderer.film.adaptive import tile_converged
+import numpy as np
+
+from renderer.film.adaptive import frame_scale, pass_counts
 from renderer.film.buffer import SampleBuffer
 from services.farm.blocklist import no_eligible_reason
 from services.farm.merge import merge_pass
@@ -108,11 +110,21 @@ def pass_failed(store: JobStore, settings: Settings, delivery: Delivery, tile: i
     return True
 
 
-def converged(store: JobStore, job_id: str, tile: int, target_error: float) -> bool:
-    """Adaptive sampling: the tile's merged buffer meets the scene's target (a pure rule of that
-    buffer, ``renderer.film.adaptive.tile_converged``), so its later passes add no samples."""
-    data = store.tile_buffer(job_id, tile)
-    return data is not None and tile_converged(SampleBuffer.from_bytes(data), target_error)
+def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: float,
+                    pass_samples: int) -> np.ndarray | None:
+    """Adaptive sampling: the samples each pixel of the tile takes of this pass (``(h, w)``
+    int32), a pure rule of the tile's merged buffer and the frame's scale from the job's tile
+    summaries (``renderer.film.adaptive.pass_counts``, ``frame_scale``); None before the tile's
+    first merge (every pixel takes the whole pass)."""
+    data = store.tile_buffer(meta.id, tile)
+    if data is None:
+        return None
+    scale = None
+    if meta.err_pixels >= meta.plan.width * meta.plan.height * meta.plan.frames:
+        # Every pixel of the frames has an estimate: the frame-wide allocation
+        scale = frame_scale(meta.root_sum, meta.quarter_sum, meta.err_pixels, target_error)
+    return pass_counts(SampleBuffer.from_bytes(data), target_error, meta.plan.spp,
+                       pass_samples, scale)
 
 
 def deliver(store: JobStore, settings: Settings, job_id: str, tile: int, pass_index: int,

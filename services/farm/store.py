@@ -12,6 +12,7 @@ Key                                Type    What
 ``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass renders) / done / failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
+``{p}:job:{id}:tile_err``          hash    tile -> its error summary (a job with a target)
 ``{p}:job:{id}:attempts``          hash    ``tile:pass`` -> deliveries (the redelivery cap)
 ``{p}:job:{id}:merged``            set     ``tile:pass`` merged into the accumulation
 ``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (``to_bytes``)
@@ -46,6 +47,7 @@ from typing import Any
 
 import redis
 
+from renderer.film.adaptive import tile_summary
 from renderer.film.buffer import SampleBuffer
 from services.farm.planner import Plan
 
@@ -193,6 +195,23 @@ class JobMeta:
     image_removed: bool = False  # its image removed by the cap on stored images (a record's)
     parked: str | None = None  # a record's: the blob of a failed or cancelled job's tiles
     tags: tuple[str, ...] = ()  # the worker tags it requires (services.farm.pools)
+    # render.target_error, and the sums of its tiles' summaries (renderer.film.adaptive
+    # tile_summary, kept by the merge): the frame's scale and expected error
+    target_error: float | None = None
+    err_sum: float = 0.0
+    root_sum: float = 0.0
+    quarter_sum: float = 0.0
+    err_pixels: int = 0
+
+    @property
+    def expected_error(self) -> float | None:
+        """The frames' expected relMSE from their merged samples (the quantity target_error
+        bounds), once every pixel has an estimate; else None (also for a job without a target
+        that no merge summarised)."""
+        pixels = self.plan.width * self.plan.height * self.plan.frames
+        if self.err_pixels < pixels or pixels == 0:
+            return None
+        return self.err_sum / self.err_pixels
 
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
@@ -237,6 +256,11 @@ class JobMeta:
             tiles_final=json.loads(d.get("tiles_final") or "{}"),
             submitter=d.get("submitter") or None,
             tags=tuple(t for t in d.get("tags", "").split(",") if t),
+            target_error=opt_float("target_error"),
+            err_sum=float(d.get("err_sum") or 0.0),
+            root_sum=float(d.get("root_sum") or 0.0),
+            quarter_sum=float(d.get("quarter_sum") or 0.0),
+            err_pixels=int(float(d.get("err_pixels") or 0)),
         )
 
 
@@ -325,8 +349,8 @@ class JobStore:
     def tile_keys(self, job_id: str, n_tiles: int) -> list[str]:
         """The job's keys that hold its tiles: what archiving deletes."""
         return [self.k("job", job_id, name)
-                for name in ("tile_state", "tile_samples", "tile_error", "attempts", "merged",
-                             "failures", "blocklist")] + \
+                for name in ("tile_state", "tile_samples", "tile_error", "tile_err", "attempts",
+                             "merged", "failures", "blocklist")] + \
             [self.acc_key(job_id, t) for t in range(n_tiles)]
 
     def pending_passes_of(self, job_id: str) -> list[str]:
@@ -338,9 +362,11 @@ class JobStore:
     def create_job(self, job_id: str, name: str, priority: int, plan: Plan,
                    scene_json: str | bytes, methods: dict[str, str] | None = None,
                    created_at: float | None = None, submitter: str | None = None,
-                   tags: tuple[str, ...] = (), frames_json: bytes | None = None) -> JobMeta:
+                   tags: tuple[str, ...] = (), frames_json: bytes | None = None,
+                   target_error: float | None = None) -> JobMeta:
         """Store a job, queued; ``frames_json``: the patches of a job of ``plan.frames``
-        frames."""
+        frames; ``target_error``: the scene's ``render.target_error`` (its merges then keep the
+        tiles' error summaries)."""
         now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -351,6 +377,7 @@ class JobStore:
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
             "submitter": submitter or "", "tags": ",".join(tags), "frames": plan.frames,
+            "target_error": "" if target_error is None else target_error,
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
@@ -573,6 +600,10 @@ class JobStore:
         out: dict[str, Any] = {
             "samples": [samples.get(t, 0) for t in range(n_tiles)],
             "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
+        meta = self.get_job(job_id)
+        if meta is not None and meta.target_error is not None:
+            out["target_error"] = meta.target_error
+            out["expected_error"] = meta.expected_error
         blocklist = self.blocklist(job_id)
         if blocklist:
             out["blocklist"] = blocklist
@@ -707,6 +738,7 @@ class JobStore:
         member = pass_member(tile, pass_index)
         job_key = self.job_key(job_id)
         samples_key = self.k("job", job_id, "tile_samples")
+        err_key = self.k("job", job_id, "tile_err")
         with r.pipeline() as pipe:
             while True:
                 try:
@@ -750,6 +782,14 @@ class JobStore:
                     # passes to come goes back to queued (not a failed tile: that stays failed)
                     state_key = self.k("job", job_id, "tile_state")
                     requeue = not tile_done and _s(pipe.hget(state_key, str(tile))) == "running"
+                    # A job with a target: the tile's error summary, and the change to the job's
+                    # sums (its old summary read under the same WATCH of the tile's buffer)
+                    summary = delta = None
+                    if _s(pipe.hget(job_key, "target_error")):
+                        summary = tile_summary(acc)
+                        old = _s(pipe.hget(err_key, str(tile)))
+                        before = [float(x) for x in old.split()] if old else [0.0] * 4
+                        delta = [new - was for new, was in zip(summary, before, strict=True)]
                     pipe.multi()
                     pipe.set(acc_key, acc.to_bytes())
                     pipe.sadd(merged_key, member)
@@ -765,6 +805,11 @@ class JobStore:
                     pipe.hincrby(job_key, "dropped", int(buf.dropped.sum()))
                     pipe.hincrby(job_key, "version", 1)
                     pipe.hset(job_key, "active_at", time.time())  # the stall clock restarts
+                    if summary is not None and delta is not None:
+                        pipe.hset(err_key, str(tile), " ".join(repr(float(x)) for x in summary))
+                        for name, d in zip(("err_sum", "root_sum", "quarter_sum", "err_pixels"),
+                                           delta, strict=True):
+                            pipe.hincrbyfloat(job_key, name, d)
                     pipe.execute()
                     break
                 except redis.WatchError:

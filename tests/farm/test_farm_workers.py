@@ -204,18 +204,22 @@ def test_workers_report_heartbeats(farm, farm_client, wait_until):
 
 
 def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job, tiny_scene):
-    """With render.target_error, passes of a tile whose merged buffer has converged add nothing:
-    the job completes as planned, the black border's tiles stop at the minimum while the noisy
-    ones go on, and no pixel has fewer than the rule's minimum."""
-    from renderer.film.adaptive import MIN_SAMPLES
+    """With render.target_error, each pass renders only the pixels whose allocation lacks
+    samples (renderer.film.adaptive.pass_counts on the tile's merged buffer, at the frame's scale
+    from the tiles' summaries): the job completes as planned, the black border's tiles stop at
+    the pilot while the noisy ones go on, no pixel has fewer than the pilot, and the job's
+    answer reports the target and the expected error it reached."""
+    from renderer.film.adaptive import PILOT
 
     scene = copy.deepcopy(tiny_scene)
     scene["render"].update(spp=256, target_error=0.02)
-    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 8, "spp_per_pass": 64})
+    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 8, "spp_per_pass": 8})
     assert r.status_code == 201, r.text
     job = wait_for_job(farm_client, r.json()["id"])
     assert job["status"] == "done", job
     frame, _ = assemble(farm.store(), job["id"])
     samples = frame.count + frame.dropped
-    assert samples.min() >= MIN_SAMPLES
-    assert samples.min() < 256 and samples.max() == 256
+    assert samples.min() >= PILOT
+    assert samples.min() < 256 and samples.max() <= 256
+    assert job["target_error"] == 0.02
+    assert job["expected_error"] is not None and 0 < job["expected_error"] <= 0.02

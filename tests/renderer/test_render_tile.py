@@ -57,8 +57,8 @@ def test_the_split_among_threads_does_not_change_the_image(glass, n_threads):
         render_tile_kernel(
             glass.arrays, glass.width, glass.height, glass.seed, glass.max_depth,
             glass.stack_size, 0, 0, glass.width, glass.height, 0, 4,
-            np.ones((glass.height, glass.width), np.uint8), buf.sum, buf.sum_sq, buf.count,
-            buf.dropped, n)
+            np.full((glass.height, glass.width), 4, np.int32), buf.sum, buf.sum_sq, buf.count,
+            buf.dropped, buf.segments, n)
         return buf
 
     one, many = run(1), run(n_threads)

@@ -94,6 +94,21 @@ def test_render_reports_what_auto_chose(tmp_path, capsys):
     assert "auto chose volumetric for 'wax': optical radius 2" in capsys.readouterr().err
 
 
+def test_render_with_a_target_says_the_plan_and_what_it_reached(tmp_path, capsys):
+    """render.target_error: the CLI tells the pilot's planned samples, then the expected relMSE
+    reached (at most the target) and the samples a pixel took."""
+    data = json.loads(small_scene(tmp_path).read_text())
+    data["render"].update(spp=2048, target_error=0.05)
+    path = tmp_path / "target.json"
+    path.write_text(json.dumps(data))
+    assert main(["render", str(path), "-o", str(tmp_path / "x.npy"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "target relMSE 0.05: after the pilot the allocation plans" in err
+    line = next(x for x in err.splitlines() if x.startswith("reached: expected relMSE"))
+    reached = float(line.split()[3])
+    assert 0 < reached <= 0.05
+
+
 def test_console_script_runs_in_a_fresh_process(tmp_path):
     """The installed entry point, end to end, with a mesh read from a file next to the scene."""
     (tmp_path / "tri.obj").write_text("v -0.5 -0.5 0\nv 0.5 -0.5 0\nv 0 0.5 0\nf 1 2 3\n")

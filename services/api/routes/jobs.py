@@ -76,6 +76,11 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
         error=meta.error, image_version=meta.version, methods=meta.methods,
         submitter=meta.submitter, tags=list(meta.tags),
+        # (a job's record keeps them in its tiles' summary once it leaves Redis)
+        target_error=(meta.target_error if meta.target_error is not None
+                      else meta.tiles_final.get("target_error")),
+        expected_error=(meta.expected_error if meta.expected_error is not None
+                        else meta.tiles_final.get("expected_error")),
         waiting_for=(waiting_for(meta.tags, live_tags)
                      if live_tags is not None and meta.status in ACTIVE else None),
     )
