@@ -201,29 +201,21 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
             dim += DIMS_PER_BOUNCE
             continue
 
-        # Under the surface (diffusion): the coat reflects, or the path goes on from the exit
-        coat_lit = False
+        # Under the surface (diffusion): the coat reflects (a rough one lit there), or the path
+        # goes on from the exit
         if diffusion:
-            if mk == ROUGH_DIFFUSION and n_lights > 0:
-                # The rough coat's reflection, lit by a light sample here, before the coat
-                # decides whether the path reflects or goes under (its value is the reflection
-                # lobe alone: what enters leaves elsewhere)
-                c = surface_direct(S, mk, mp, p, n, n, wo, scale, medium, null_media, br, bg,
-                                   bb, key, dim, sidx, sob, stack)
-                lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
-                coat_lit = True
-            ended, p, n, wo, mk, scale, br, bg, bb, depth, dim = diffusion_exit(
-                S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, max_depth, key, dim,
-                sidx, sob, stack)
+            ended, p, n, wo, mk, scale, br, bg, bb, depth, dim, lr, lg, lb = diffusion_exit(
+                S, mat, mp, prim, p, n, wo, cos_o, scale, medium, null_media, br, bg, bb, lr, lg,
+                lb, depth, max_depth, key, dim, sidx, sob, stack)
             if ended:
                 break
             ns = n  # the exit point's: diffusion keeps the geometric normal
-            coat_lit = coat_lit and mk == ROUGH_DIFFUSION  # (the exit vertex takes its own)
 
         # Next-event estimation: one light sample, MIS-weighted against the BSDF (backlight:
-        # the light from behind comes through)
+        # the light from behind comes through; a rough diffusion coat's was taken before it
+        # chose to reflect)
         delta = is_delta(mk)
-        if n_lights > 0 and not delta and not coat_lit:
+        if n_lights > 0 and not delta and mk != ROUGH_DIFFUSION:
             # (a rough translucent boundary's light sample may go either side: its medium)
             c = surface_direct(S, mk, mp, p, n, ns, wo, scale, mat if rough_boundary(mk)
                                else medium, null_media, br, bg, bb, key, dim, sidx, sob, stack)
