@@ -112,10 +112,11 @@ def escaped_radiance(S, env, d):
 
 @inline_kernel
 def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
-    """Radiance arriving at o from direction −d along one sampled path, and its segments (rays
-    to the closest surface: its cost). S is ``SceneArrays``; ``sidx`` (the sample's index) and
-    ``sob`` (its pixel's seeds) feed the sobol sampler's first vertices (``draw``); ``scratch``
-    (N_PARAMS) holds a textured material's row at the current vertex (``textured_row``)."""
+    """Radiance arriving at o from direction −d along one sampled path, and the path's segments
+    (rays traced to the closest surface: its cost, which adaptive sampling weighs). S is
+    ``SceneArrays``; ``sidx`` (the sample's index) and ``sob`` (its pixel's sequence seeds) feed
+    the sobol sampler's first vertices (``draw``); ``scratch`` (N_PARAMS) holds a textured
+    material's row at the current vertex (``textured_row``)."""
     lr = lg = lb = 0.0  # radiance gathered so far
     br = bg = bb = 1.0  # throughput β
     depth = 0  # scattering events so far
@@ -133,7 +134,9 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     n_lights = S.light_kind.shape[0]
     env = S.env_light[0]
     null_media = S.null_media[0]
-    for segment in range(MAX_SEGMENTS):  # noqa: B007 (the count after the loop)
+    segments = 0
+    for _ in range(MAX_SEGMENTS):
+        segments += 1
         # The closest surface along the ray
         t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
                                           S.prim_kind, S.prim_geo, o, d, math.inf, stack)
@@ -198,27 +201,21 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
             dim += DIMS_PER_BOUNCE
             continue
 
-        # Under the surface (diffusion): the coat reflects, or the path goes on from the exit
-        coat_lit = False
+        # Under the surface (diffusion): the coat reflects (a rough one lit there), or the path
+        # goes on from the exit
         if diffusion:
-            if mk == ROUGH_DIFFUSION and n_lights > 0:
-                # The rough coat's reflection lobe alone, lit here before the coat decides
-                c = surface_direct(S, mk, mp, p, n, n, wo, scale, medium, null_media, br, bg,
-                                   bb, key, dim, sidx, sob, stack)
-                lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
-                coat_lit = True
-            ended, p, n, wo, mk, scale, br, bg, bb, depth, dim = diffusion_exit(
-                S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, max_depth, key, dim,
-                sidx, sob, stack)
+            ended, p, n, wo, mk, scale, br, bg, bb, depth, dim, lr, lg, lb = diffusion_exit(
+                S, mat, mp, prim, p, n, wo, cos_o, scale, medium, null_media, br, bg, bb, lr, lg,
+                lb, depth, max_depth, key, dim, sidx, sob, stack)
             if ended:
                 break
             ns = n  # the exit point's: diffusion keeps the geometric normal
-            coat_lit = coat_lit and mk == ROUGH_DIFFUSION  # (the exit vertex takes its own)
 
         # Next-event estimation: one light sample, MIS-weighted against the BSDF (backlight:
-        # the light from behind comes through)
+        # the light from behind comes through; a rough diffusion coat's was taken before it
+        # chose to reflect)
         delta = is_delta(mk)
-        if n_lights > 0 and not delta and not coat_lit:
+        if n_lights > 0 and not delta and mk != ROUGH_DIFFUSION:
             # (a rough translucent boundary's light sample may go either side: its medium)
             c = surface_direct(S, mk, mp, p, n, ns, wo, scale, mat if rough_boundary(mk)
                                else medium, null_media, br, bg, bb, key, dim, sidx, sob, stack)
@@ -259,7 +256,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         if not alive:
             break
         dim += DIMS_PER_BOUNCE
-    return lr, lg, lb, segment + 1
+    return lr, lg, lb, segments
 
 
 @kernel

@@ -189,7 +189,8 @@ def choose_method(albedo, density, size: float, target: float | None, *, g: floa
 
     A chromatic medium (σt differs between channels) is judged channel by channel
     (``choose_chromatic``). A rough boundary (``rough``) is rendered by ``volumetric`` (or,
-    clear, by a rough glass): the approximations and the opaque limit have a smooth coat."""
+    clear, by a rough glass): the approximations' floors and the opaque limit's error were
+    measured with a smooth coat (diffuse_entry and diffusion render a rough one, unmeasured)."""
     target = DEFAULT_TARGET if target is None else target
     sigma_t = np.broadcast_to(np.asarray(density, dtype=np.float64), (3,))
     if len(set(sigma_t.tolist())) > 1:
@@ -205,8 +206,8 @@ def choose_method(albedo, density, size: float, target: float | None, *, g: floa
         return AutoChoice("dielectric", f"{where}: effectively clear, scattered fraction "
                           f"{a * tau:.3g} <= target {target:g}", a * tau)
     if rough:
-        return AutoChoice("volumetric", f"{where}: a rough boundary (the approximations have a "
-                          "smooth coat)", 0.0)
+        return AutoChoice("volumetric", f"{where}: a rough boundary (no approximation's floor "
+                          "was measured behind a rough coat)", 0.0)
     if footprint > 0.0 and OPAQUE_ERROR <= target:
         reach = opaque_reach(albedo, sigma_t, g, ior)
         if reach <= opaque_limit(footprint, size):
@@ -250,8 +251,8 @@ def choose_chromatic(albedo, sigma_t, size: float, target: float, *, g: float, i
         return AutoChoice("dielectric", f"{where}: every channel absorbing or effectively clear, "
                           f"scattered fraction {scattered:.3g} <= target {target:g}", scattered)
     if rough:
-        return AutoChoice("volumetric", f"{where}: a rough boundary (the approximations have a "
-                          "smooth coat)", 0.0)
+        return AutoChoice("volumetric", f"{where}: a rough boundary (no approximation's floor "
+                          "was measured behind a rough coat)", 0.0)
     if present == {"opaque"}:
         return AutoChoice("opaque", f"{where}: every channel effectively opaque, under a pixel "
                           f"({footprint:.3g}); measured error {OPAQUE_ERROR:g} <= target "

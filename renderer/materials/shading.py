@@ -2,8 +2,10 @@
 surface or black pixels where the two normals disagree.
 
 A mesh's ``normals`` bend shading only (scene format v1.1). The reflecting families (diffuse,
-phong, mirror, conductor) and the smooth refracting boundaries (dielectric, translucent method
-volumetric: ``_refracted_about``) are evaluated about the shading normal ns, with two guards:
+phong, mirror, conductor) and the refracting boundaries of glass and of a translucent medium
+(method volumetric; smooth: ``_refracted_about``, rough: ``_two_sided_terms``) are evaluated
+about the shading normal ns, with two guards (for the refracting ones, "below the surface" reads
+"on the other side of the geometric surface than the lobe's event says"):
 
 - **Bending** (Keller et al. 2017, "The Iray Light Transport Simulation and Rendering System",
   the local adaption of shading normals): where the mirror direction of wo about ns would fall
@@ -38,6 +40,8 @@ from renderer.materials.bsdf import (
     MIRROR,
     PHONG,
     ROUGH_CONDUCTOR,
+    ROUGH_DIELECTRIC,
+    ROUGH_TRANSLUCENT,
     TRANSLUCENT,
     bsdf_eval,
     bsdf_pdf,
@@ -52,11 +56,45 @@ BEND_EPSILON = 1e-3
 
 @kernel
 def uses_shading_normal(kind):
-    """The families shaded about an interpolated normal: the reflecting ones, and the smooth
-    refracting boundaries (glass; a translucent medium's, method volumetric), whose sampled
-    direction is then checked against the geometric side (``_refracted_about``)."""
+    """The families shaded about an interpolated normal: the reflecting ones, and the refracting
+    boundaries (glass; a translucent medium's, method volumetric), whose directions are then
+    checked against the geometric side (``_refracted_about``, ``_two_sided_terms``)."""
     return (kind == DIFFUSE or kind == PHONG or kind == MIRROR or kind == CONDUCTOR
-            or kind == ROUGH_CONDUCTOR or kind == DIELECTRIC or kind == TRANSLUCENT)
+            or kind == ROUGH_CONDUCTOR or kind == DIELECTRIC or kind == TRANSLUCENT
+            or kind == ROUGH_DIELECTRIC or kind == ROUGH_TRANSLUCENT)
+
+
+@kernel
+def _two_sided(kind):
+    """The rough refracting boundaries: lobes on both sides of the surface."""
+    return kind == ROUGH_DIELECTRIC or kind == ROUGH_TRANSLUCENT
+
+
+@kernel
+def _outward(ns, n):
+    return ns if _dot(ns, n) >= 0.0 else (-ns[0], -ns[1], -ns[2])
+
+
+@kernel
+def _two_sided_terms(kind, param, wo, wi, n, ns):
+    """(f·|cos θi|, density) of a rough boundary's lobe about ns folded so that the geometric
+    surface decides the side. A direction the lobe sends where ns and n disagree on whether it
+    stays on wo's side is mirrored through the geometric plane, after which they agree; so at
+    wi the folded lobe is the lobe's value at wi, if ns says of wi what n says, plus its value
+    at wi's mirror, if ns says of the mirror what n says of wi. Either way the lobe's own event
+    (reflection, or refraction with its (η_i/η_t)²) is the one the geometric surface sees."""
+    nso = _outward(ns, n)
+    stays_g = (_dot(wi, n) > 0.0) == (_dot(wo, n) > 0.0)
+    fr = fg = fb = 0.0
+    pdf = 0.0
+    w = wi
+    for _ in range(2):
+        if ((_dot(w, nso) > 0.0) == (_dot(wo, nso) > 0.0)) == stays_g:
+            f = bsdf_eval(kind, param, wo, w, nso)
+            fr, fg, fb = fr + f[0], fg + f[1], fb + f[2]
+            pdf += bsdf_pdf(kind, param, wo, w, nso)
+        w = _fold(wi, n)
+    return (fr, fg, fb), pdf
 
 
 @kernel
@@ -138,6 +176,9 @@ def shaded_eval(kind, param, wo, wi, n, ns):
     normal n; ``bsdf_eval`` itself where ns is n."""
     if _same(ns, n):
         return bsdf_eval(kind, param, wo, wi, n)
+    if _two_sided(kind):
+        f, _ = _two_sided_terms(kind, param, wo, wi, n, ns)
+        return f
     ng = n if _dot(wo, n) >= 0.0 else (-n[0], -n[1], -n[2])
     if _dot(wi, ng) <= 0.0:
         return (0.0, 0.0, 0.0)
@@ -155,6 +196,9 @@ def shaded_pdf(kind, param, wo, wi, n, ns):
     """The density of ``shaded_sample`` (``bsdf_pdf`` where ns is n)."""
     if _same(ns, n):
         return bsdf_pdf(kind, param, wo, wi, n)
+    if _two_sided(kind):
+        _, pdf = _two_sided_terms(kind, param, wo, wi, n, ns)
+        return pdf
     ng = n if _dot(wo, n) >= 0.0 else (-n[0], -n[1], -n[2])
     if _dot(wi, ng) <= 0.0:
         return 0.0
@@ -174,6 +218,19 @@ def shaded_sample(kind, param, wo, n, ns, uc, u1, u2):
         return bsdf_sample(kind, param, wo, n, uc, u1, u2)
     if kind == DIELECTRIC or kind == TRANSLUCENT:
         return _refracted_about(kind, param, wo, n, ns, uc, u1, u2)
+    if _two_sided(kind):
+        nso = _outward(ns, n)
+        wi, _, _, ok = bsdf_sample(kind, param, wo, nso, uc, u1, u2)
+        if not ok:
+            return wi, (0.0, 0.0, 0.0), 0.0, False
+        stays_s = (_dot(wi, nso) > 0.0) == (_dot(wo, nso) > 0.0)
+        stays_g = (_dot(wi, n) > 0.0) == (_dot(wo, n) > 0.0)
+        if stays_s != stays_g:
+            wi = _fold(wi, n)
+        f, pdf = _two_sided_terms(kind, param, wo, wi, n, ns)
+        if not pdf > 0.0:
+            return wi, (0.0, 0.0, 0.0), pdf, False
+        return wi, (f[0] / pdf, f[1] / pdf, f[2] / pdf), pdf, True
     wi, weight, pdf, ok = bsdf_sample(kind, param, wo, ns, uc, u1, u2)
     ng = n if _dot(wo, n) >= 0.0 else (-n[0], -n[1], -n[2])
     if not ok:

@@ -17,6 +17,7 @@ import numpy as np
 
 from renderer.geometry.bvh import intersect_closest
 from renderer.geometry.shapes import spawn_offset, surface_point
+from renderer.integrators.direct import surface_direct
 from renderer.integrators.sampler import DIMS_PER_BOUNCE, draw
 from renderer.jit import block, kernel
 from renderer.materials.bsdf import DIFFUSION_EXIT, ROUGH_DIFFUSION
@@ -118,17 +119,23 @@ def diffusion_probe(S, mat, p, n, mp, key, stack):
 
 
 @block
-def diffusion_exit(S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, max_depth, key,
-                   dim, sidx, sob, stack):
+def diffusion_exit(S, mat, mp, prim, p, n, wo, cos_o, scale, medium, null_media, br, bg, bb, lr,
+                   lg, lb, depth, max_depth, key, dim, sidx, sob, stack):
     """The diffusion material ``mat`` (row ``mp``) hit from outside at p on ``prim``: where the
     path goes on from, and as what. The smooth coat reflects F of the light: with probability F
     (the same draw and Fresnel the boundary's ``bsdf_sample`` uses) the vertex stays as it is and
     the BSDF takes the mirror direction; the rest (1 − F, cancelled by its probability) goes
     under the surface and the path carries on from the exit vertex, lit through S_w. A rough
     coat (ROUGH_DIFFUSION) samples the GGX boundary instead (docs/methods/diffusion.md, "Rough
-    coat"). Returns (ended, p, n, wo, kind, scale, br, bg, bb, depth, dim): ``dim`` the exit
-    vertex's first dimension."""
+    coat"), after the light sample of its reflection lobe (added to lr, lg, lb: taken before
+    the coat chooses, so that it counts whatever the choice). Returns (ended, p, n, wo, kind,
+    scale, br, bg, bb, depth, dim, lr, lg, lb): ``dim`` the exit vertex's first dimension."""
     kind = S.mat_kind[mat]
+    if kind == ROUGH_DIFFUSION and S.light_kind.shape[0] > 0:
+        # The value of the coat for a direction that enters is 0: the reflection lobe alone
+        c = surface_direct(S, kind, mp, p, n, n, wo, scale, medium, null_media, br, bg, bb, key,
+                           dim, sidx, sob, stack)
+        lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
     if kind == ROUGH_DIFFUSION:
         # The rough coat: one sample of the GGX boundary from the draws the vertex's own BSDF
         # sample takes, so that a reflection is the direction ``bsdf_sample`` returns next. What
@@ -139,9 +146,9 @@ def diffusion_exit(S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, 
                                                  draw(S, key, dim, 4, sidx, sob),
                                                  draw(S, key, dim, 5, sidx, sob))
         if not ok_c:
-            return True, p, n, wo, kind, scale, br, bg, bb, depth, dim
+            return True, p, n, wo, kind, scale, br, bg, bb, depth, dim, lr, lg, lb
         if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0.0:
-            return False, p, n, wo, kind, scale, br, bg, bb, depth, dim
+            return False, p, n, wo, kind, scale, br, bg, bb, depth, dim, lr, lg, lb
         k = w_c[0] * mp[IOR] * mp[IOR]
         br *= k
         bg *= k
@@ -150,7 +157,7 @@ def diffusion_exit(S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, 
     else:
         f_o, _ = fresnel_dielectric(cos_o, mp[IOR])
         if not draw(S, key, dim, 3, sidx, sob) >= f_o:
-            return False, p, n, wo, kind, scale, br, bg, bb, depth, dim
+            return False, p, n, wo, kind, scale, br, bg, bb, depth, dim, lr, lg, lb
     if mp[OPAQUE] > 0.0:
         # Effectively opaque (auto, renderer/materials/opaque.py): the profile is narrower than a
         # pixel, so the light leaves where it entered, with probability A: the separable BSSRDF's
@@ -160,10 +167,11 @@ def diffusion_exit(S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, 
     else:
         ok, p_o, n_o, prim_o, w = diffusion_probe(S, mat, p, n, mp, key ^ np.uint64(dim), stack)
     if not ok:
-        return True, p, n, wo, kind, scale, br, bg, bb, depth, dim
+        return True, p, n, wo, kind, scale, br, bg, bb, depth, dim, lr, lg, lb
     br *= w[0]
     bg *= w[1]
     bb *= w[2]
     depth += 1
     ended = max_depth >= 0 and depth >= max_depth
-    return ended, p_o, n_o, n_o, DIFFUSION_EXIT, S.prim_scale[prim_o], br, bg, bb, depth, dim
+    return (ended, p_o, n_o, n_o, DIFFUSION_EXIT, S.prim_scale[prim_o], br, bg, bb, depth, dim,
+            lr, lg, lb)

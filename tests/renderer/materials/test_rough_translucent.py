@@ -41,7 +41,7 @@ def test_kinds_compiled_for_a_rough_boundary():
     assert kind({"roughness": 0.0}) == TRANSLUCENT
     assert kind({"roughness": 0.3, "ior": 1.0}) == TRANSLUCENT  # index-matched: null, rough or not
     # auto: a scattering medium behind a rough boundary is rendered by volumetric, whatever its
-    # density (the opaque limit and the approximations have a smooth coat) ...
+    # density (the approximations' floors were measured behind a smooth coat) ...
     for density in (3.0, 300.0):
         compiled = compile_scene(load_scene(scene_with(
             {"method": "auto", "roughness": 0.3, "albedo": [0.9, 0.9, 0.9], "density": density})))
