@@ -55,6 +55,8 @@ from renderer.materials.bsdf import (
     N_PARAMS,
     PHONG,
     ROUGH_CONDUCTOR,
+    ROUGH_DIFFUSE_ENTRY,
+    ROUGH_DIFFUSION,
     SINGLE_SCATTER,
 )
 from renderer.materials.conductor import SPECULAR
@@ -83,9 +85,11 @@ PARAM_SLOTS = {DIFFUSE: {"albedo": ((ALBEDO, -1),)},
                ROUGH_CONDUCTOR: {"specular": ((SPECULAR, -1),)},
                SINGLE_SCATTER: {"albedo": ((translucent.ALBEDO, -1),)},
                DIFFUSE_ENTRY: {"albedo": ((translucent.ALBEDO, -1),)},
+               ROUGH_DIFFUSE_ENTRY: {"albedo": ((translucent.ALBEDO, -1),)},
                BACKLIGHT: {"albedo": ((translucent.ALBEDO, -1),
                                       (translucent.REFLECTED, translucent.SCALE))},
-               DIFFUSION: {"albedo": ((translucent.ALBEDO, -1),)}}
+               DIFFUSION: {"albedo": ((translucent.ALBEDO, -1),)},
+               ROUGH_DIFFUSION: {"albedo": ((translucent.ALBEDO, -1),)}}
 # (diffusion: the albedo at the hit gives the profile's A and d there, ``profile_from_albedo``)
 
 INV_2PI = 1.0 / (2.0 * math.pi)
@@ -252,6 +256,6 @@ def textured_row(S, mat, kind, prim, u, v, n, scratch):
             slot, k = int(S.mat_tex[mat, 3 * b]), S.mat_tex[mat, 3 * b + 2]
             c = texture_eval(S.tex_param, S.texels, t, tu, tv)
             scratch[slot], scratch[slot + 1], scratch[slot + 2] = k * c[0], k * c[1], k * c[2]
-    if S.mat_kind[mat] == DIFFUSION:
+    if S.mat_kind[mat] == DIFFUSION or S.mat_kind[mat] == ROUGH_DIFFUSION:
         profile_from_albedo(scratch)
     return True

@@ -19,7 +19,7 @@ from renderer.integrators.shadow import SHADOW_SLACK, surface_shadow, transmitta
 from renderer.integrators.subsurface.backlight import backlight_light
 from renderer.jit import block
 from renderer.lights import sample_light
-from renderer.materials.bsdf import BACKLIGHT, ROUGH_TRANSLUCENT
+from renderer.materials.bsdf import BACKLIGHT, rough_boundary
 from renderer.materials.phase import hg_pdf
 from renderer.materials.shading import shaded_eval, shaded_pdf
 from renderer.sampling import power_heuristic
@@ -49,7 +49,7 @@ def surface_direct(S, mk, mp, p, n, ns, wo, scale, medium, null_media, br, bg, b
         return none
     f = shaded_eval(mk, mp, wo, wi, n, ns)
     if f[0] > 0.0 or f[1] > 0.0 or f[2] > 0.0:
-        if mk == ROUGH_TRANSLUCENT:
+        if rough_boundary(mk):
             # ``medium`` is the boundary's own: the shadow ray starts in it when wi goes inside
             # (a light within the object), else in vacuum; through the medium it is attenuated
             inside = wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0

@@ -47,10 +47,13 @@ from renderer.materials.bsdf import (
     DIFFUSION,
     N_PARAMS,
     ROUGH_DIELECTRIC,
+    ROUGH_DIFFUSE_ENTRY,
+    ROUGH_DIFFUSION,
     ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
     is_delta,
+    rough_boundary,
 )
 from renderer.materials.dielectric import absorbed
 from renderer.materials.shading import bent_normal, shaded_sample, uses_shading_normal
@@ -192,26 +195,37 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
             S, mk, mp, mat, cos_o, medium, single_done, skip_emission, key, dim, sidx, sob)
         if not crossed and max_depth >= 0 and depth >= max_depth:
             break
-        if crossed or (mk == DIFFUSION and cos_o <= 0.0):
+        diffusion = mk == DIFFUSION or mk == ROUGH_DIFFUSION
+        if crossed or (diffusion and cos_o <= 0.0):
             o = spawn_offset(p, n, d, scale)
             dim += DIMS_PER_BOUNCE
             continue
 
         # Under the surface (diffusion): the coat reflects, or the path goes on from the exit
-        if mk == DIFFUSION:
-            ended, p, n, wo, mk, scale, br, bg, bb, depth = diffusion_exit(
+        coat_lit = False
+        if diffusion:
+            if mk == ROUGH_DIFFUSION and n_lights > 0:
+                # The rough coat's reflection, lit by a light sample here, before the coat
+                # decides whether the path reflects or goes under (its value is the reflection
+                # lobe alone: what enters leaves elsewhere)
+                c = surface_direct(S, mk, mp, p, n, n, wo, scale, medium, null_media, br, bg,
+                                   bb, key, dim, sidx, sob, stack)
+                lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
+                coat_lit = True
+            ended, p, n, wo, mk, scale, br, bg, bb, depth, dim = diffusion_exit(
                 S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, max_depth, key, dim,
                 sidx, sob, stack)
             if ended:
                 break
             ns = n  # the exit point's: diffusion keeps the geometric normal
+            coat_lit = coat_lit and mk == ROUGH_DIFFUSION  # (the exit vertex takes its own)
 
         # Next-event estimation: one light sample, MIS-weighted against the BSDF (backlight:
         # the light from behind comes through)
         delta = is_delta(mk)
-        if n_lights > 0 and not delta:
+        if n_lights > 0 and not delta and not coat_lit:
             # (a rough translucent boundary's light sample may go either side: its medium)
-            c = surface_direct(S, mk, mp, p, n, ns, wo, scale, mat if mk == ROUGH_TRANSLUCENT
+            c = surface_direct(S, mk, mp, p, n, ns, wo, scale, mat if rough_boundary(mk)
                                else medium, null_media, br, bg, bb, key, dim, sidx, sob, stack)
             lr, lg, lb = lr + c[0], lg + c[1], lb + c[2]
         if mk == DIFFUSE_ENTRY and mp[DIRECT_LIGHT] > 0.0 and cos_o > 0.0 and n_lights > 0:
@@ -223,7 +237,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         wi, weight, pdf, ok = shaded_sample(mk, mp, wo, n, ns, draw(S, key, dim, 3, sidx, sob),
                                             draw(S, key, dim, 4, sidx, sob),
                                             draw(S, key, dim, 5, sidx, sob))
-        if ok and mk == DIFFUSE_ENTRY:
+        if ok and (mk == DIFFUSE_ENTRY or mk == ROUGH_DIFFUSE_ENTRY):
             ok, wi, weight, skip_emission, eta_scale = entry_scatter(
                 S, mp, n, cos_o, wi, weight, eta_scale, key, dim, sidx, sob)
         if not ok:
@@ -231,7 +245,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         br, bg, bb = br * weight[0], bg * weight[1], bb * weight[2]
         if br == 0.0 and bg == 0.0 and bb == 0.0:
             break
-        if mk == TRANSLUCENT or mk == DIFFUSE_ENTRY or mk == ROUGH_TRANSLUCENT:
+        if (mk == TRANSLUCENT or mk == DIFFUSE_ENTRY or mk == ROUGH_TRANSLUCENT
+                or mk == ROUGH_DIFFUSE_ENTRY):
             # Refracted in or out, or reflected: the side wi leaves on decides the medium
             medium = mat if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0 else -1
         if (mk == DIELECTRIC or mk == TRANSLUCENT) and weight[0] != 1.0:
@@ -239,6 +254,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         elif (mk == ROUGH_DIELECTRIC or mk == ROUGH_TRANSLUCENT) and (cos_o > 0.0) != (
                 wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0.0):
             eta_scale *= mp[IOR] * mp[IOR] if cos_o > 0.0 else 1.0 / (mp[IOR] * mp[IOR])
+        if mk == ROUGH_DIFFUSE_ENTRY and cos_o > 0.0 and medium == mat:
+            delta = True  # entered: the sampled direction was replaced by the entry scattering
         unweighted, prev_pdf, prev_p, depth = delta, pdf, p, depth + 1
         o, d = spawn_offset(p, n, wi, scale), wi
 

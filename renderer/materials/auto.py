@@ -336,16 +336,58 @@ def scene_regimes(scene, objects) -> frozenset[str]:
     return frozenset(regimes)
 
 
+def for_a_texture(choice: AutoChoice, *, rough: bool,
+                  regimes: frozenset[str] | None) -> AutoChoice:
+    """``choice`` (made on a textured albedo's mean) turned into a method a texture can colour:
+    the texture colours a surface (the approximations'), not a medium. ``volumetric`` becomes the
+    approximation with the lowest measured floor in the scene's regimes (``expected_floor``; the
+    grey floors, chromatic or not), among those with a rough coat when the boundary is rough
+    (diffusion alone: diffuse_entry has no measured floor, so ``auto`` never takes it); the
+    ``opaque`` surface becomes ``diffusion``, whose profile follows the texture hit by hit (the
+    opaque limit's albedo comes from walks at one colour). A ``dielectric`` is kept: a texture
+    colours no glass, and ``load_scene`` refuses the scene, naming the albedo
+    (``texture_refusal``)."""
+    if choice.method not in ("volumetric", "opaque"):
+        return choice
+    if choice.method == "opaque":
+        floor = expected_floor("diffusion", regimes)
+        return AutoChoice("diffusion", f"{choice.reason}; a textured albedo: diffusion, whose "
+                          "profile follows the texture at each hit, where the opaque limit "
+                          f"takes one colour (measured floor {floor:g})", floor)
+    candidates = ("diffusion",) if rough else tuple(BIAS_FLOOR)
+    floors = {method: expected_floor(method, regimes) for method in candidates}
+    best = min(floors, key=floors.__getitem__)
+    coat = "with a rough coat " if rough else ""
+    return AutoChoice(best, f"{choice.reason}; a textured albedo colours a surface, which "
+                      f"volumetric has not: the approximation {coat}with the lowest measured "
+                      f"floor, {best} {floors[best]:g}", floors[best])
+
+
+def texture_refusal(choice: AutoChoice) -> str | None:
+    """Why a textured albedo cannot be rendered as ``choice`` says (None: it can)."""
+    if choice.method != "dielectric":
+        return None
+    return (f"a texture cannot colour this material: method auto renders it as a glass "
+            f"({choice.reason}), which has no surface colour; give an RGB albedo, or a method "
+            "(single_scatter, diffuse_entry, backlight, diffusion)")
+
+
 def auto_choice(scene, name: str):
     """What ``method: "auto"`` picks for material ``name`` of a validated scene (cheap: no BVH),
-    the same choice ``compile_scene`` renders: the farm's API reports it at submission."""
+    the same choice ``compile_scene`` renders: the farm's API reports it at submission. A
+    textured albedo: the choice rests on its mean (``renderer.textures.texture_mean``), then
+    ``for_a_texture``."""
     m = scene.materials[name]
     objects = [o for o in scene.objects if o.material == name]
     sizes = [_object_half_extent(o) for o in objects]
-    return choose_method(m.albedo_rgb, m.sigma_t, min(sizes) if sizes else 0.0,
-                         scene.render.target_error, g=m.g, ior=m.ior,
-                         footprint=pixel_footprint(scene, objects),
-                         regimes=scene_regimes(scene, objects), rough=m.roughness > 0.0)
+    regimes = scene_regimes(scene, objects)
+    choice = choose_method(m.albedo_rgb, m.sigma_t, min(sizes) if sizes else 0.0,
+                           scene.render.target_error, g=m.g, ior=m.ior,
+                           footprint=pixel_footprint(scene, objects),
+                           regimes=regimes, rough=m.roughness > 0.0)
+    if getattr(m.albedo, "type", None) in ("bitmap", "checkerboard"):
+        choice = for_a_texture(choice, rough=m.roughness > 0.0, regimes=regimes)
+    return choice
 
 
 def auto_choices(scene) -> dict:

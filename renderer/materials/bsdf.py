@@ -47,6 +47,10 @@ ROUGH_CONDUCTOR = 11  # a rough metal: GGX microfacets (renderer/materials/condu
 ROUGH_DIELECTRIC = 12  # rough glass: GGX microfacets that reflect and refract
 ROUGH_TRANSLUCENT = 13  # method "volumetric" behind a rough boundary: GGX as ROUGH_DIELECTRIC,
 # α in translucent's BOUNDARY_ROUGHNESS slot; the medium in the integrator, as TRANSLUCENT
+ROUGH_DIFFUSE_ENTRY = 14  # method "diffuse_entry" behind a rough coat: GGX reflection, and an
+# entry through a GGX refraction that scatters at once (integrators/subsurface/diffuse_entry.py)
+ROUGH_DIFFUSION = 15  # method "diffusion" behind a rough coat: GGX reflection, and an entry
+# through the sampled GGX refraction, weighted by its transmittance, into the profile
 BACKLIGHT = 7  # a Lambertian surface reflecting (1 − scale) of its albedo (slots REFLECTED), plus
 # the integrator's transmitted direct light (integrators/subsurface/backlight.py), which falls
 # with thickness at the per-channel rate in the SIGMA_EFF slots
@@ -62,10 +66,24 @@ def is_delta(kind):
 
 
 @kernel
+def rough_boundary(kind):
+    """The rough boundaries of a translucent medium: a light sample may go either side (the
+    shadow ray is in the medium when it goes inside)."""
+    return kind == ROUGH_TRANSLUCENT or kind == ROUGH_DIFFUSE_ENTRY
+
+
+@kernel
 def _facing(wo, n):
     if wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2] < 0.0:
         return (-n[0], -n[1], -n[2])
     return n
+
+
+@kernel
+def _enters(wo, wi, n):
+    """Whether (wo, wi) crosses the boundary from outside in (n the outward normal)."""
+    return (wo[0] * n[0] + wo[1] * n[1] + wo[2] * n[2] > 0.0
+            and wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0)
 
 
 # bsdf_eval, bsdf_pdf and bsdf_sample are inlined (LLVM, renderer/jit.py): as calls, ~20 scalar
@@ -77,6 +95,11 @@ def bsdf_eval(kind, param, wo, wi, n):
     if kind == ROUGH_DIELECTRIC:  # two sides that differ: the outward normal as it is
         return rough_dielectric_eval(param, wo, wi, n)
     if kind == ROUGH_TRANSLUCENT:
+        return rough_boundary_eval(param, wo, wi, n)
+    if kind == ROUGH_DIFFUSE_ENTRY or kind == ROUGH_DIFFUSION:
+        # What enters is scattered at once, or carried to an exit: no straight path to a light
+        if _enters(wo, wi, n):
+            return (0.0, 0.0, 0.0)
         return rough_boundary_eval(param, wo, wi, n)
     ns = _facing(wo, n)
     if kind == DIFFUSE:
@@ -105,6 +128,10 @@ def bsdf_pdf(kind, param, wo, wi, n):
         return rough_dielectric_pdf(param, wo, wi, n)
     if kind == ROUGH_TRANSLUCENT:
         return rough_boundary_pdf(param, wo, wi, n)
+    if kind == ROUGH_DIFFUSE_ENTRY or kind == ROUGH_DIFFUSION:
+        if _enters(wo, wi, n):
+            return 0.0
+        return rough_boundary_pdf(param, wo, wi, n)
     ns = _facing(wo, n)
     if kind == DIFFUSE or kind == SINGLE_SCATTER or kind == BACKLIGHT or kind == DIFFUSION_EXIT:
         return diffuse_pdf(param, wo, wi, ns)
@@ -124,7 +151,7 @@ def bsdf_sample(kind, param, wo, n, uc, u1, u2):
         return wi, (w, w, w), 0.0, True
     if kind == ROUGH_DIELECTRIC:
         return rough_dielectric_sample(param, wo, n, uc, u1, u2)
-    if kind == ROUGH_TRANSLUCENT:
+    if kind == ROUGH_TRANSLUCENT or kind == ROUGH_DIFFUSE_ENTRY or kind == ROUGH_DIFFUSION:
         return rough_boundary_sample(param, wo, n, uc, u1, u2)
     ns = _facing(wo, n)
     if kind == MIRROR:

@@ -2,7 +2,8 @@
 surface or black pixels where the two normals disagree.
 
 A mesh's ``normals`` bend shading only (scene format v1.1). The reflecting families (diffuse,
-phong, mirror, conductor) are evaluated about the shading normal ns, with two guards:
+phong, mirror, conductor) and the smooth refracting boundaries (dielectric, translucent method
+volumetric: ``_refracted_about``) are evaluated about the shading normal ns, with two guards:
 
 - **Bending** (Keller et al. 2017, "The Iray Light Transport Simulation and Rendering System",
   the local adaption of shading normals): where the mirror direction of wo about ns would fall
@@ -32,14 +33,17 @@ import math
 from renderer.jit import inline_kernel, kernel
 from renderer.materials.bsdf import (
     CONDUCTOR,
+    DIELECTRIC,
     DIFFUSE,
     MIRROR,
     PHONG,
     ROUGH_CONDUCTOR,
+    TRANSLUCENT,
     bsdf_eval,
     bsdf_pdf,
     bsdf_sample,
 )
+from renderer.materials.dielectric import IOR
 
 # How far above the geometric surface (the cosine) the mirror direction of wo about a bent
 # shading normal is put: a direction this close to the tangent plane carries almost no light
@@ -48,10 +52,38 @@ BEND_EPSILON = 1e-3
 
 @kernel
 def uses_shading_normal(kind):
-    """The families shaded about an interpolated normal (the refracting ones keep the geometric
-    normal: their sides decide the medium a path is in)."""
+    """The families shaded about an interpolated normal: the reflecting ones, and the smooth
+    refracting boundaries (glass; a translucent medium's, method volumetric), whose sampled
+    direction is then checked against the geometric side (``_refracted_about``)."""
     return (kind == DIFFUSE or kind == PHONG or kind == MIRROR or kind == CONDUCTOR
-            or kind == ROUGH_CONDUCTOR)
+            or kind == ROUGH_CONDUCTOR or kind == DIELECTRIC or kind == TRANSLUCENT)
+
+
+@kernel
+def _refracted_about(kind, param, wo, n, ns, uc, u1, u2):
+    """A smooth refracting boundary's sample about the shading normal ns (on wo's side), with the
+    geometric normal n deciding the sides: the Fresnel choice and the mirror or refracted
+    direction come from ns (pbrt-v4's and Mitsuba's shading frame), but whether the path stays
+    on wo's side or crosses, and so which medium it is in next, is the geometric surface's. A
+    refraction about ns that stays above the geometric surface, or a reflection that would cross
+    it, is mirrored through the geometric tangent plane (the fold of the reflecting families:
+    the light neither leaks through the surface nor is lost), and its weight is that of what it
+    does geometrically: 1 for staying, (η_i/η_t)² for crossing (the radiance scaling that
+    belongs to a crossing, never to a reflection), so every event carries its energy whole and a
+    furnace stays at 1."""
+    nso = ns if _dot(ns, n) >= 0.0 else (-ns[0], -ns[1], -ns[2])  # outward, as the boundary's
+    wi, weight, pdf, ok = bsdf_sample(kind, param, wo, nso, uc, u1, u2)
+    cos_o = _dot(wo, n)
+    stays_s = (_dot(wi, nso) > 0.0) == (_dot(wo, nso) > 0.0)
+    stays_g = (_dot(wi, n) > 0.0) == (cos_o > 0.0)
+    if stays_s != stays_g:
+        wi = _fold(wi, n)
+        stays_g = stays_s
+    if stays_g:
+        return wi, (1.0, 1.0, 1.0), pdf, ok
+    eta = param[IOR] if cos_o > 0.0 else 1.0 / param[IOR]
+    w = 1.0 / (eta * eta)
+    return wi, (w, w, w), pdf, ok
 
 
 @kernel
@@ -140,6 +172,8 @@ def shaded_sample(kind, param, wo, n, ns, uc, u1, u2):
     surface of normal n: (wi, f·|cos|/pdf, pdf, ok), pdf 0 for a delta lobe."""
     if _same(ns, n):
         return bsdf_sample(kind, param, wo, n, uc, u1, u2)
+    if kind == DIELECTRIC or kind == TRANSLUCENT:
+        return _refracted_about(kind, param, wo, n, ns, uc, u1, u2)
     wi, weight, pdf, ok = bsdf_sample(kind, param, wo, ns, uc, u1, u2)
     ng = n if _dot(wo, n) >= 0.0 else (-n[0], -n[1], -n[2])
     if not ok:

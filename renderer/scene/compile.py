@@ -33,6 +33,8 @@ from renderer.materials.bsdf import (
     PHONG,
     ROUGH_CONDUCTOR,
     ROUGH_DIELECTRIC,
+    ROUGH_DIFFUSE_ENTRY,
+    ROUGH_DIFFUSION,
     ROUGH_TRANSLUCENT,
     SINGLE_SCATTER,
     TRANSLUCENT,
@@ -167,6 +169,10 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
         kind = ROUGH_DIELECTRIC
     if kind == TRANSLUCENT and m.roughness > 0.0 and m.ior != 1.0:
         kind = ROUGH_TRANSLUCENT  # (at ior 1 the boundary is null, rough or not)
+    if kind == DIFFUSE_ENTRY and m.roughness > 0.0 and m.ior != 1.0:
+        kind = ROUGH_DIFFUSE_ENTRY
+    if kind == DIFFUSION and m.roughness > 0.0 and m.ior != 1.0:
+        kind = ROUGH_DIFFUSION
     p = np.zeros(N_PARAMS)
     pack(p, m)
     return kind, p

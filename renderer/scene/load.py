@@ -36,6 +36,7 @@ from renderer.scene.schema import (
     BitmapTexture,
     Mesh,
     Scene,
+    is_texture,
     overflow_message,
 )
 
@@ -143,9 +144,25 @@ def load_scene(
     if scene.environment is not None:
         errors += _check_environment(scene, files, limits)
     errors += _check_textures(scene, files, limits)
+    if not errors:
+        errors += _check_auto_textures(scene)
     if errors:
         raise SceneError(errors)
     return scene
+
+
+def _check_auto_textures(scene) -> list[tuple[str, str]]:
+    """A textured albedo with method auto: refused where auto renders the material as a glass,
+    which a texture cannot colour (``renderer.materials.auto.texture_refusal``)."""
+    from renderer.materials.auto import auto_choice, texture_refusal
+
+    errors = []
+    for name, m in scene.materials.items():
+        if m.type == "translucent" and m.method == "auto" and is_texture(m.albedo):
+            why = texture_refusal(auto_choice(scene, name))
+            if why is not None:
+                errors.append((f"materials.{name}.albedo", why))
+    return errors
 
 
 def load_scene_file(

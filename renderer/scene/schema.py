@@ -485,8 +485,8 @@ class TranslucentMaterial(SceneModel):
     """Henyey-Greenstein anisotropy: > 0 forward, < 0 backward."""
     roughness: Float = Field(default=0.0, ge=0, le=1)
     """GGX α of the boundary, as Mitsuba writes it; 0 is the smooth boundary. Rendered by the
-    methods volumetric and auto only (the approximations have a smooth coat); no effect at
-    ior 1 (an index-matched boundary neither reflects nor refracts)."""
+    methods in ROUGH_METHODS (single_scatter and backlight have no dielectric boundary); no
+    effect at ior 1 (an index-matched boundary neither reflects nor refracts)."""
 
     # Method-specific knobs (docs/methods/*.md); each is an error with any other method.
     surface_fraction: Float | None = Field(default=None, ge=0, le=1)
@@ -576,8 +576,8 @@ class TranslucentMaterial(SceneModel):
         if is_texture(self.albedo) and self.method not in TEXTURE_METHODS:
             raise scene_error(
                 f"a texture on albedo is rendered by methods {', '.join(TEXTURE_METHODS)} (the "
-                f"surface's colour); method {self.method!r} takes an RGB albedo (volumetric: the "
-                "albedo belongs to the medium; auto: its choice rests on one albedo)")
+                f"surface's colour); method {self.method!r} takes an RGB albedo (the albedo "
+                "belongs to the medium)")
         return self
 
     def _read_texture(self) -> None:
@@ -587,11 +587,19 @@ class TranslucentMaterial(SceneModel):
 
     @model_validator(mode="after")
     def _check_roughness(self) -> TranslucentMaterial:
-        if self.roughness > 0.0 and self.method not in ROUGH_METHODS:
+        if self.roughness > 0.0 and self.method in NO_BOUNDARY_METHODS:
             raise scene_error(
-                f"roughness (a rough boundary) is rendered by method volumetric (or auto) only; "
-                f"method {self.method!r} has a smooth coat"
+                f"roughness (a rough boundary) is rendered by methods {', '.join(ROUGH_METHODS)}; "
+                f"method {self.method!r} has no dielectric boundary to roughen "
+                f"({NO_BOUNDARY_METHODS[self.method]})"
             )
+        if self.roughness > 0.0 and self.method == "diffuse_entry":
+            for knob, why in (("specular_exponent", "a Phong coat, which roughness replaces"),
+                              ("direct_light", "its entry weight 1 − F is the smooth coat's")):
+                if knob in self.model_fields_set and getattr(self, knob):
+                    raise scene_error(
+                        f"{knob} and roughness cannot be combined on method 'diffuse_entry' "
+                        f"({knob}: {why})")
         return self
 
     @model_validator(mode="after")
@@ -606,8 +614,9 @@ class TranslucentMaterial(SceneModel):
         return self
 
 
-# The methods whose albedo may be a texture: it colours their surface.
-TEXTURE_METHODS = ("single_scatter", "diffuse_entry", "backlight", "diffusion")
+# The methods whose albedo may be a texture: it colours their surface (auto: it chooses one of
+# them, ``renderer.materials.auto.for_a_texture``).
+TEXTURE_METHODS = ("single_scatter", "diffuse_entry", "backlight", "diffusion", "auto")
 
 
 def _texture_mean_or(texture, default) -> tuple[float, float, float]:
@@ -619,8 +628,13 @@ def _texture_mean_or(texture, default) -> tuple[float, float, float]:
     return texture_mean(texture)
 
 
-# The methods that render a rough boundary (``roughness`` > 0).
-ROUGH_METHODS = ("volumetric", "auto")
+# The methods that render a rough boundary (``roughness`` > 0): docs/methods/, "Rough coat".
+ROUGH_METHODS = ("volumetric", "diffuse_entry", "diffusion", "auto")
+# The methods whose surface is no dielectric boundary, with the reason roughness has no meaning
+NO_BOUNDARY_METHODS = {
+    "single_scatter": "its surface is a Lambertian share and light enters straight, unrefracted",
+    "backlight": "its surface is Lambertian and its transmitted light an empirical lobe",
+}
 
 # Which method each knob belongs to.
 METHOD_KNOBS = {

@@ -1,6 +1,7 @@
 """The diffusion method: a separable BSSRDF, its exit point found by probe rays.
 
-A ``translucent`` material with ``method: diffusion`` reflects F(θo) at its smooth coat; the rest
+A ``translucent`` material with ``method: diffusion`` reflects F(θo) at its smooth coat (a rough
+one: the GGX boundary's reflection, ``diffusion_exit``); the rest
 of the light enters, travels under the surface by the Christensen–Burley profile S_p(r), and
 leaves at an exit point found by a probe ray (``diffusion_probe``), through S_w, a diffuse-like
 lobe (the ``DIFFUSION_EXIT`` BSDF). The model and its parameters (A, d, c):
@@ -16,9 +17,9 @@ import numpy as np
 
 from renderer.geometry.bvh import intersect_closest
 from renderer.geometry.shapes import spawn_offset, surface_point
-from renderer.integrators.sampler import draw
+from renderer.integrators.sampler import DIMS_PER_BOUNCE, draw
 from renderer.jit import block, kernel
-from renderer.materials.bsdf import DIFFUSION_EXIT
+from renderer.materials.bsdf import DIFFUSION_EXIT, ROUGH_DIFFUSION
 from renderer.materials.burley import (
     burley_pdf_area,
     burley_profile,
@@ -27,6 +28,7 @@ from renderer.materials.burley import (
 )
 from renderer.materials.diffusion import MS_ALBEDO, OPAQUE, PROFILE_D
 from renderer.materials.fresnel import fresnel_dielectric
+from renderer.materials.rough_dielectric import rough_boundary_sample
 from renderer.materials.translucent import IOR
 from renderer.rng import mix64, uniform
 from renderer.vecmath import onb
@@ -122,12 +124,33 @@ def diffusion_exit(S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, 
     path goes on from, and as what. The smooth coat reflects F of the light: with probability F
     (the same draw and Fresnel the boundary's ``bsdf_sample`` uses) the vertex stays as it is and
     the BSDF takes the mirror direction; the rest (1 − F, cancelled by its probability) goes
-    under the surface and the path carries on from the exit vertex, lit through S_w. Returns
-    (ended, p, n, wo, kind, scale, br, bg, bb, depth)."""
+    under the surface and the path carries on from the exit vertex, lit through S_w. A rough
+    coat (ROUGH_DIFFUSION) samples the GGX boundary instead (docs/methods/diffusion.md, "Rough
+    coat"). Returns (ended, p, n, wo, kind, scale, br, bg, bb, depth, dim): ``dim`` the exit
+    vertex's first dimension."""
     kind = S.mat_kind[mat]
-    f_o, _ = fresnel_dielectric(cos_o, mp[IOR])
-    if not draw(S, key, dim, 3, sidx, sob) >= f_o:
-        return False, p, n, wo, kind, scale, br, bg, bb, depth
+    if kind == ROUGH_DIFFUSION:
+        # The rough coat: one sample of the GGX boundary from the draws the vertex's own BSDF
+        # sample takes, so that a reflection is the direction ``bsdf_sample`` returns next. What
+        # refracts enters with the microfacet transmission's weight G1(wt), its radiance scaling
+        # (η_i/η_t)² undone as at the smooth coat's entry (S_w's normalization covers the exit);
+        # the exit vertex then draws from the next dimensions, apart from the coat's
+        wi, w_c, _, ok_c = rough_boundary_sample(mp, wo, n, draw(S, key, dim, 3, sidx, sob),
+                                                 draw(S, key, dim, 4, sidx, sob),
+                                                 draw(S, key, dim, 5, sidx, sob))
+        if not ok_c:
+            return True, p, n, wo, kind, scale, br, bg, bb, depth, dim
+        if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] > 0.0:
+            return False, p, n, wo, kind, scale, br, bg, bb, depth, dim
+        k = w_c[0] * mp[IOR] * mp[IOR]
+        br *= k
+        bg *= k
+        bb *= k
+        dim += DIMS_PER_BOUNCE
+    else:
+        f_o, _ = fresnel_dielectric(cos_o, mp[IOR])
+        if not draw(S, key, dim, 3, sidx, sob) >= f_o:
+            return False, p, n, wo, kind, scale, br, bg, bb, depth, dim
     if mp[OPAQUE] > 0.0:
         # Effectively opaque (auto, renderer/materials/opaque.py): the profile is narrower than a
         # pixel, so the light leaves where it entered, with probability A: the separable BSSRDF's
@@ -137,10 +160,10 @@ def diffusion_exit(S, mat, mp, prim, p, n, wo, cos_o, scale, br, bg, bb, depth, 
     else:
         ok, p_o, n_o, prim_o, w = diffusion_probe(S, mat, p, n, mp, key ^ np.uint64(dim), stack)
     if not ok:
-        return True, p, n, wo, kind, scale, br, bg, bb, depth
+        return True, p, n, wo, kind, scale, br, bg, bb, depth, dim
     br *= w[0]
     bg *= w[1]
     bb *= w[2]
     depth += 1
     ended = max_depth >= 0 and depth >= max_depth
-    return ended, p_o, n_o, n_o, DIFFUSION_EXIT, S.prim_scale[prim_o], br, bg, bb, depth
+    return ended, p_o, n_o, n_o, DIFFUSION_EXIT, S.prim_scale[prim_o], br, bg, bb, depth, dim
