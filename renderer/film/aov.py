@@ -44,20 +44,14 @@ from renderer.geometry.shapes import spawn_offset
 from renderer.integrators.path import camera_ray, surface_vertex
 from renderer.jit import inline_kernel, kernel, parallel_kernel
 from renderer.materials.bsdf import (
-    BACKLIGHT,
     CONDUCTOR,
     DIELECTRIC,
     DIFFUSE,
-    DIFFUSE_ENTRY,
-    DIFFUSION,
     MIRROR,
     N_PARAMS,
     PHONG,
     ROUGH_CONDUCTOR,
     ROUGH_DIELECTRIC,
-    ROUGH_TRANSLUCENT,
-    SINGLE_SCATTER,
-    TRANSLUCENT,
 )
 from renderer.materials.conductor import ETA, SPECULAR, K, conductor_sample, fresnel_conductor
 from renderer.materials.dielectric import IOR, absorbed
@@ -92,7 +86,7 @@ def _stop_albedo(mk, mp, cos_o):
                 mp[SPECULAR + 2] * fresnel_conductor(c, mp[ETA + 2], mp[K + 2]))
     if mk == ROUGH_DIELECTRIC:
         return 1.0, 1.0, 1.0
-    # every translucent method: the medium's single-scattering albedo
+    # every translucent method, smooth or rough coat: the medium's single-scattering albedo
     return mp[ALBEDO], mp[ALBEDO + 1], mp[ALBEDO + 2]
 
 
@@ -177,11 +171,6 @@ def aov_kernel(S, width, height, seed, spp, stack_size, out_albedo, out_normal, 
                 out_normal[y, x, 1] = ny / spp
                 out_normal[y, x, 2] = nz / spp
                 out_depth[y, x] = dsum / hits if hits > 0 else math.inf
-
-
-# Translucent kinds stop the AOV path at their surface (named here for the reader and the tests)
-TRANSLUCENT_KINDS = (TRANSLUCENT, ROUGH_TRANSLUCENT, SINGLE_SCATTER, DIFFUSE_ENTRY, DIFFUSION,
-                     BACKLIGHT)
 
 
 def render_aovs(compiled, names, spp: int = 4, threads: int | None = None) -> dict:

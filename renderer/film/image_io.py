@@ -182,7 +182,9 @@ def decode_exr(data: bytes, *, name: str = "<exr>") -> np.ndarray:
 # Pixel type of each AOV layer in a multi-layer EXR: half where 3 decimal digits are plenty
 # (albedo and normal, in [0, 1] and [-1, 1]), float where values span many decades or count
 EXR_LAYER_TYPES = {"albedo": "HALF", "normal": "HALF", "depth": "FLOAT", "variance": "FLOAT",
-                   "spp": "FLOAT"}
+                   "spp": "FLOAT", "noisy": "FLOAT"}
+# Layers beside the AOVs: ``noisy``, the undenoised image of a denoised frame (the farm's)
+EXR_EXTRA_CHANNELS = {"noisy": ("R", "G", "B")}
 
 
 def encode_exr_layers(rgb: np.ndarray, layers: dict[str, np.ndarray]) -> bytes:
@@ -191,7 +193,8 @@ def encode_exr_layers(rgb: np.ndarray, layers: dict[str, np.ndarray]) -> bytes:
 
     Each layer is (h, w, C) with C its channels in ``renderer.film.aov.AOV_CHANNELS`` (``albedo``
     → ``albedo.R/G/B``, ``normal`` → ``normal.X/Y/Z``, ``depth`` → ``depth.Z``, ``variance`` →
-    ``variance.R/G/B``, ``spp`` → ``spp.Y``), written as half or float (``EXR_LAYER_TYPES``).
+    ``variance.R/G/B``, ``spp`` → ``spp.Y``) or ``EXR_EXTRA_CHANNELS`` (``noisy`` →
+    ``noisy.R/G/B``), written as half or float (``EXR_LAYER_TYPES``).
     """
     import OpenEXR
 
@@ -200,10 +203,11 @@ def encode_exr_layers(rgb: np.ndarray, layers: dict[str, np.ndarray]) -> bytes:
     rgb = _check_rgb(rgb)
     h, w, _ = rgb.shape
     channels = {c: np.ascontiguousarray(rgb[..., i], np.float32) for i, c in enumerate("RGB")}
+    known = {**AOV_CHANNELS, **EXR_EXTRA_CHANNELS}
     for name, pixels in layers.items():
-        if name not in AOV_CHANNELS:
-            raise ValueError(f"unknown AOV layer {name!r} (known: {', '.join(AOV_CHANNELS)})")
-        names = AOV_CHANNELS[name]
+        if name not in known:
+            raise ValueError(f"unknown AOV layer {name!r} (known: {', '.join(known)})")
+        names = known[name]
         pixels = np.asarray(pixels)
         if pixels.shape != (h, w, len(names)):
             raise ValueError(f"AOV layer {name!r} has shape {pixels.shape}, expected "

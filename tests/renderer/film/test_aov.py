@@ -89,9 +89,14 @@ def test_mirror_tints_albedo_and_translucent_stops_at_its_surface():
                                atol=1e-6)
     np.testing.assert_allclose(aov["depth"], 1.0, rtol=1e-6)
 
+    # a translucent sphere, smooth or under a rough coat, any method: its medium's albedo
     sphere = {"type": "sphere", "center": [0, 0, -3], "radius": 2.0, "material": "wax"}
-    aov = render_aovs(compile_scene(load_scene(plane_scene(6.0, [sphere], mats))), ["albedo"])
-    np.testing.assert_allclose(aov["albedo"][6, 8], (0.9, 0.8, 0.7), atol=1e-6)
+    for method, roughness in (("volumetric", 0.0), ("diffusion", 0.3), ("diffuse_entry", 0.3),
+                              ("single_scatter", 0.0)):
+        mats["wax"].update(method=method, roughness=roughness)
+        aov = render_aovs(compile_scene(load_scene(plane_scene(6.0, [sphere], mats))),
+                          ["albedo"])
+        np.testing.assert_allclose(aov["albedo"][6, 8], (0.9, 0.8, 0.7), atol=1e-6)
 
 
 def test_buffer_aovs_are_the_buffers_variance_and_count():
