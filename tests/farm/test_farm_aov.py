@@ -110,3 +110,23 @@ def test_denoise_must_be_a_boolean(client, tiny_scene):
     r = client.post("/api/jobs", json={"scene": tiny_scene, "denoise": "yes"})
     assert r.status_code == 422
     assert r.json()["detail"][0]["loc"] == ["body", "denoise"]
+
+
+def test_denoise_survives_a_park_snapshot():
+    """A failed or cancelled job is parked as one blob and a retry restores it: the option
+    goes with it (an old snapshot without it reads as False)."""
+    import json
+
+    from services.farm.planner import Plan
+    from services.farm.store import JobMeta, JobSnapshot
+
+    plan = Plan(32, 24, 16, 16, 8, 8, 1)
+    for flag in (True, False):
+        meta = JobMeta.new("a" * 32, "j", 0, plan, {}, 1.0, denoise=flag)
+        snap = JobSnapshot(meta, b"{}", {}, {}, {}, [], [None] * plan.n_tiles)
+        assert JobSnapshot.from_bytes(snap.to_bytes()).meta.denoise is flag
+    line, _, rest = snap.to_bytes().partition(b"\n")
+    head = json.loads(line)
+    del head["meta"]["denoise"]
+    old = json.dumps(head).encode() + b"\n" + rest
+    assert JobSnapshot.from_bytes(old).meta.denoise is False
