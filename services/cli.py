@@ -3,6 +3,7 @@
 On this machine:
 
     lucent render SCENE.json -o OUT.{exr,png,pfm,npy} [--spp N] [--seed S] [--threads N]
+                  [--denoise]
     lucent validate SCENE.json
 
 On a farm (the code lives in ``services/`` and ``worker/``):
@@ -67,7 +68,6 @@ def cmd_validate(args: argparse.Namespace) -> int:
 
 
 def cmd_render(args: argparse.Namespace) -> int:
-    from renderer.film.image_io import write_image
 
     out = Path(args.output)
     if out.suffix.lower() not in {".exr", ".png", ".pfm", ".npy"}:
@@ -84,6 +84,17 @@ def cmd_render(args: argparse.Namespace) -> int:
     if spp < 1:
         print("--spp must be >= 1", file=sys.stderr)
         return 2
+    if args.denoise:
+        from renderer.film.denoise import MISSING, oidn_available
+
+        if not oidn_available():
+            print(MISSING, file=sys.stderr)
+            return 2
+    aovs = list(scene.film.aovs)
+    if aovs and out.suffix.lower() != ".exr":
+        print(f"film.aovs ({', '.join(aovs)}): layers are written to .exr outputs only; {out} "
+              "gets the image alone", file=sys.stderr)
+        aovs = []
 
     import numba
     from tqdm import tqdm
@@ -129,7 +140,7 @@ def cmd_render(args: argparse.Namespace) -> int:
                             kernel=args.kernel,
                             plan=plan if compiled.target_error is not None else None)
         seconds = time.perf_counter() - t0
-    write_image(out, buf.mean(), exposure=args.exposure, tonemap=args.tonemap)
+    _write_render(args, out, compiled, buf, aovs, threads)
     if compiled.target_error is not None:
         from renderer.film.adaptive import stopping_error
 
@@ -145,6 +156,44 @@ def cmd_render(args: argparse.Namespace) -> int:
         file=sys.stderr,
     )
     return 0
+
+
+# Primary rays a pixel for the albedo, normal and depth AOVs (renderer.film.aov): enough to
+# antialias their edges, a small cost beside the image's samples
+AOV_SPP = 8
+
+
+def _write_render(args: argparse.Namespace, out: Path, compiled, buf, aovs: list[str],
+                  threads: int) -> None:
+    """Write the frame (and its AOV layers to an .exr); with ``--denoise``, the denoised frame
+    to ``out`` and the noisy one beside it as ``<stem>_noisy<ext>``."""
+    from renderer.film.aov import frame_aovs
+    from renderer.film.image_io import write_exr_layers, write_image
+
+    wanted = list(dict.fromkeys(aovs + (["albedo", "normal"] if args.denoise else [])))
+    layers = frame_aovs(compiled, buf, wanted, spp=AOV_SPP, threads=threads) if wanted else {}
+    layers_out = {name: layers[name] for name in aovs}
+    beauty = buf.mean()
+
+    def write(path: Path, image) -> None:
+        if layers_out:
+            write_exr_layers(path, image, layers_out)
+        else:
+            write_image(path, image, exposure=args.exposure, tonemap=args.tonemap)
+
+    if args.denoise:
+        from renderer.film.denoise import denoise
+
+        t0 = time.perf_counter()
+        clean = denoise(beauty, layers["albedo"], layers["normal"])
+        noisy = out.with_name(f"{out.stem}_noisy{out.suffix}")
+        write(noisy, beauty)
+        print(f"denoised with Open Image Denoise in {time.perf_counter() - t0:.2f} s (the noisy "
+              f"image: {noisy})", file=sys.stderr)
+        beauty = clean
+    write(out, beauty)
+    if layers_out:
+        print(f"{out}: layers {', '.join(layers_out)} beside the image", file=sys.stderr)
 
 
 def cmd_up(args: argparse.Namespace) -> int:
@@ -280,6 +329,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="PNG only: exposure in stops, the image is scaled by 2^EV (default 0)")
     p.add_argument("--tonemap", choices=["clamp", "reinhard", "aces"], default="clamp",
                    help="PNG only: tone map before sRGB encoding (default clamp)")
+    p.add_argument("--denoise", action="store_true",
+                   help="denoise with Intel Open Image Denoise (pyoidn), guided by albedo and "
+                        "normal AOVs; the noisy image is kept beside it as <stem>_noisy<ext>")
     p.add_argument("-q", "--quiet", action="store_true", help="no progress bar")
     p.set_defaults(func=cmd_render)
 

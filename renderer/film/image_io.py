@@ -179,6 +179,57 @@ def decode_exr(data: bytes, *, name: str = "<exr>") -> np.ndarray:
     return np.stack(planes, axis=-1).astype(np.float32)
 
 
+# Pixel type of each AOV layer in a multi-layer EXR: half where 3 decimal digits are plenty
+# (albedo and normal, in [0, 1] and [-1, 1]), float where values span many decades or count
+EXR_LAYER_TYPES = {"albedo": "HALF", "normal": "HALF", "depth": "FLOAT", "variance": "FLOAT",
+                   "spp": "FLOAT", "noisy": "FLOAT"}
+# Layers beside the AOVs: ``noisy``, the undenoised image of a denoised frame (the farm's)
+EXR_EXTRA_CHANNELS = {"noisy": ("R", "G", "B")}
+
+
+def encode_exr_layers(rgb: np.ndarray, layers: dict[str, np.ndarray]) -> bytes:
+    """Encode a beauty image (channels R, G, B, float) and named AOV layers as one multi-layer
+    OpenEXR file through the OpenEXR library (``openexr``), ZIP-compressed.
+
+    Each layer is (h, w, C) with C its channels in ``renderer.film.aov.AOV_CHANNELS`` (``albedo``
+    → ``albedo.R/G/B``, ``normal`` → ``normal.X/Y/Z``, ``depth`` → ``depth.Z``, ``variance`` →
+    ``variance.R/G/B``, ``spp`` → ``spp.Y``) or ``EXR_EXTRA_CHANNELS`` (``noisy`` →
+    ``noisy.R/G/B``), written as half or float (``EXR_LAYER_TYPES``).
+    """
+    import OpenEXR
+
+    from renderer.film.aov import AOV_CHANNELS
+
+    rgb = _check_rgb(rgb)
+    h, w, _ = rgb.shape
+    channels = {c: np.ascontiguousarray(rgb[..., i], np.float32) for i, c in enumerate("RGB")}
+    known = {**AOV_CHANNELS, **EXR_EXTRA_CHANNELS}
+    for name, pixels in layers.items():
+        if name not in known:
+            raise ValueError(f"unknown AOV layer {name!r} (known: {', '.join(known)})")
+        names = known[name]
+        pixels = np.asarray(pixels)
+        if pixels.shape != (h, w, len(names)):
+            raise ValueError(f"AOV layer {name!r} has shape {pixels.shape}, expected "
+                             f"{(h, w, len(names))}")
+        dtype = np.float16 if EXR_LAYER_TYPES[name] == "HALF" else np.float32
+        with np.errstate(over="ignore"):
+            for i, c in enumerate(names):
+                channels[f"{name}.{c}"] = np.ascontiguousarray(pixels[..., i], dtype)
+    header = {"compression": OpenEXR.ZIP_COMPRESSION, "type": OpenEXR.scanlineimage}
+    buffer = io.BytesIO()
+    OpenEXR.File(header, channels).write(buffer)
+    return buffer.getvalue()
+
+
+def write_exr_layers(path: str | os.PathLike, rgb: np.ndarray,
+                     layers: dict[str, np.ndarray]) -> None:
+    """Write ``encode_exr_layers``'s file atomically (as ``write_image``)."""
+    if _extension(path) != ".exr":
+        raise ValueError(f"{path}: AOV layers are written to OpenEXR files only (.exr)")
+    _write_atomically(Path(path), encode_exr_layers(rgb, layers))
+
+
 def _exr_attribute(name: str, type_name: str, value: bytes) -> bytes:
     size = struct.pack("<i", len(value))
     return name.encode() + b"\0" + type_name.encode() + b"\0" + size + value

@@ -342,6 +342,11 @@ class Film(SceneModel):
 
     width: Int = Field(ge=1)
     height: Int = Field(ge=1)
+    aovs: list[Literal["albedo", "normal", "depth", "variance", "spp"]] = Field(
+        default_factory=list, max_length=5)
+    """Extra layers written beside the image in a multi-layer EXR (``renderer.film.aov``):
+    ``albedo``, ``normal`` and ``depth`` of the first surface that is not a perfect mirror or
+    smooth glass, ``variance`` of each pixel's mean and ``spp`` (its sample count)."""
 
 
 class RenderSettings(SceneModel):

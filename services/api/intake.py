@@ -103,7 +103,7 @@ def read_submission(body: bytes, content_type: str | None, limits: Limits,
                          spp_per_pass=create.spp_per_pass,
                          max_spp_per_pass=create.max_spp_per_pass,
                          tags=tuple(sorted(set(create.tags))),
-                         check_workers=create.check_workers)
+                         check_workers=create.check_workers, denoise=create.denoise)
     return Submission(options, checked)
 
 

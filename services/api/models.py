@@ -43,6 +43,10 @@ class JobCreate(BaseModel):
     check_workers: StrictBool = Field(
         default=False, description="refuse the job (409) when no live worker has its tags; "
                                    "otherwise it waits for one")
+    denoise: StrictBool = Field(
+        default=False, description="once done, the image denoised with Intel Open Image Denoise "
+                                   "(guided by albedo and normal AOVs); the undenoised image is "
+                                   "image.exr's 'noisy' layer (docs/farm.md)")
 
 
 class FramePublic(BaseModel):

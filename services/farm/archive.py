@@ -7,6 +7,9 @@
   deleted from Redis: Redis holds what is in flight, the record the rest.
 - ``keep_records`` (the sweeper, every sweep): the records of the jobs Redis holds brought up to
   date; jobs queued or running whose state Redis lost are marked failed.
+- ``frame_exr``: a done frame's EXR; with the scene's ``film.aovs``, the multi-layer EXR of
+  ``renderer.film.image_io.encode_exr_layers`` (the AOV pass traced here, once, by whoever
+  archives the job or serves a done one not archived).
 - ``final_image``: what the image routes serve for an archived job: the stored bytes, or for the
   PNG at another exposure or tone map and for ``.npy``, the stored EXR decoded (float32,
   lossless) and encoded again.
@@ -36,8 +39,9 @@ from collections.abc import Callable
 import numpy as np
 
 from renderer.film.buffer import SampleBuffer
-from renderer.film.image_io import decode_exr, encode_exr
-from services.farm.blobs import BlobStore, put_content
+from renderer.film.image_io import decode_exr, encode_exr, encode_exr_layers
+from services.farm.blobs import BlobStore, asset_reader, put_content
+from services.farm.frames import PatchError, apply_patch
 from services.farm.merge import assemble
 from services.farm.records import LOST_AFTER, Records
 from services.farm.store import ACTIVE, JobMeta, JobSnapshot, JobStore
@@ -70,6 +74,82 @@ def encode_image(image: np.ndarray, fmt: str, exposure: float = DEFAULT_EXPOSURE
     return out.getvalue()
 
 
+# Primary rays a pixel for the albedo, normal and depth layers (as ``lucent render``)
+AOV_SPP = 8
+
+
+def frame_layers(store: JobStore, blobs: BlobStore, meta: JobMeta, frame: int,
+                 buffer: SampleBuffer, extra: tuple[str, ...] = ()) -> dict[str, np.ndarray]:
+    """The AOV layers that frame ``frame``'s scene asks for (``film.aovs``), and those of
+    ``extra``; {} when none: the scene loaded and compiled here (its assets from the blob store),
+    the albedo, normal and depth traced with ``AOV_SPP`` rays a pixel, variance and spp from the
+    merged ``buffer``. A scene that no longer loads (the workers rendered it, so only a lost
+    asset) logs and gives {}: the image is still archived."""
+    from renderer.film.aov import frame_aovs
+    from renderer.scene import load_scene
+    from renderer.scene.compile import CompileError, compile_scene
+    from renderer.scene.load import SceneError
+
+    scene_json = store.get_scene(meta.id)
+    if scene_json is None:
+        return {}
+    try:
+        if meta.plan.frames > 1:
+            patches = store.get_frames(meta.id)
+            if patches is None:
+                return {}
+            scene_json = apply_patch(scene_json, patches[frame])
+        film = scene_json.get("film") if isinstance(scene_json, dict) else None
+        if not extra and (not isinstance(film, dict) or not film.get("aovs")):
+            return {}
+        scene = load_scene(scene_json, assets=asset_reader(blobs))
+        names = list(dict.fromkeys([*scene.film.aovs, *extra]))
+        if not names:
+            return {}
+        compiled = compile_scene(scene)
+    except (SceneError, CompileError, PatchError, KeyError):
+        log.exception("job %s: the AOV layers of frame %d cannot be traced", meta.id, frame)
+        return {}
+    return frame_aovs(compiled, buffer, names, spp=AOV_SPP)
+
+
+def frame_exr(store: JobStore, blobs: BlobStore, meta: JobMeta, frame: int,
+              buffer: SampleBuffer) -> tuple[np.ndarray, bytes]:
+    """A done frame's image and its EXR, with the layers of ``frame_layers`` when it has any.
+    A job with ``denoise``: the image denoised by Open Image Denoise (``renderer.film.denoise``,
+    guided by the albedo and normal AOVs, traced for it), the undenoised one kept as the EXR's
+    ``noisy`` layer; without ``pyoidn`` here (the API refuses such a job, but the archiver may
+    run elsewhere) it logs and the image stays undenoised, without a ``noisy`` layer."""
+    from renderer.film.denoise import denoise, oidn_available
+
+    image = buffer.mean()
+    clean = meta.denoise and oidn_available()
+    if meta.denoise and not clean:
+        log.error("job %s asks for denoise but pyoidn is not installed here: its image is "
+                  "archived undenoised", meta.id)
+    layers = frame_layers(store, blobs, meta, frame, buffer,
+                          ("albedo", "normal") if clean else ())
+    if clean and "albedo" in layers:
+        noisy = image
+        image = denoise(noisy, layers["albedo"], layers["normal"])
+        aovs = frame_scene_aovs(store, meta, frame)
+        layers = {"noisy": noisy, **{n: v for n, v in layers.items() if n in aovs}}
+    if layers:
+        return image, encode_exr_layers(image, layers)
+    return image, encode_image(image, "exr")
+
+
+def frame_scene_aovs(store: JobStore, meta: JobMeta, frame: int) -> list[str]:
+    """The ``film.aovs`` of frame ``frame``'s scene, as stored (validated when submitted)."""
+    scene_json = store.get_scene(meta.id)
+    if meta.plan.frames > 1 and scene_json is not None:
+        patches = store.get_frames(meta.id)
+        scene_json = apply_patch(scene_json, patches[frame]) if patches else None
+    film = scene_json.get("film") if isinstance(scene_json, dict) else None
+    aovs = film.get("aovs") if isinstance(film, dict) else None
+    return list(aovs) if isinstance(aovs, list) else []
+
+
 def archive_job(store: JobStore, records: Records, blobs: BlobStore, job_id: str) -> bool:
     """Write a done job's image to the blob store and its last state to its record, then delete
     its keys from Redis. True if this call archived it; False if the job is gone from Redis or
@@ -87,8 +167,8 @@ def archive_job(store: JobStore, records: Records, blobs: BlobStore, job_id: str
         if frame is None:  # deleted meanwhile
             store.forget_archive(job_id)
             return False
-        image = frame[0].mean()
-        frames_data.append({"exr": encode_image(image, "exr"), "png": encode_image(image, "png")})
+        image, exr = frame_exr(store, blobs, meta, f, frame[0])
+        frames_data.append({"exr": exr, "png": encode_image(image, "png")})
     frame_images = [{fmt: put_content(blobs, b) for fmt, b in data.items()}
                     for data in frames_data]
     images = frame_images[0]

@@ -73,6 +73,7 @@ class JobOptions:
     max_spp_per_pass: int | None = None
     tags: tuple[str, ...] = ()  # worker tags the job requires (services.farm.pools)
     check_workers: bool = False  # refuse (409) when no live worker has the tags
+    denoise: bool = False  # the done image denoised (services.farm.archive.frame_exr)
 
 
 @dataclass(frozen=True)
@@ -164,6 +165,12 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
         return Refusal(refused.status,
                        [(list(loc), refused.msg, "limit") for loc in refused.locs],
                        {"Retry-After": "60"} if refused.status == 429 else None)
+    if options.denoise:
+        from renderer.film.denoise import MISSING, oidn_available
+
+        if not oidn_available():
+            return Refusal(422, [(["body", "denoise"], f"this farm cannot denoise: {MISSING}",
+                                  "value_error")])
     if options.check_workers:
         waiting = waiting_for(options.tags, live_tag_sets(store.workers()))
         if waiting is not None:
@@ -174,12 +181,12 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     # The record first: with the database away, nothing is queued (503) and the job is not run
     # unrecorded; with Redis away after it, the record goes again (the sweeper would fail it).
     created = JobMeta.new(job_id, options.name, options.priority, plan, scene.methods,
-                          time.time(), submitter, options.tags)
+                          time.time(), submitter, options.tags, options.denoise)
     records.create(created)
     try:
         meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
                                 scene.methods, created.created_at, submitter, options.tags,
-                                scene.frames_json, scene.target_error)
+                                scene.frames_json, scene.target_error, options.denoise)
     except Exception:
         with contextlib.suppress(RecordsUnavailable):
             records.delete(job_id)

@@ -195,6 +195,7 @@ class JobMeta:
     image_removed: bool = False  # its image removed by the cap on stored images (a record's)
     parked: str | None = None  # a record's: the blob of a failed or cancelled job's tiles
     tags: tuple[str, ...] = ()  # the worker tags it requires (services.farm.pools)
+    denoise: bool = False  # its done image denoised (services.farm.archive.frame_exr)
     # render.target_error, and the sums of its tiles' summaries (renderer.film.adaptive
     # tile_summary, kept by the merge): the frame's scale and expected error
     target_error: float | None = None
@@ -216,12 +217,13 @@ class JobMeta:
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
             created_at: float, submitter: str | None = None,
-            tags: tuple[str, ...] = ()) -> JobMeta:
+            tags: tuple[str, ...] = (), denoise: bool = False) -> JobMeta:
         """A job just submitted: queued, nothing merged (what ``create_job`` stores)."""
         return cls(id=job_id, name=name, status="queued", priority=priority, plan=plan,
                    tasks_merged=0, samples_merged=0, dropped=0, version=0,
                    created_at=created_at, started_at=None, finished_at=None, error=None,
-                   methods=methods, images={}, tiles_final={}, submitter=submitter, tags=tags)
+                   methods=methods, images={}, tiles_final={}, submitter=submitter, tags=tags,
+                   denoise=denoise)
 
     @property
     def samples_planned(self) -> int:
@@ -256,6 +258,7 @@ class JobMeta:
             tiles_final=json.loads(d.get("tiles_final") or "{}"),
             submitter=d.get("submitter") or None,
             tags=tuple(t for t in d.get("tags", "").split(",") if t),
+            denoise=d.get("denoise") == "1",
             target_error=opt_float("target_error"),
             err_sum=float(d.get("err_sum") or 0.0),
             root_sum=float(d.get("root_sum") or 0.0),
@@ -284,7 +287,7 @@ class JobSnapshot:
         head = {"meta": {**{k: getattr(m, k) for k in (
                     "id", "name", "status", "priority", "tasks_merged", "samples_merged",
                     "dropped", "version", "created_at", "started_at", "finished_at", "error",
-                    "methods", "submitter", "tags")},
+                    "methods", "submitter", "tags", "denoise")},
                     "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
                              m.plan.spp_per_pass, m.plan.max_spp_per_pass, m.plan.frames]},
                 "scene": self.scene_json.decode(),
@@ -363,7 +366,7 @@ class JobStore:
                    scene_json: str | bytes, methods: dict[str, str] | None = None,
                    created_at: float | None = None, submitter: str | None = None,
                    tags: tuple[str, ...] = (), frames_json: bytes | None = None,
-                   target_error: float | None = None) -> JobMeta:
+                   target_error: float | None = None, denoise: bool = False) -> JobMeta:
         """Store a job, queued; ``frames_json``: the patches of a job of ``plan.frames``
         frames; ``target_error``: the scene's ``render.target_error`` (its merges then keep the
         tiles' error summaries)."""
@@ -378,6 +381,7 @@ class JobStore:
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
             "submitter": submitter or "", "tags": ",".join(tags), "frames": plan.frames,
             "target_error": "" if target_error is None else target_error,
+            "denoise": "1" if denoise else "",
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
@@ -565,6 +569,7 @@ class JobStore:
             "finished_at": meta.finished_at or "", "error": meta.error or "",
             "methods": json.dumps(meta.methods), "submitter": meta.submitter or "",
             "tags": ",".join(meta.tags), "frames": plan.frames,
+            "denoise": "1" if meta.denoise else "",
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(meta.id), mapping=fields)

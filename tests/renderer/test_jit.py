@@ -24,6 +24,7 @@ WITH_RUNTIME = {
     "renderer.geometry.bvh.traversal_stack",
     "renderer.geometry.shapes.prim_bounds",
     "renderer.integrators.path.render_tile_kernel",
+    "renderer.film.aov.aov_kernel",
     # the wavefront kernel's stages on the CPU: parallel loops (numba's thread pool runs on it)
     *(f"renderer.wavefront.stages.{stage}"
       for stage in ("generate", "trace_rays", "shade", "accumulate")),

@@ -9,6 +9,7 @@ import sys
 from pathlib import Path
 
 import numpy as np
+import pytest
 
 from renderer.film.image_io import read_image
 from services.cli import main
@@ -173,3 +174,38 @@ def test_worker_and_up_take_pool_tags(capsys):
         with pytest.raises(SystemExit):
             parser.parse_args(["worker", "--redis", "redis://x", "--tags", bad])
     assert "--tags" in capsys.readouterr().err
+
+
+def test_render_writes_aov_layers_and_denoises(tmp_path, capsys):
+    pytest.importorskip("pyoidn")
+    import OpenEXR
+
+    data = json.loads(small_scene(tmp_path).read_text())
+    data["film"]["aovs"] = ["albedo", "depth", "spp"]
+    path = tmp_path / "aovs.json"
+    path.write_text(json.dumps(data))
+    out = tmp_path / "out.exr"
+    assert main(["render", str(path), "-o", str(out), "--spp", "2", "--denoise", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "denoised" in err and "out_noisy.exr" in err
+    noisy = tmp_path / "out_noisy.exr"
+    for f in (out, noisy):
+        channels = OpenEXR.File(str(f), separate_channels=True).channels()
+        assert set(channels) == {"R", "G", "B", "albedo.R", "albedo.G", "albedo.B", "depth.Z",
+                                 "spp.Y"}
+        np.testing.assert_array_equal(channels["spp.Y"].pixels, 2.0)
+    # the denoised image differs from the noisy one, which is the plain render's
+    assert not np.array_equal(read_image(out), read_image(noisy))
+    plain = tmp_path / "plain.exr"
+    assert main(["render", str(small_scene(tmp_path)), "-o", str(plain), "--spp", "2",
+                 "-q"]) == 0
+    np.testing.assert_array_equal(read_image(noisy), read_image(plain))
+
+
+def test_render_aovs_to_png_says_they_are_exr_only(tmp_path, capsys):
+    data = json.loads(small_scene(tmp_path).read_text())
+    data["film"]["aovs"] = ["normal"]
+    path = tmp_path / "aovs.json"
+    path.write_text(json.dumps(data))
+    assert main(["render", str(path), "-o", str(tmp_path / "o.png"), "--spp", "1", "-q"]) == 0
+    assert ".exr outputs only" in capsys.readouterr().err

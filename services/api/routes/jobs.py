@@ -37,6 +37,7 @@ from services.farm.archive import (
     delete_finished,
     encode_image,
     final_image,
+    frame_exr,
     unpark_job,
 )
 from services.farm.jobs import Refusal, queue_job
@@ -313,7 +314,12 @@ def _image(job_id: str, frame: int, fmt: str, request: Request, store: JobStore,
             assembled = assemble_parked(blobs, meta, frame)
         if assembled is None:
             raise HTTPException(status.HTTP_404_NOT_FOUND, detail=f"no job {job_id!r}")
-        content = encode_image(assembled[0].mean(), fmt, exposure, tonemap)
+        if meta.status == "done" and (fmt == "exr" or meta.denoise):
+            # with the scene's film.aovs as layers; denoised, for a job with denoise
+            image, exr = frame_exr(store, blobs, meta, frame, assembled[0])
+            content = exr if fmt == "exr" else encode_image(image, fmt, exposure, tonemap)
+        else:
+            content = encode_image(assembled[0].mean(), fmt, exposure, tonemap)
     return Response(content=content, media_type=_MEDIA[fmt], headers=headers)
 
 
