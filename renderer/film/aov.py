@@ -55,6 +55,7 @@ from renderer.materials.bsdf import (
 )
 from renderer.materials.conductor import ETA, SPECULAR, K, conductor_sample, fresnel_conductor
 from renderer.materials.dielectric import IOR, absorbed
+from renderer.materials.diffuse import ALBEDO as DIFFUSE_ALBEDO
 from renderer.materials.fresnel import fresnel_dielectric, reflect, refract
 from renderer.materials.mirror import mirror_sample
 from renderer.materials.phong import KD, KS
@@ -75,7 +76,7 @@ AOV_SALT = np.uint64(0x41F0_5EED_A0F5_0001)
 def _stop_albedo(mk, mp, cos_o):
     """The albedo of the vertex where an AOV path stops (see the module's list)."""
     if mk == DIFFUSE:
-        return mp[0], mp[1], mp[2]
+        return mp[DIFFUSE_ALBEDO], mp[DIFFUSE_ALBEDO + 1], mp[DIFFUSE_ALBEDO + 2]
     if mk == PHONG:
         return (min(1.0, mp[KD] + mp[KS]), min(1.0, mp[KD + 1] + mp[KS + 1]),
                 min(1.0, mp[KD + 2] + mp[KS + 2]))
