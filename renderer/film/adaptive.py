@@ -14,29 +14,30 @@ so the frame's expected relMSE is
 v_p a pixel's per-sample relative variance (m its mean standing in for R).
 
 **The allocation.** For a given total Σ n_p the n_p that minimise E are n_p ∝ √v_p (Lagrange:
-∂/∂n_p [v_p/n_p + λ n_p] = 0), so the frame reaches E = T with the fewest samples at
+∂/∂n_p [v_p/n_p + λ n_p] = 0); for a given time, with c_p a sample's cost at p (path segments,
+``sample_cost``), n_p ∝ √(v_p / c_p). So the frame reaches E = T in the least time at
 
-    n_p = √v_p · (Σ_q √v_q) / (P · T),
+    n_p = λ √(v_p / c_p),
 
-clamped to [samples it already has, ``render.spp``] (``allocate`` solves for the scale with the
-clamps, by bisection: E is monotone in it). The earlier rule (every pixel below the target on its
-own, n_p ∝ v_p) spends most samples on the noisiest pixels and overshot the target 3–25×.
+clamped to [samples it already has, ``render.spp``] (``allocate`` solves for λ with the clamps,
+by bisection: E is monotone in it). The earlier rule (every pixel below the target on its own,
+n_p ∝ v_p) spent most samples on the noisiest pixels and overshot the target 3–25×.
 
-**No low bias.** A pixel's own samples never decide how many samples it gets: ``v_p`` is estimated
-from its eight neighbours' samples (leave-one-out, ``neighbour_variance``), so n_p is independent
-of the samples averaged into I_p and the mean of a fixed-but-unknown number of independent samples
-stays unbiased. Stopping on a pixel's own variance biases heavy-tailed pixels low (a pixel whose
-rare bright path has not come yet looks converged and stops with it missing): measured 1.4–3.8 %
-low on the backlit slab with the earlier rule; ``tests/renderer/film/test_adaptive.py`` shows the
-own-sample rule biased and this one not on a heavy-tailed synthetic frame. (The scale Σ√v_q
-includes the eight pixels whose neighbourhoods hold p, so the independence is exact for the
-allocation's shape and holds to O(9/P) for its scale.)
+**No low bias.** A pixel's own samples never decide how many samples it gets: ``v_p`` and ``c_p``
+are estimated from the other 24 pixels of its 5×5 neighbourhood (``neighbour_variance``,
+``sample_cost``), so n_p is independent of the samples averaged into I_p and the mean of a
+number of independent samples fixed by other pixels' samples stays unbiased. Stopping on a
+pixel's own variance biases heavy-tailed pixels low (a pixel whose rare bright path has not come
+yet looks converged and stops with it missing): measured 1.4–3.8 % low on the backlit slab with
+the earlier rule; ``tests/renderer/film/test_adaptive.py`` shows the own-sample rule biased and
+this one not on a heavy-tailed synthetic frame. (The floor of the shaping estimate, a tenth of
+the frame's mean, and the scale λ hold each pixel as one of P.)
 
-**Pilot and rounds.** Every pixel first takes ``PILOT`` samples; the allocation is then recomputed
-before every pass from all the samples so far (more samples, better variance estimates), and the
-render stops when no pixel's allocation exceeds what it has. ``AIM`` is the calibration: the
-allocation aims at AIM × target because sample variances from few samples of heavy-tailed
-radiance underestimate (measured by ``python -m bench.target_error``: docs/adaptive-sampling.md).
+**Pilot, rounds, stop.** Every pixel first takes ``PILOT`` samples; before every pass the
+allocation is recomputed from all the samples so far, a round adding at most as much work as the
+frame has had; the render stops when the estimated error, with a small-sample correction
+(``small_sample_error``: variances from few samples of heavy-tailed radiance come out low), is at
+most ``AIM`` × target (calibrated by ``python -m bench.target_error``: docs/adaptive-sampling.md).
 
 The farm uses the same rule on a tile's merged buffer (``pass_counts``), a pure function of it
 and of the frame's scale λ, which the merge keeps up to date from every tile's summary
@@ -53,7 +54,7 @@ from renderer.film.buffer import SampleBuffer
 
 EPSILON = 0.01
 # Samples every pixel takes before any allocation (the pilot); the variance estimates of the
-# first allocation pool 8 neighbours × PILOT samples.
+# first allocation pool 24 neighbours × PILOT samples.
 PILOT = 8
 # The allocation aims at AIM × target: achieved/target measured over the chart suite and the
 # targets 0.1 … 0.002 (python -m bench.target_error; docs/adaptive-sampling.md).
@@ -322,10 +323,10 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
     """The local renderer's loop, given ``render_pass(index, counts) -> SampleBuffer`` that adds
     samples [index, index + counts[p]) to each pixel p of a frame of ``shape`` (h, w): a pilot of
     ``PILOT`` samples a pixel, then rounds, each one pass of every pixel's deficit against the
-    allocation (at most as many samples in all as the frame has: the estimates improve before
-    more is committed on them), until the estimated frame error meets AIM × ``target``, no pixel
-    lacks a sample, or every pixel has ``spp``. Sample indices are never reused: a pixel that sits
-    out part of a round's index range has a gap, not a repeat. ``plan(mean_spp)`` is told the
+    allocation (at most as much work, samples × cost, as the frame has had: the estimates improve
+    before more is committed on them), until the estimated frame error meets AIM × ``target``, no
+    pixel lacks a sample, or every pixel has ``spp``. Sample indices are never reused: a pixel that
+    sits out part of a round's index range has a gap, not a repeat. ``plan(mean_spp)`` is told the
     pilot's allocation; ``progress(done, planned)`` after every pass; ``max_pass`` caps a pass's
     samples a pixel."""
     h, w = shape
