@@ -100,6 +100,8 @@ class JobPublic(BaseModel):
     submitter: str | None = Field(default=None, description="the name of the API token it was "
                                                             "submitted with (LUCENT_API_TOKENS)")
     tags: list[str] = Field(default_factory=list, description="worker tags it requires")
+    denoise: bool = Field(default=False, description="its done image is denoised (the noisy "
+                                                     "one kept as image.exr's noisy layer)")
     target_error: float | None = Field(
         default=None, description="the scene's render.target_error: the frame's expected relMSE "
                                   "asked for (docs/adaptive-sampling.md)")

@@ -606,6 +606,8 @@ class JobStore:
             "samples": [samples.get(t, 0) for t in range(n_tiles)],
             "errors": {str(t): e for t, e in self.tile_errors(job_id).items()}}
         meta = self.get_job(job_id)
+        if meta is not None and meta.denoise:
+            out["denoise"] = True
         if meta is not None and meta.target_error is not None:
             out["target_error"] = meta.target_error
             out["expected_error"] = meta.expected_error

@@ -96,6 +96,9 @@ def test_a_job_with_denoise_serves_the_denoised_image_and_keeps_the_noisy_layer(
         assert archive_job(store, records_of(settings), blobs, job_id)
         assert client.get(f"/api/jobs/{job_id}/image.exr").content == before.content
         assert client.get(f"/api/jobs/{job_id}/image.png").content == png.content
+        # the job's answer says it, from Redis and, archived, from its record
+        assert r.json()["denoise"] is True
+        assert client.get(f"/api/jobs/{job_id}").json()["denoise"] is True
 
 
 def test_denoise_is_refused_naming_the_option_without_pyoidn(client, tiny_scene, monkeypatch):

@@ -78,6 +78,7 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         error=meta.error, image_version=meta.version, methods=meta.methods,
         submitter=meta.submitter, tags=list(meta.tags),
         # (a job's record keeps them in its tiles' summary once it leaves Redis)
+        denoise=meta.denoise or bool(meta.tiles_final.get("denoise")),
         target_error=(meta.target_error if meta.target_error is not None
                       else meta.tiles_final.get("target_error")),
         expected_error=(meta.expected_error if meta.expected_error is not None
