@@ -22,8 +22,8 @@ import time
 
 import numpy as np
 
-from bench.accuracy import ROOT, _loglog, reference, rel_mse
-from bench.target_error import scene_at, scenes
+from bench.accuracy import _loglog, rel_mse
+from bench.target_error import scene_at, scene_reference, scenes
 
 UNIFORM_SPP = (4, 16, 64, 256, 1024)
 DENOISED_SPP = (4, 16, 64, 256)
@@ -85,10 +85,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{'uniform at equal time: spp':>26} {'relMSE':>8} {'edges':>8}", flush=True)
     for name in args.scenes:
         scene, material = all_scenes[name]
-        if material is not None:
-            ref, _ = reference(name, scene, material, 16384)
-        else:
-            ref = np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+        ref = scene_reference(name, scene, material)
         edges = edge_mask(ref)
         run(scene_at(scene, material, 1, None), 1, True)  # warm the JIT and OIDN
         ut, ue, ux = [], [], []

@@ -63,6 +63,14 @@ def scene_at(scene: dict, material: str | None, spp: int, target: float | None) 
     return data
 
 
+def scene_reference(name: str, scene: dict, material: str | None) -> np.ndarray:
+    """The converged image of a scene of ``scenes()``: the suite's Mitsuba reference (cached), or
+    the committed one in tests/data for the scenes outside the suite."""
+    if material is not None:
+        return reference(name, scene, material, 16384)[0]
+    return np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+
+
 def timed(data: dict, repeat: int) -> tuple[float, np.ndarray, float]:
     """(best wall time, image, mean spp)."""
     from renderer.render import render_buffer
@@ -104,10 +112,7 @@ def main(argv: list[str] | None = None) -> int:
           f"{'err/target':>10} {'uniform s':>9} {'time ratio':>10}", flush=True)
     for name in args.scenes:
         scene, material = all_scenes[name]
-        if material is not None:
-            ref, _ = reference(name, scene, material, 16384)
-        else:
-            ref = np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+        ref = scene_reference(name, scene, material)
         render_buffer(scene_at(scene, material, 1, None))  # warm the JIT
         ut, ue = [], []
         for spp in UNIFORM_SPP:
@@ -157,10 +162,7 @@ def oracle(names: list[str], all_scenes: dict) -> int:
           "(time / uniform time at equal error)")
     for name in names:
         scene, material = all_scenes[name]
-        if material is not None:
-            ref, _ = reference(name, scene, material, 16384)
-        else:
-            ref = np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+        ref = scene_reference(name, scene, material)
         buf = render_buffer(load_scene(scene_at(scene, material, 1024, None)))
         n = buf.count[..., None]
         mean = buf.sum / n
@@ -216,10 +218,7 @@ def farm(names: list[str], all_scenes: dict, targets: list[float]) -> int:
 
             for name in names:
                 scene, material = all_scenes[name]
-                if material is not None:
-                    ref, _ = reference(name, scene, material, 16384)
-                else:
-                    ref = np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+                ref = scene_reference(name, scene, material)
                 run(scene_at(scene, material, 8, None))  # compiles in both processes
                 for target in targets:
                     job, seconds = run(scene_at(scene, material, CAP, target))
