@@ -161,24 +161,32 @@ def test_a_frame_scale_allocates_without_the_solve():
 # --------------------------------------------------------------------------------------------------
 
 
+def grey_pass(counts: np.ndarray, draw) -> SampleBuffer:
+    """A synthetic pass: each pixel's ``counts[y, x]`` grey samples from ``draw(y, x, c)``."""
+    h, w = counts.shape
+    buf = SampleBuffer.empty(0, 0, w, h)
+    for y in range(h):
+        for x in range(w):
+            c = int(counts[y, x])
+            if c > 0:
+                s = draw(y, x, c)
+                buf.sum[y, x] = s.sum()
+                buf.sum_sq[y, x] = (s**2).sum()
+                buf.count[y, x] = c
+    return buf
+
+
 def heavy_sampler(h: int, w: int, seed: int, p: float = 0.01, big: float = 100.0):
     """A ``render_pass`` whose every pixel's samples are 1 + big with probability p, else 1: a
     mean of 1 + p·big, mostly hidden in few samples (a caustic or a rare bright walk). Samples
     are a pure function of (seed, pixel, index), as the renderer's."""
 
     def render_pass(index: int, counts: np.ndarray) -> SampleBuffer:
-        buf = SampleBuffer.empty(0, 0, w, h)
-        for y in range(h):
-            for x in range(w):
-                c = int(counts[y, x])
-                if c <= 0:
-                    continue
-                rng = np.random.default_rng([seed, y * w + x, index])
-                s = 1.0 + big * (rng.random(c) < p)
-                buf.sum[y, x] = s.sum()
-                buf.sum_sq[y, x] = (s**2).sum()
-                buf.count[y, x] = c
-        return buf
+        def draw(y: int, x: int, c: int) -> np.ndarray:
+            rng = np.random.default_rng([seed, y * w + x, index])
+            return 1.0 + big * (rng.random(c) < p)
+
+        return grey_pass(counts, draw)
 
     return render_pass, 1.0 + p * big
 
@@ -229,20 +237,13 @@ def test_the_loop_reaches_the_target_on_a_synthetic_frame():
     seen: dict[tuple[int, int], set] = {}
 
     def render_pass(index: int, counts: np.ndarray) -> SampleBuffer:
-        buf = SampleBuffer.empty(0, 0, w, h)
-        for y in range(h):
-            for x in range(w):
-                c = int(counts[y, x])
-                if c <= 0:
-                    continue
-                used = seen.setdefault((y, x), set())
-                assert not used & set(range(index, index + c))
-                used.update(range(index, index + c))
-                s = 1.0 + scale[y, x] * (rng0.exponential(1.0, c) - 1.0)
-                buf.sum[y, x] = s.sum()
-                buf.sum_sq[y, x] = (s**2).sum()
-                buf.count[y, x] = c
-        return buf
+        def draw(y: int, x: int, c: int) -> np.ndarray:
+            used = seen.setdefault((y, x), set())
+            assert not used & set(range(index, index + c))
+            used.update(range(index, index + c))
+            return 1.0 + scale[y, x] * (rng0.exponential(1.0, c) - 1.0)
+
+        return grey_pass(counts, draw)
 
     target = 0.001
     buf = sample_to_target(render_pass, (h, w), target, 100_000)
