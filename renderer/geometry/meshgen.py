@@ -69,3 +69,32 @@ def uv_sphere(n_lon: int, n_lat: int, radius: float = 1.0
     triangles = np.concatenate([lower.reshape(-1, 3), upper.reshape(-1, 3)])
     uvs = np.stack([uu, vv], -1).reshape(-1, 2)
     return radius * normals, triangles.astype(np.int64), normals, uvs
+
+
+def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
+    """Unit icosphere (midpoint subdivision of the icosahedron, welded: a closed edge-manifold),
+    faces counter-clockwise seen from outside; its vertices are its smooth normals."""
+    p = (1 + 5**0.5) / 2
+    verts = [(-1, p, 0), (1, p, 0), (-1, -p, 0), (1, -p, 0), (0, -1, p), (0, 1, p),
+             (0, -1, -p), (0, 1, -p), (p, 0, -1), (p, 0, 1), (-p, 0, -1), (-p, 0, 1)]
+    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
+             (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8),
+             (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
+    verts = [np.array(v, float) / np.linalg.norm(v) for v in verts]
+    for _ in range(subdivisions):
+        midpoint: dict[tuple[int, int], int] = {}
+
+        def mid(i: int, j: int, midpoint: dict[tuple[int, int], int] = midpoint) -> int:
+            key = (min(i, j), max(i, j))
+            if key not in midpoint:
+                m = verts[i] + verts[j]
+                verts.append(m / np.linalg.norm(m))
+                midpoint[key] = len(verts) - 1
+            return midpoint[key]
+
+        new = []
+        for a, b, c in faces:
+            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
+            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
+        faces = new
+    return np.array(verts), np.array(faces, np.int64)

@@ -10,41 +10,13 @@ import math
 import numpy as np
 import pytest
 
+from renderer.geometry.meshgen import icosphere
 from renderer.materials.bsdf import DIELECTRIC, N_PARAMS, ROUGH_DIELECTRIC, TRANSLUCENT
 from renderer.materials.dielectric import IOR, ROUGHNESS
 from renderer.materials.shading import bent_normal, shaded_eval, shaded_pdf, shaded_sample
 from renderer.render import render
 from renderer.scene import load_scene
 from tests.conftest import chi2_directions
-
-
-def icosphere(subdivisions: int) -> tuple[np.ndarray, np.ndarray]:
-    """Unit icosphere (midpoint subdivision of the icosahedron, welded: a closed edge-manifold),
-    faces counter-clockwise seen from outside; its vertices are its smooth normals."""
-    p = (1 + 5 ** 0.5) / 2
-    verts = [(-1, p, 0), (1, p, 0), (-1, -p, 0), (1, -p, 0), (0, -1, p), (0, 1, p),
-             (0, -1, -p), (0, 1, -p), (p, 0, -1), (p, 0, 1), (-p, 0, -1), (-p, 0, 1)]
-    faces = [(0, 11, 5), (0, 5, 1), (0, 1, 7), (0, 7, 10), (0, 10, 11), (1, 5, 9), (5, 11, 4),
-             (11, 10, 2), (10, 7, 6), (7, 1, 8), (3, 9, 4), (3, 4, 2), (3, 2, 6), (3, 6, 8),
-             (3, 8, 9), (4, 9, 5), (2, 4, 11), (6, 2, 10), (8, 6, 7), (9, 8, 1)]
-    vs = [np.array(v, float) / np.linalg.norm(v) for v in verts]
-    for _ in range(subdivisions):
-        midpoint: dict[tuple[int, int], int] = {}
-
-        def mid(i: int, j: int, midpoint: dict[tuple[int, int], int] = midpoint) -> int:
-            key = (min(i, j), max(i, j))
-            if key not in midpoint:
-                m = vs[i] + vs[j]
-                vs.append(m / np.linalg.norm(m))
-                midpoint[key] = len(vs) - 1
-            return midpoint[key]
-
-        new = []
-        for a, b, c in faces:
-            ab, bc, ca = mid(a, b), mid(b, c), mid(c, a)
-            new += [(a, ab, ca), (b, bc, ab), (c, ca, bc), (ab, bc, ca)]
-        faces = new
-    return np.array(vs), np.array(faces)
 
 
 def glass_scene(shape: str, material: dict, background=(1.0, 1.0, 1.0), floor=True,
