@@ -14,7 +14,10 @@ runs them), waits until every process is warm, renders the job once untimed, the
 ``--repeats`` submissions of each (tile, pass) shape through the in-process API
 (``bench.farm_speed``'s ``run_job`` and ``timed_runs``: the same definitions of completion and
 overhead). Speedup is against the smallest worker count of the same shape, efficiency is
-speedup × that count / N.
+speedup × that count / N. Before every timed job the same scene is rendered locally, in a fresh
+process with N numba threads (``render_buffer``, kernels loaded, untimed warm-up first): "of
+local" is that render's time over the job's, submission to done (issue #23's aim: at least 90 %
+with two workers).
 
 ``--netns`` (root and iproute2): a bridge on the host with the first address of ``--subnet``,
 Redis bound to that address only, and per node a namespace ``lucent-scaling-<pid>-<i>`` holding one
@@ -197,6 +200,29 @@ def pass_label(first: int, largest: int) -> str:
     return f"{first} spp" if largest <= first else f"{first}-{largest} spp"
 
 
+_LOCAL = """
+import json, sys, time
+from renderer.render import render_buffer
+from renderer.scene import load_scene
+from renderer.scene.compile import compile_scene
+cs = compile_scene(load_scene(json.loads(sys.stdin.read())))
+render_buffer(cs, 1)  # untimed: loads the kernels
+t0 = time.perf_counter()
+render_buffer(cs)
+print(time.perf_counter() - t0)
+"""
+
+
+def local_seconds(scene: dict, threads: int) -> float:
+    """Seconds ``render_buffer`` takes for the whole ``scene`` in a fresh process with
+    ``threads`` numba threads, kernels loaded, the scene compiled (what ``lucent render`` spends
+    rendering): the local render the farm is compared with."""
+    out = subprocess.run([sys.executable, "-c", _LOCAL], input=json.dumps(scene), cwd=ROOT,
+                         env={**os.environ, "NUMBA_NUM_THREADS": str(threads)},
+                         capture_output=True, text=True, check=True)
+    return float(out.stdout.split()[-1])
+
+
 def measure_farm(processes: int, shapes: list[tuple[int, int, int]], scene: dict, repeats: int,
                  per_node: int, netns: bool, subnet: str) -> list[dict]:
     """Start a farm of ``processes`` worker processes and time every (tile, pass) shape on it."""
@@ -231,7 +257,12 @@ def measure_farm(processes: int, shapes: list[tuple[int, int, int]], scene: dict
                 body = {"scene": scene, "tile_size": tile, "spp_per_pass": per_pass,
                         "max_spp_per_pass": largest}
                 veth_before = network.veth_bytes() if network else 0
-                runs = timed_runs(client, store, body, repeats, processes)
+                # Alternated with the local render on as many threads, so that both see the
+                # same drift of the machine
+                runs, local = [], []
+                for _ in range(repeats):
+                    local.append(local_seconds(scene, processes))
+                    runs += timed_runs(client, store, body, 1, processes)
                 veth_mb = (network.veth_bytes() - veth_before) / 1e6 / repeats if network else None
                 med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
                 row = {"mode": "netns" if network else "loopback", "workers": processes,
@@ -239,12 +270,16 @@ def measure_farm(processes: int, shapes: list[tuple[int, int, int]], scene: dict
                        "max_spp_per_pass": largest,
                        "tasks": int(med["tasks"]), "done_s": med["done"],
                        "preview_s": med["preview"], "samples_per_s": med["samples"] / med["done"],
+                       "local_s": statistics.median(local),
+                       "of_local": statistics.median(local) / med["done"],
                        "overhead_ms": med["overhead_ms"],
                        "wall_overhead_ms": med["wall_overhead_ms"], "veth_mb_per_job": veth_mb}
                 rows.append(row)
                 print(f"  {processes:>3} workers ({len(sizes)} nodes), tile {tile:>3} px / "
                       f"{pass_label(per_pass, largest):>10}: done {row['done_s']:.2f} s, "
-                      f"{row['samples_per_s'] / 1e6:.2f} M samples/s, {row['tasks']} tasks, "
+                      f"{row['samples_per_s'] / 1e6:.2f} M samples/s "
+                      f"({100 * row['of_local']:.0f} % of local: {row['local_s']:.2f} s), "
+                      f"{row['tasks']} tasks, "
                       f"overhead {row['overhead_ms']:.1f} / {row['wall_overhead_ms']:.1f} ms"
                       + (f", {veth_mb:.1f} MB over the veths" if network else ""), flush=True)
     return rows
@@ -265,14 +300,16 @@ def add_speedups(rows: list[dict]) -> None:
 
 def markdown_table(rows: list[dict]) -> str:
     netns = any(r["veth_mb_per_job"] is not None for r in rows)
-    head = ["workers (nodes)", "tile / pass", "tasks", "done", "samples/s", "speedup",
-            "efficiency", "in-task overhead", "wall-clock overhead"] + (["veth MB/job"] * netns)
+    head = ["workers (nodes)", "tile / pass", "tasks", "done", "samples/s", "local render",
+            "of local", "speedup", "efficiency", "in-task overhead", "wall-clock overhead"] \
+        + (["veth MB/job"] * netns)
     lines = ["| " + " | ".join(head) + " |",
              "|---|---|" + "---:|" * (len(head) - 2)]
     for r in sorted(rows, key=lambda r: (*_shape(r), r["workers"])):
         cells = [f"{r['workers']} ({r['nodes']})",
                  f"{r['tile']} px / {pass_label(*_shape(r)[1:])}",
                  str(r["tasks"]), f"{r['done_s']:.2f} s", f"{r['samples_per_s'] / 1e6:.2f} M",
+                 f"{r['local_s']:.2f} s", f"{100 * r['of_local']:.0f} %",
                  f"{r['speedup']:.2f}×", f"{100 * r['efficiency']:.0f} %",
                  f"{r['overhead_ms']:.1f} ms", f"{r['wall_overhead_ms']:.1f} ms"]
         if netns:

@@ -49,10 +49,10 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
     the pass from the moment its delivery is counted until ``end_pass`` (a holder whose heartbeat
     expires meanwhile has its pass sent again: ``services.farm.lost_workers``). ``node``: its
     worker node, the blocklist's unit."""
-    meta = store.get_job(job_id)
+    meta, blocked, merged = store.pass_view(job_id, tile, pass_index, node)
     if meta is None or meta.status in FINAL:
         return f"skipped: {meta.status if meta else 'no such job'}"
-    if node and store.is_blocklisted(job_id, node):
+    if blocked:
         reason = no_eligible_reason(store, meta, settings.blocklist_threshold)
         if reason is not None:
             store.fail_job(job_id, reason)
@@ -63,19 +63,19 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
     if not (0 <= tile < meta.plan.n_tiles and 0 <= pass_index < meta.plan.n_passes):
         return "skipped: no such pass"
     # Delivered again after it was merged (a redelivery): nothing to do.
-    if store.is_merged(job_id, tile, pass_index):
+    if merged:
         return "duplicate"
     # Count every delivery, so that a pass that keeps killing its worker stops being retried. Only
     # deliveries that run are counted (one lost by the broker, then re-queued by the sweeper, is
     # not), and counting one marks the job alive for the sweeper's stall rule.
-    attempt = store.add_attempt(job_id, tile, pass_index, holder)
+    # (and the tile becomes running if it is queued, in the same step)
+    attempt = store.add_attempt(job_id, tile, pass_index, holder, running=True)
     if attempt > settings.max_attempts:
         store.fail_tile(job_id, tile, f"pass {pass_index} gave up after {attempt - 1} tries "
                         "(its worker was lost or timed out each time)")
         return "failed"
     if meta.status == "queued":  # the job's first pass (one round trip fewer for the others)
         store.mark_started(job_id)
-    store.set_tile_running(job_id, tile)
     return Delivery(meta, attempt)
 
 

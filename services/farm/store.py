@@ -131,7 +131,30 @@ if redis.call('EXISTS', KEYS[2]) == 0 then return 0 end
 local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
 redis.call('HSET', KEYS[2], 'active_at', ARGV[2])
 if ARGV[3] ~= '' then redis.call('HSET', KEYS[3], ARGV[3], ARGV[4] .. ' ' .. n) end
+if ARGV[5] ~= '' and redis.call('HGET', KEYS[4], ARGV[5]) == 'queued' then
+  redis.call('HSET', KEYS[4], ARGV[5], 'running')
+end
 return n
+"""
+
+# Only a queued tile becomes running (KEYS[1] the tile states, ARGV[1] the tile): a done tile
+# stays done when a late duplicate runs.
+_SET_RUNNING = """
+if redis.call('HGET', KEYS[1], ARGV[1]) == 'queued' then
+  redis.call('HSET', KEYS[1], ARGV[1], 'running')
+end
+return 0
+"""
+
+# What a merge reads, under its WATCH, in one round trip (KEYS: the merged set, the pass buffer,
+# the job hash, the tile's accumulation, tile_samples, tile_state, tile_err; ARGV: the pass's
+# member of the merged set, the tile): whether the pass is merged, the pass buffer, the job's
+# status, spp and target_error, the accumulation, and the tile's samples, state and error summary.
+_MERGE_READ = """
+return {redis.call('SISMEMBER', KEYS[1], ARGV[1]), redis.call('GET', KEYS[2]),
+        redis.call('HMGET', KEYS[3], 'status', 'spp', 'target_error'), redis.call('GET', KEYS[4]),
+        redis.call('HGET', KEYS[5], ARGV[2]), redis.call('HGET', KEYS[6], ARGV[2]),
+        redis.call('HGET', KEYS[7], ARGV[2])}
 """
 
 # Take a lost worker's holding (KEYS[1] the holding hash, ARGV[1] worker id, ARGV[2] the value
@@ -328,6 +351,7 @@ class JobStore:
         self._transition = client.register_script(_TRANSITION)
         self._claim_stall = client.register_script(_CLAIM_STALL)
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
+        self._set_running = client.register_script(_SET_RUNNING)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
         self._delete = client.register_script(_DELETE)
         self._note_failure = client.register_script(_NOTE_FAILURE)
@@ -689,10 +713,8 @@ class JobStore:
         self.r.hset(self.k("job", job_id, "tile_state"), str(tile), state)
 
     def set_tile_running(self, job_id: str, tile: int) -> None:
-        # Only a queued tile becomes running: a done tile stays done when a late duplicate runs.
-        key = self.k("job", job_id, "tile_state")
-        if _s(self.r.hget(key, str(tile))) == "queued":
-            self.r.hset(key, str(tile), "running")
+        """A queued tile becomes running (a done or failed one stays as it is)."""
+        self._set_running(keys=[self.k("job", job_id, "tile_state")], args=[str(tile)])
 
     def fail_tile(self, job_id: str, tile: int, reason: str) -> None:
         pipe = self.r.pipeline()
@@ -704,14 +726,28 @@ class JobStore:
     def note_tile_error(self, job_id: str, tile: int, reason: str) -> None:
         self.r.hset(self.k("job", job_id, "tile_error"), str(tile), reason)
 
-    def add_attempt(self, job_id: str, tile: int, pass_index: int, holder: str = "") -> int:
+    def add_attempt(self, job_id: str, tile: int, pass_index: int, holder: str = "",
+                    running: bool = False) -> int:
         """Count a delivery of the pass that is about to run; it is also a sign of life of the
         job (``active_at``: the sweeper's stall clock starts again). ``holder``: the worker
-        process that runs it, recorded as holding the pass until ``release_pass``."""
+        process that runs it, recorded as holding the pass until ``release_pass``. ``running``:
+        in the same step, the tile becomes running if it is queued (``set_tile_running``)."""
         return int(self._add_attempt(
-            keys=[self.k("job", job_id, "attempts"), self.job_key(job_id), self.k("holding")],
+            keys=[self.k("job", job_id, "attempts"), self.job_key(job_id), self.k("holding"),
+                  self.k("job", job_id, "tile_state")],
             args=[pass_member(tile, pass_index), time.time(), holder,
-                  f"{job_id} {tile} {pass_index}"]))
+                  f"{job_id} {tile} {pass_index}", str(tile) if running else ""]))
+
+    def pass_view(self, job_id: str, tile: int, pass_index: int, node: str = ""
+                  ) -> tuple[JobMeta | None, bool, bool]:
+        """What a worker checks before it renders a pass, in one round trip: the job (None if
+        unknown), whether ``node`` is blocklisted for it, whether the pass is merged."""
+        pipe = self.r.pipeline(transaction=False)
+        pipe.hgetall(self.job_key(job_id))
+        pipe.sismember(self.k("job", job_id, "blocklist"), node)
+        pipe.sismember(self.k("job", job_id, "merged"), pass_member(tile, pass_index))
+        h, blocked, merged = pipe.execute()
+        return (JobMeta.from_hash(h) if h else None), bool(node) and bool(blocked), bool(merged)
 
     def attempts(self, job_id: str, tile: int, pass_index: int) -> int:
         return int(self.r.hget(self.k("job", job_id, "attempts"),
@@ -746,6 +782,7 @@ class JobStore:
         job_key = self.job_key(job_id)
         samples_key = self.k("job", job_id, "tile_samples")
         err_key = self.k("job", job_id, "tile_err")
+        state_key = self.k("job", job_id, "tile_state")
         with r.pipeline() as pipe:
             while True:
                 try:
@@ -753,21 +790,17 @@ class JobStore:
                     # archived between the status read below and EXEC aborts the merge, which
                     # would otherwise write its keys (its hash too) back
                     pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
-                    if pipe.sismember(merged_key, member):
+                    (is_merged, data, (status, spp, target), acc_bytes, tile_samples,
+                     tile_state, old_summary) = pipe.eval(
+                        _MERGE_READ, 7, merged_key, pass_key, job_key, acc_key, samples_key,
+                        state_key, err_key, member, str(tile))
+                    # Merged already, no buffer (dropped or merged and deleted), or the job was
+                    # deleted or is done: every pass of a done job was merged (this is a late
+                    # duplicate) and its tile keys may be archived already.
+                    if is_merged or data is None or _s(status) in (None, "done"):
                         pipe.unwatch()
-                        r.delete(pass_key)
-                        r.srem(self.k("pending"), pass_key)
-                        return False
-                    data = pipe.get(pass_key)
-                    if data is None:
-                        pipe.unwatch()
-                        r.srem(self.k("pending"), pass_key)
-                        return False
-                    # The job was deleted, or is done: every pass of a done job was merged
-                    # (this is a late duplicate) and its tile keys may be archived already.
-                    if _s(pipe.hget(job_key, "status")) in (None, "done"):
-                        pipe.unwatch()
-                        r.delete(pass_key)
+                        if data is not None:
+                            r.delete(pass_key)
                         r.srem(self.k("pending"), pass_key)
                         return False
                     buf = SampleBuffer.from_bytes(data)
@@ -783,18 +816,17 @@ class JobStore:
                     # tile_samples changes only in this transaction, under the same WATCH: the
                     # tile becomes done in the same EXEC that gives it its last samples, so no
                     # process killed in between can leave a complete tile shown as running.
-                    tile_spp = int(pipe.hget(samples_key, str(tile)) or 0) + spp_added
-                    tile_done = tile_spp >= int(pipe.hget(job_key, "spp") or 0)
+                    tile_spp = int(tile_samples or 0) + spp_added
+                    tile_done = tile_spp >= int(spp or 0)
                     # "running" means a pass of the tile is rendering now: a tile that has more
                     # passes to come goes back to queued (not a failed tile: that stays failed)
-                    state_key = self.k("job", job_id, "tile_state")
-                    requeue = not tile_done and _s(pipe.hget(state_key, str(tile))) == "running"
+                    requeue = not tile_done and _s(tile_state) == "running"
                     # A job with a target: the tile's error summary, and the change to the job's
                     # sums (its old summary read under the same WATCH of the tile's buffer)
                     summary = delta = None
-                    if _s(pipe.hget(job_key, "target_error")):
+                    if _s(target):
                         summary = tile_summary(acc)
-                        old = _s(pipe.hget(err_key, str(tile)))
+                        old = _s(old_summary)
                         before = [float(x) for x in old.split()] if old else [0.0] * 4
                         delta = [new - was for new, was in zip(summary, before, strict=True)]
                     pipe.multi()
