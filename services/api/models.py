@@ -23,8 +23,10 @@ class JobCreate(BaseModel):
 
     scene: dict[str, Any] = Field(description="a scene, format v1 (docs/scene-format.md)")
     name: str = Field(default="", max_length=200)
-    tile_size: StrictInt | None = Field(default=None, ge=8, le=1024,
-                                        description="tile edge in pixels (default 32)")
+    tile_size: StrictInt | None = Field(
+        default=None, ge=8, le=1024,
+        description="tile edge in pixels (default 64, halved for a frame of fewer than 16 "
+                    "tiles, down to 16)")
     spp_per_pass: StrictInt | None = Field(
         default=None, ge=1, le=65_536,
         description="samples per pixel of the first pass (default 8)")

@@ -49,7 +49,7 @@ export function renderSubmit(view) {
       ...field("priority", "Priority (0–9, 9 first)", { type: "number", min: "0", max: "9",
         value: "0" }),
       ...field("tile_size", "Tile size (px)", { type: "number", min: "8", max: "1024",
-        placeholder: "32" }),
+        placeholder: "64" }),
       ...field("spp_per_pass", "Samples of the first pass", { type: "number", min: "1",
         placeholder: "8" }),
       ...field("max_spp_per_pass", "Largest pass", { type: "number", min: "1",

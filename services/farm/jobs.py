@@ -31,7 +31,7 @@ from renderer.scene import Limits, SceneError, load_scene
 from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
 from services.farm.frames import PatchError, apply_patch
-from services.farm.planner import Plan
+from services.farm.planner import Plan, default_tile_size
 from services.farm.pools import live_tag_sets, waiting_for
 from services.farm.queue import enqueue
 from services.farm.records import Records, RecordsUnavailable
@@ -149,8 +149,9 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
         return Refusal(422, [(["body", "max_spp_per_pass"],
                               f"the largest pass ({largest}) is smaller than the first "
                               f"(spp_per_pass {first})", "value_error")])
-    plan = Plan(scene.width, scene.height, scene.spp,
-                options.tile_size or settings.default_tile_size, first, largest, scene.n_frames)
+    tile = options.tile_size or default_tile_size(scene.width, scene.height,
+                                                  settings.default_tile_size)
+    plan = Plan(scene.width, scene.height, scene.spp, tile, first, largest, scene.n_frames)
     if plan.n_tasks > settings.max_tasks_per_job:
         msg = (f"{plan.n_tiles} tiles{f' ({plan.frames} frames)' if plan.frames > 1 else ''} x "
                f"{plan.n_passes} passes = {plan.n_tasks} tasks exceed the "

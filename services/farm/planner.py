@@ -128,6 +128,24 @@ class Plan:
                 for t in tiles]
 
 
+# A job that names no tile size gets the farm's default (``LUCENT_DEFAULT_TILE_SIZE``) halved
+# while its frame would have fewer than MIN_TILES tiles, down to SMALLEST_DEFAULT_TILE px: a small
+# frame still gives every worker of a small farm tiles to render in its first pass.
+MIN_TILES = 16
+SMALLEST_DEFAULT_TILE = 16
+
+
+def default_tile_size(width: int, height: int, preferred: int) -> int:
+    """The tile edge for a ``width`` × ``height`` frame when the job names none: ``preferred``,
+    halved while the frame has fewer than ``MIN_TILES`` tiles (never below
+    ``SMALLEST_DEFAULT_TILE``, nor ``preferred`` itself when that is smaller)."""
+    size = preferred
+    while size // 2 >= SMALLEST_DEFAULT_TILE and (-(-width // size)) * (-(-height // size)) \
+            < MIN_TILES:
+        size //= 2
+    return size
+
+
 def celery_priority(job_priority: int) -> int:
     """Job priority 0–9 (9 most urgent) to a Celery-on-Redis priority (0 is served first)."""
     return 9 - max(0, min(9, job_priority))

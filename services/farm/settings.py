@@ -62,16 +62,20 @@ class Settings(BaseSettings):
     comma-separated; empty (the default): no CORS headers, so only same-origin pages can."""
 
     # --- Job limits -----------------------------------------------------------------------------
-    default_tile_size: int = 32
-    """Tile edge in pixels when a job does not say."""
+    default_tile_size: int = Field(default=64, ge=8, le=1024)
+    """Tile edge in pixels when a job does not say, halved for a frame that would have fewer than
+    16 tiles (down to 16 px; ``services.farm.planner.default_tile_size``). A task costs ~6-8 ms
+    besides rendering (Redis, the merge, Celery); a 64-px tile's first 8-sample pass is ~33 000
+    paths, ~20 ms of one core on the Cornell box, so larger tiles keep that cost a small share:
+    with two workers the Cornell box's job takes 2.0 s at 64 px against 2.8 s at 32 px
+    (``python -m bench.scaling``, docs/performance.md)."""
 
     default_spp_per_pass: int = 8
     """Samples of a tile's first pass (the first preview) and of its second."""
     default_max_spp_per_pass: int = Field(default=64, ge=1)
     """The largest pass when a job names none: passes double the samples so far up to it
-    (``services.farm.planner``).
-    64 samples of a 32-px tile are ~65 000 paths, ~0.05-0.1 s of one core:
-    the ~10 ms a task costs besides rendering stays a small share."""
+    (``services.farm.planner``). 64 samples of a 64-px tile are ~260 000 paths, ~0.15 s of one
+    core on the Cornell box: the ~6-8 ms a task costs besides rendering stays a small share."""
 
     max_tasks_per_job: int = Field(default=200_000, ge=1)
     """The most (tile, pass) tasks one job may plan: bounds the queue and the bookkeeping."""

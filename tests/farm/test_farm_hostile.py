@@ -35,7 +35,7 @@ from renderer.film.buffer import SampleBuffer
 from renderer.geometry.meshgen import sheet
 from services.api.main import create_app
 from services.farm.cost import queued_samples
-from services.farm.planner import Plan
+from services.farm.planner import Plan, default_tile_size
 from services.farm.settings import Settings
 from services.farm.store import JobStore
 
@@ -510,6 +510,15 @@ def test_request_level_integers_are_accepted_as_integers(client, tiny_scene):
                                        "max_spp_per_pass": 8, "priority": 1})
     assert r.status_code == 201, r.text
     assert (r.json()["tile_size"], r.json()["spp_per_pass"], r.json()["priority"]) == (16, 4, 1)
+
+
+def test_a_job_without_a_tile_size_gets_the_default_for_its_frame(client, tiny_scene):
+    """The default tile (64 px) halves until the frame has 16 tiles: the tiny scene's small frame
+    gets 16-px tiles (services.farm.planner.default_tile_size)."""
+    r = client.post("/api/jobs", json={"scene": tiny_scene})
+    assert r.status_code == 201, r.text
+    film = tiny_scene["film"]
+    assert r.json()["tile_size"] == default_tile_size(film["width"], film["height"], 64) == 16
 
 
 # --- giant meshes -------------------------------------------------------------------------------

@@ -6,7 +6,27 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.farm.planner import Plan, celery_priority
+from services.farm.planner import MIN_TILES, Plan, celery_priority, default_tile_size
+
+
+@pytest.mark.parametrize(("width", "height", "preferred", "size"), [
+    (320, 240, 64, 64),    # 5 x 4 = 20 tiles: the preferred size
+    (1920, 1080, 64, 64),
+    (160, 120, 64, 32),    # 3 x 2 at 64 px: halved to 5 x 4
+    (64, 48, 64, 16),      # 1 tile at 64, 2 x 2 at 32, 4 x 3 at 16: the floor
+    (8, 8, 64, 16),        # one tile whatever the size: the floor
+    (320, 240, 32, 32),    # an operator's smaller default stays
+    (64, 48, 8, 8),        # below the floor: as configured
+])
+def test_default_tile_size_halves_until_the_frame_has_tiles_for_a_farm(width, height, preferred,
+                                                                       size):
+    assert default_tile_size(width, height, preferred) == size
+    tiles = Plan(width, height, 8, size, 8).tiles_per_frame
+    # as large as allowed: twice the size would give too few tiles (unless it is the preference)
+    if size < preferred:
+        assert Plan(width, height, 8, 2 * size, 8).tiles_per_frame < MIN_TILES
+    if size > 16 and size < preferred:
+        assert tiles >= MIN_TILES
 
 
 def test_plan_covers_the_frame_once_and_goes_centre_first():
