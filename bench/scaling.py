@@ -46,7 +46,7 @@ from pathlib import Path
 import redis
 from fastapi.testclient import TestClient
 
-from bench.farm_speed import _wait, run_job, timed_runs
+from bench.farm_speed import _wait, local_seconds, run_job, timed_runs
 from services.api.main import create_app
 from services.farm.settings import Settings
 from services.farm.store import JobStore
@@ -198,29 +198,6 @@ def client_addresses(r: redis.Redis) -> set[str]:
 def pass_label(first: int, largest: int) -> str:
     """``8 spp`` (equal passes) or ``8-64 spp`` (passes growing from 8 to at most 64)."""
     return f"{first} spp" if largest <= first else f"{first}-{largest} spp"
-
-
-_LOCAL = """
-import json, sys, time
-from renderer.render import render_buffer
-from renderer.scene import load_scene
-from renderer.scene.compile import compile_scene
-cs = compile_scene(load_scene(json.loads(sys.stdin.read())))
-render_buffer(cs, 1)  # untimed: loads the kernels
-t0 = time.perf_counter()
-render_buffer(cs)
-print(time.perf_counter() - t0)
-"""
-
-
-def local_seconds(scene: dict, threads: int) -> float:
-    """Seconds ``render_buffer`` takes for the whole ``scene`` in a fresh process with
-    ``threads`` numba threads, kernels loaded, the scene compiled (what ``lucent render`` spends
-    rendering): the local render the farm is compared with."""
-    out = subprocess.run([sys.executable, "-c", _LOCAL], input=json.dumps(scene), cwd=ROOT,
-                         env={**os.environ, "NUMBA_NUM_THREADS": str(threads)},
-                         capture_output=True, text=True, check=True)
-    return float(out.stdout.split()[-1])
 
 
 def measure_farm(processes: int, shapes: list[tuple[int, int, int]], scene: dict, repeats: int,
