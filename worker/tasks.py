@@ -164,11 +164,14 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
         # Adaptive sampling: each pixel's share of this pass, from the tile's merged buffer
         counts = adaptive_counts(store, meta, tile, compiled.target_error, count)
         if counts is not None and not counts.any():
-            # Nothing to add: the pass is still stored and merged, empty, so the job's task
-            # count completes as planned.
+            # Nothing to add: the tile has converged. The pass is merged empty and the tile's
+            # later passes (never queued: each pass of a target job queues the next) count as
+            # merged too, so the job's task count completes as planned.
             merged = deliver(store, state.settings, job_id, tile, pass_index,
                              SampleBuffer.empty(x0, y0, w, h))
+            store.skip_passes(job_id, tile, pass_index + 1, meta.plan.n_passes)
             store.set_tile_state(job_id, tile, "done")
+            store.finish_if_complete(job_id)
             return "converged" if merged else "duplicate"
     t0 = time.perf_counter()
     buf = render_tile(compiled, x0, y0, w, h, start, count, counts)
@@ -177,6 +180,14 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
     state.count_pass(paths, seconds)
 
     merged = deliver(store, state.settings, job_id, tile, pass_index, buf)
+    if merged and compiled.target_error is not None and pass_index + 1 < meta.plan.n_passes:
+        # A job with a target error: the tile's next pass, queued once (by the merge that
+        # counted this one); it stops the tile when it finds nothing to add. A process that dies
+        # between the merge and this leaves the tile idle until the sweeper's stall rule queues
+        # its next pass again (merge.requeue_stalled).
+        render_pass.apply_async((job_id, tile, pass_index + 1),
+                                priority=celery_priority(meta.priority),
+                                queue=queue_for(meta.tags))
     # task_seconds - render_seconds: the per-task overhead (Redis, buffers, merge, bookkeeping).
     store.count(tasks_done=1, render_seconds=seconds, paths=paths,
                 task_seconds=time.perf_counter() - t_task)

@@ -31,7 +31,7 @@ from renderer.scene import Limits, SceneError, load_scene
 from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
 from services.farm.frames import PatchError, apply_patch
-from services.farm.planner import Plan, default_tile_size
+from services.farm.planner import Plan, chain_heads, default_tile_size
 from services.farm.pools import live_tag_sets, waiting_for
 from services.farm.queue import enqueue
 from services.farm.records import Records, RecordsUnavailable
@@ -192,7 +192,9 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
         with contextlib.suppress(RecordsUnavailable):
             records.delete(job_id)
         raise
-    enqueue(celery, job_id, plan.order(), options.priority, options.tags)
+    # A job with a target error queues each tile's first pass; each pass queues the next
+    order = plan.order() if scene.target_error is None else chain_heads(plan.order())
+    enqueue(celery, job_id, order, options.priority, options.tags)
     return meta
 
 
@@ -202,6 +204,8 @@ def retry_job(store: JobStore, celery: Celery, meta: JobMeta) -> str | None:
     if meta.status not in ("failed", "cancelled"):
         return f"job {meta.id} is {meta.status}: only failed or cancelled jobs can be retried"
     todo = store.reopen_job(meta.id)
+    if meta.target_error is not None:
+        todo = chain_heads(todo)  # the rest follow one after the other, as when it was queued
     enqueue(celery, meta.id, todo, meta.priority, meta.tags)
     store.finish_if_complete(meta.id)  # nothing was left to render
     return None

@@ -7,7 +7,9 @@ intervals (``worker.runtime``), and records which pass it renders when the pass 
 cut off from Redis, stops beating; once its hash has expired, each sweep
 (``services.farm.merge.sweep``) takes its holding and sends the pass again, unless the pass has
 been merged, its job has ended, or another delivery of it has begun since (a pool process killed
-alone has its message put back at once by Celery: ``task_reject_on_worker_lost``).
+alone has its message put back at once by Celery: ``task_reject_on_worker_lost``). A merged pass
+of a job with a target error has its tile's next pass sent instead, unless merged: the process
+may have died before queuing it (``queue.continue_chain``).
 
 Without this, the message of a pass whose whole node died stays in kombu's ``unacked`` hash for
 the visibility timeout (an hour), and the stall rule brings it back after ``stall_timeout`` (7
@@ -23,7 +25,7 @@ import logging
 
 from celery import Celery
 
-from services.farm.queue import enqueue
+from services.farm.queue import continue_chain, enqueue
 from services.farm.store import ACTIVE, JobStore
 
 log = logging.getLogger(__name__)
@@ -43,7 +45,12 @@ def requeue_lost(store: JobStore, celery: Celery) -> list[tuple[str, int, int]]:
             log.warning("worker %s held %r: not a pass", worker_id, held)
             continue
         meta = store.get_job(job_id)
-        if meta is None or meta.status not in ACTIVE or store.is_merged(job_id, tile, pass_index):
+        if meta is None or meta.status not in ACTIVE:
+            continue
+        if store.is_merged(job_id, tile, pass_index):
+            # Merged, then lost (perhaps before queuing its tile's next pass: a target job)
+            if continue_chain(store, celery, job_id, tile, pass_index):
+                sent.append((job_id, tile, pass_index + 1))
             continue
         if store.attempts(job_id, tile, pass_index) != attempt:
             continue  # delivered again since (the message put back when its process died)

@@ -39,7 +39,8 @@ from celery import Celery
 
 from renderer.film.buffer import SampleBuffer
 from services.farm.lost_workers import requeue_lost
-from services.farm.queue import enqueue, waiting_ahead
+from services.farm.planner import chain_heads
+from services.farm.queue import continue_chain, enqueue, waiting_ahead
 from services.farm.store import JobStore
 
 log = logging.getLogger(__name__)
@@ -95,6 +96,8 @@ def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
     if meta is None:
         return []
     todo = store.unmerged(job_id, meta.plan)
+    if meta.target_error is not None:
+        todo = chain_heads(todo)  # a job with a target: each tile's next pass, which queues on
     enqueue(rule.celery, job_id, todo, priority, tags)
     store.count(stall_requeues=1, passes_requeued=len(todo))
     log.warning("job %s stalled for %.0f s (%d in a row): %d unmerged passes sent again",
@@ -114,7 +117,11 @@ def sweep(store: JobStore, stall: StallRule | None = None) -> int:
             store.forget_pending(key)
             continue
         try:
-            merged += merge_pass(store, parts[1], int(parts[3]), int(parts[4]))
+            job_id, tile, pass_index = parts[1], int(parts[3]), int(parts[4])
+            if merge_pass(store, job_id, tile, pass_index):
+                merged += 1
+                if stall is not None:
+                    continue_chain(store, stall.celery, job_id, tile, pass_index)
         except Exception:  # a corrupt buffer must not stop the sweeper
             log.exception("cannot merge %s", key)
     if stall is not None:

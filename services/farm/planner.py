@@ -128,6 +128,17 @@ class Plan:
                 for t in tiles]
 
 
+def chain_heads(todo: list[tuple[int, int]]) -> list[tuple[int, int]]:
+    """Of ``(tile, pass)`` pairs, each tile's first pass, in the order given. A job with a target
+    error queues only these: its passes of a tile run one after the other, each queuing the next
+    once it has merged, and the first that finds the tile converged stops the tile
+    (``worker.tasks``), so a converged tile costs one task, not one per pass planned."""
+    first: dict[int, int] = {}
+    for tile, pass_index in todo:
+        first[tile] = min(pass_index, first.get(tile, pass_index))
+    return [(tile, pass_index) for tile, pass_index in todo if first[tile] == pass_index]
+
+
 # A job that names no tile size gets the farm's default (``LUCENT_DEFAULT_TILE_SIZE``) halved
 # while its frame would have fewer than MIN_TILES tiles, down to SMALLEST_DEFAULT_TILE px: a small
 # frame still gives every worker of a small farm tiles to render in its first pass.

@@ -8,7 +8,7 @@ from celery import Celery
 from services.farm.planner import celery_priority
 from services.farm.pools import queue_for
 from services.farm.settings import Settings
-from services.farm.store import JobStore
+from services.farm.store import ACTIVE, JobStore
 
 TASK = "worker.tasks.render_pass"
 
@@ -45,3 +45,19 @@ def waiting_ahead(app: Celery, store: JobStore, priority: int, tags: tuple[str, 
     sep = app.conf.broker_transport_options.get("sep", ":")
     return store.broker_messages([queue if level == 0 else f"{queue}{sep}{level}"
                                   for level in range(celery_priority(priority) + 1)])
+
+
+def continue_chain(store: JobStore, celery: Celery, job_id: str, tile: int,
+                   pass_index: int) -> bool:
+    """After a pass merged whose worker may not have queued the tile's next one (the sweeper
+    merged it, or its worker was lost): for a job with a target error, whose passes of a tile
+    queue one another (``planner.chain_heads``), queue the tile's next pass unless it is merged.
+    True if it did. (Sent twice, a pass is merged once, and only the merge that counts it queues
+    the pass after it.)"""
+    meta = store.get_job(job_id)
+    if (meta is None or meta.target_error is None or meta.status not in ACTIVE
+            or pass_index + 1 >= meta.plan.n_passes
+            or store.is_merged(job_id, tile, pass_index + 1)):
+        return False
+    enqueue(celery, job_id, [(tile, pass_index + 1)], meta.priority, meta.tags)
+    return True

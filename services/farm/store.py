@@ -146,6 +146,25 @@ end
 return 0
 """
 
+# A converged tile of a job with a target error (KEYS[1] the merged set, KEYS[2] the job hash,
+# KEYS[3] the tile states; ARGV[1] the tile, ARGV[2] its first pass to skip, ARGV[3] the passes
+# of a tile): its passes from ARGV[2] on count as merged, empty, and the tile is done. Only for
+# a queued or running job. Returns the passes newly counted.
+_SKIP_PASSES = """
+local status = redis.call('HGET', KEYS[2], 'status')
+if status ~= 'queued' and status ~= 'running' then return 0 end
+local n = 0
+for p = tonumber(ARGV[2]), tonumber(ARGV[3]) - 1 do
+  n = n + redis.call('SADD', KEYS[1], ARGV[1] .. ':' .. p)
+end
+if n > 0 then
+  redis.call('HINCRBY', KEYS[2], 'tasks_merged', n)
+  redis.call('HINCRBY', KEYS[2], 'version', 1)
+end
+redis.call('HSET', KEYS[3], ARGV[1], 'done')
+return n
+"""
+
 # What a merge reads, under its WATCH, in one round trip (KEYS: the merged set, the pass buffer,
 # the job hash, the tile's accumulation, tile_samples, tile_state, tile_err; ARGV: the pass's
 # member of the merged set, the tile): whether the pass is merged, the pass buffer, the job's
@@ -352,6 +371,7 @@ class JobStore:
         self._claim_stall = client.register_script(_CLAIM_STALL)
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
         self._set_running = client.register_script(_SET_RUNNING)
+        self._skip_passes = client.register_script(_SKIP_PASSES)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
         self._delete = client.register_script(_DELETE)
         self._note_failure = client.register_script(_NOTE_FAILURE)
@@ -737,6 +757,16 @@ class JobStore:
                   self.k("job", job_id, "tile_state")],
             args=[pass_member(tile, pass_index), time.time(), holder,
                   f"{job_id} {tile} {pass_index}", str(tile) if running else ""]))
+
+    def skip_passes(self, job_id: str, tile: int, first: int, n_passes: int) -> int:
+        """A converged tile of a job with a target error: its passes ``first`` … ``n_passes - 1``
+        count as merged (nothing to add: pass_member's set, ``tasks_merged``, ``version``) and the
+        tile is done, in one step; a pass already merged is not counted twice (the merged set
+        decides, as for every merge). Returns the passes newly counted."""
+        return int(self._skip_passes(
+            keys=[self.k("job", job_id, "merged"), self.job_key(job_id),
+                  self.k("job", job_id, "tile_state")],
+            args=[str(tile), first, n_passes]))
 
     def pass_view(self, job_id: str, tile: int, pass_index: int, node: str = ""
                   ) -> tuple[JobMeta | None, bool, bool]:

@@ -343,6 +343,83 @@ def test_stall_rule_requeues_then_fails_the_job(own_redis, prefix):
     store.r.close()
 
 
+def test_a_target_job_queues_only_each_tiles_first_pass(own_redis, prefix, tiny_scene):
+    """Submitted through the API (no workers): a job with a target error puts pass 0 of each
+    tile in the queue; the same job without one puts every planned pass."""
+    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None, **TIMINGS)
+    store = JobStore.from_url(own_redis.url, prefix)
+    target = copy.deepcopy(tiny_scene)
+    target["render"].update(spp=256, target_error=0.02)
+    with TestClient(create_app(settings)) as api:
+        job = api.post("/api/jobs", json={"scene": target, "tile_size": 8}).json()
+        assert job["passes"] > 1
+        assert sorted(_queued_passes(store, 0)) == [(job["id"], t, 0)
+                                                    for t in range(job["tiles"])]
+        store.r.delete(*_queue_keys(0))
+        plain = copy.deepcopy(target)
+        del plain["render"]["target_error"]
+        job = api.post("/api/jobs", json={"scene": plain, "tile_size": 8}).json()
+        assert len(_queued_passes(store, 0)) == job["tiles"] * job["passes"]
+
+
+def test_a_target_job_requeues_and_sweeps_one_pass_a_tile(own_redis, prefix):
+    """A job with a target error runs each tile's passes as a chain (each queues the next:
+    ``planner.chain_heads``). So the stall rule sends each tile's first unmerged pass only, the
+    sweeper that merges a pass its worker left behind queues the tile's next one, and a converged
+    tile's later passes count as merged in one step, once."""
+    from renderer.film.buffer import SampleBuffer
+    from services.farm.merge import sweep
+
+    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None, **TIMINGS)
+    store = JobStore.from_url(own_redis.url, prefix)
+    rule = StallRule(celery_client(settings), settings.stall_timeout,
+                     settings.max_stall_requeues)
+    plan = Plan(16, 16, 24, 8, 8)  # 4 tiles x 3 passes of 8
+    priority = 5
+    store.create_job("t", "", priority, plan, "{}", target_error=0.02)
+    t0 = time.time() - 10 * STALL_TIMEOUT
+    store.r.hset(store.job_key("t"), "created_at", t0)
+    store.r.sadd(store.k("job", "t", "merged"), "0:0", "1:0", "1:1")
+    sent = requeue_stalled(store, rule, "t", now=t0 + STALL_TIMEOUT + 0.5)
+    assert sorted(sent) == [(0, 1), (1, 2), (2, 0), (3, 0)]
+    assert sorted(_queued_passes(store, priority)) == [("t", t, p) for t, p in sorted(sent)]
+    store.r.delete(*_queue_keys(priority))
+
+    # A worker rendered tile 2's pass 0 and died before merging it: the sweeper merges it and
+    # queues pass 1 of tile 2, as the worker would have.
+    buf = SampleBuffer.empty(*plan.tile_rect(2))
+    buf.sum[:] = 1.0
+    buf.sum_sq[:] = 1.5
+    buf.count[:] = 8
+    store.put_pass("t", 2, 0, buf.to_bytes(), ttl=60)
+    assert sweep(store, rule) == 1
+    assert sorted(_queued_passes(store, priority)) == [("t", 2, 1)]
+    assert sweep(store, rule) == 0  # merged once, queued once
+    assert sorted(_queued_passes(store, priority)) == [("t", 2, 1)]
+
+    # A worker process merged tile 1's pass 2 (its last) and tile 0's pass 1, then died holding
+    # the latter: its heartbeat gone, the sweeper sends tile 0's pass 2 (it may never have been
+    # queued); a merged last pass sends nothing.
+    from services.farm.lost_workers import requeue_lost
+
+    store.r.delete(*_queue_keys(priority))
+    store.r.sadd(store.k("job", "t", "merged"), "0:1", "1:2")
+    store.r.hset(store.k("holding"), mapping={"gone:1": "t 0 1 1", "gone:2": "t 1 2 1"})
+    assert sorted(requeue_lost(store, rule.celery)) == [("t", 0, 2)]
+    assert sorted(_queued_passes(store, priority)) == [("t", 0, 2)]
+
+    # Tile 3 converged at its pass 1: passes 1 and 2 count as merged, the tile is done.
+    merged_before = store.get_job("t").tasks_merged
+    assert store.skip_passes("t", 3, 1, plan.n_passes) == 2
+    assert store.skip_passes("t", 3, 1, plan.n_passes) == 0
+    assert store.get_job("t").tasks_merged == merged_before + 2
+    assert store.r.hget(store.k("job", "t", "tile_state"), "3") == b"done"
+    assert store.r.sismember(store.k("job", "t", "merged"), "3:2")
+    # Not for a job that has ended
+    store.cancel_job("t")
+    assert store.skip_passes("t", 0, 1, plan.n_passes) == 0
+
+
 @pytest.mark.slow
 def test_a_lost_message_is_sent_again_when_its_job_stalls(own_redis, nodes, prefix, cornell):
     """The loss a worker node SIGKILLed between kombu's BRPOP and its ``unacked`` record causes,

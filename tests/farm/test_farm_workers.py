@@ -203,6 +203,31 @@ def test_workers_report_heartbeats(farm, farm_client, wait_until):
     assert all(w["host"] and w["pid"] and w["last_heartbeat"] for w in live)
 
 
+def test_a_target_job_runs_a_chain_of_passes_per_tile_not_every_planned_pass(
+        farm, farm_client, wait_for_job, tiny_scene):
+    """A job with a target error and room for many passes (4096 spp in passes of 16: 256 a
+    tile) queues only each tile's first pass; a pass that merges queues the tile's next, and the
+    first that finds the tile converged counts the rest as merged. So the workers run a few
+    passes a tile, not 256, and the job still completes its planned task count."""
+    scene = copy.deepcopy(tiny_scene)
+    scene["render"].update(spp=4096, target_error=0.02)
+    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 8, "spp_per_pass": 8,
+                                            "max_spp_per_pass": 16})
+    assert r.status_code == 201, r.text
+    planned = r.json()
+    assert planned["passes"] == 257  # 8, 8, then 255 of 16 (4096 − 16 = 255 × 16 + 16)
+    job = wait_for_job(farm_client, planned["id"])
+    assert job["status"] == "done", job
+    assert job["tasks_merged"] == job["tasks_total"] == 257 * planned["tiles"]
+    store = farm.store()
+    ran = sum(int(v) for v in store.r.hvals(store.k("job", job["id"], "attempts")))
+    # Each tile: the pilot, the passes that add samples, one that finds it converged
+    assert planned["tiles"] * 2 <= ran <= planned["tiles"] * 40, ran
+    frame, _ = assemble(store, job["id"])
+    assert (frame.count + frame.dropped).max() < 4096
+    assert 0 < job["expected_error"] <= 0.02
+
+
 def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job, tiny_scene):
     """With render.target_error, each pass renders only the pixels whose allocation lacks
     samples (renderer.film.adaptive.pass_counts on the tile's merged buffer, at the frame's scale

@@ -6,7 +6,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from services.farm.planner import MIN_TILES, Plan, celery_priority, default_tile_size
+from services.farm.planner import (
+    MIN_TILES,
+    Plan,
+    celery_priority,
+    chain_heads,
+    default_tile_size,
+)
 
 
 @pytest.mark.parametrize(("width", "height", "preferred", "size"), [
@@ -71,3 +77,15 @@ def test_passes_grow_from_the_first_to_the_largest_and_cover_every_sample():
     assert Plan(8, 8, 20, 8, 8, 8).passes == Plan(8, 8, 20, 8, 8).passes
     with pytest.raises(IndexError):
         Plan(8, 8, 20, 8, 8).sample_range(3)
+
+
+def test_chain_heads_keep_each_tiles_first_pass_in_order():
+    plan = Plan(width=32, height=16, spp=24, tile_size=8, spp_per_pass=8)  # 8 tiles x 3 passes
+    order = plan.order()
+    assert chain_heads(order) == order[:plan.n_tiles]  # pass 0 of every tile, centre first
+    todo = [tp for tp in order if tp not in {(order[0][0], 0), (order[1][0], 0), (order[1][0], 1)}]
+    heads = chain_heads(todo)
+    assert sorted(heads) == sorted([(order[0][0], 1), (order[1][0], 2)]
+                                   + [(t, 0) for t, _ in order[2:plan.n_tiles]])
+    assert heads == [tp for tp in todo if tp in set(heads)]  # in the order given
+    assert chain_heads([]) == []
