@@ -180,11 +180,11 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
     state.count_pass(paths, seconds)
 
     merged = deliver(store, state.settings, job_id, tile, pass_index, buf)
-    if merged and compiled.target_error is not None and pass_index + 1 < meta.plan.n_passes:
+    if merged and meta.target_error is not None and pass_index + 1 < meta.plan.n_passes:
         # A job with a target error: the tile's next pass, queued once (by the merge that
         # counted this one); it stops the tile when it finds nothing to add. A process that dies
-        # between the merge and this leaves the tile idle until the sweeper's stall rule queues
-        # its next pass again (merge.requeue_stalled).
+        # between the merge and this still holds the pass: once its heartbeat has expired the
+        # sweeper queues the next pass (lost_workers.requeue_lost, queue.continue_chain).
         render_pass.apply_async((job_id, tile, pass_index + 1),
                                 priority=celery_priority(meta.priority),
                                 queue=queue_for(meta.tags))
