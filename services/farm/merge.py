@@ -41,19 +41,23 @@ from renderer.film.buffer import SampleBuffer
 from services.farm.lost_workers import requeue_lost
 from services.farm.planner import chain_heads
 from services.farm.queue import continue_chain, enqueue, waiting_ahead
-from services.farm.store import JobStore
+from services.farm.store import MERGED_LAST, JobStore
 
 log = logging.getLogger(__name__)
 
 
-def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int) -> bool:
-    """Merge one pass buffer into its tile's accumulation if not merged yet. True if this call
-    merged it; False if it was merged already or there is no buffer to merge."""
-    if not store.merge_pass_buffer(job_id, tile, pass_index):
+def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int,
+               data: bytes | None = None) -> bool:
+    """Merge one pass buffer into its tile's accumulation if not merged yet (``data``: its bytes
+    as stored, when the caller has them). True if this call merged it; False if it was merged
+    already or there is no buffer to merge."""
+    merged = store.merge_pass_buffer(job_id, tile, pass_index, data)
+    if not merged:
         return False
-    # After the transaction, idempotent by itself (and redone by the sweeper if this process dies
-    # first): the job done once every pass is merged.
-    store.finish_if_complete(job_id)
+    if merged == MERGED_LAST:
+        # After the transaction, idempotent by itself (and redone by the sweeper if this process
+        # dies first): the job done once every pass is merged.
+        store.finish_if_complete(job_id)
     return True
 
 

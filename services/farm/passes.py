@@ -131,5 +131,6 @@ def deliver(store: JobStore, settings: Settings, job_id: str, tile: int, pass_in
             buf: SampleBuffer) -> bool:
     """Store the pass's buffer under its deterministic key and merge it; True if this call
     merged it (False: a duplicate)."""
-    store.put_pass(job_id, tile, pass_index, buf.to_bytes(), ttl=settings.pass_ttl)
-    return merge_pass(store, job_id, tile, pass_index)
+    data = buf.to_bytes()
+    store.put_pass(job_id, tile, pass_index, data, ttl=settings.pass_ttl)
+    return merge_pass(store, job_id, tile, pass_index, data)

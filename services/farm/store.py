@@ -167,13 +167,20 @@ return n
 
 # What a merge reads, under its WATCH, in one round trip (KEYS: the merged set, the pass buffer,
 # the job hash, the tile's accumulation, tile_samples, tile_state, tile_err; ARGV: the pass's
-# member of the merged set, the tile): whether the pass is merged, the pass buffer, the job's
-# status, spp and target_error, the accumulation, and the tile's samples, state and error summary.
+# member of the merged set, the tile, '1' when the caller has the pass's bytes): whether the pass
+# is merged, the pass buffer (or only whether it exists: 1 or 0), the job's status, spp,
+# target_error and tasks_total, the accumulation, and the tile's samples, state and error summary.
 _MERGE_READ = """
-return {redis.call('SISMEMBER', KEYS[1], ARGV[1]), redis.call('GET', KEYS[2]),
-        redis.call('HMGET', KEYS[3], 'status', 'spp', 'target_error'), redis.call('GET', KEYS[4]),
-        redis.call('HGET', KEYS[5], ARGV[2]), redis.call('HGET', KEYS[6], ARGV[2]),
-        redis.call('HGET', KEYS[7], ARGV[2])}
+local pass
+if ARGV[3] == '1' then
+  pass = redis.call('EXISTS', KEYS[2])
+else
+  pass = redis.call('GET', KEYS[2])
+end
+return {redis.call('SISMEMBER', KEYS[1], ARGV[1]), pass,
+        redis.call('HMGET', KEYS[3], 'status', 'spp', 'target_error', 'tasks_total'),
+        redis.call('GET', KEYS[4]), redis.call('HGET', KEYS[5], ARGV[2]),
+        redis.call('HGET', KEYS[6], ARGV[2]), redis.call('HGET', KEYS[7], ARGV[2])}
 """
 
 # Take a lost worker's holding (KEYS[1] the holding hash, ARGV[1] worker id, ARGV[2] the value
@@ -195,6 +202,9 @@ if n >= tonumber(ARGV[2]) then redis.call('SADD', KEYS[2], ARGV[1]) end
 return n
 """
 
+
+# ``merge_pass_buffer``'s answer when its merge counted the job's last task
+MERGED_LAST = 2
 
 # A job id as ``submit_job`` makes it (``uuid4().hex``). The API refuses any other form before it
 # becomes part of a key: ``<id>:scene`` would otherwise name the job's other keys.
@@ -798,12 +808,15 @@ class JobStore:
         pipe.execute()
         return key
 
-    def merge_pass_buffer(self, job_id: str, tile: int, pass_index: int) -> bool:
+    def merge_pass_buffer(self, job_id: str, tile: int, pass_index: int,
+                          data: bytes | None = None) -> int:
         """Add the pass buffer of (tile, pass_index) into its tile's merged buffer, mark it
         merged, update the tile's samples and state and the job's counters, in one transaction
-        (WATCH on the tile's buffer and the merged set, retried on a conflict). True if this call
-        merged it; False if it was merged already, there is no buffer, or the job is gone (the
-        pass buffer is then dropped)."""
+        (WATCH on the tile's buffer and the merged set, retried on a conflict). 0 (false) if it
+        was merged already, there is no buffer, or the job is gone (the pass buffer is then
+        dropped); else 1, or ``MERGED_LAST`` when this merge counted the job's last task.
+        ``data``: the pass buffer's bytes as stored (``put_pass``), when the caller has them,
+        so that the merge does not read them back (it still requires the stored buffer)."""
         r = self.r
         pass_key = self.pass_key(job_id, tile, pass_index)
         acc_key = self.acc_key(job_id, tile)
@@ -820,10 +833,14 @@ class JobStore:
                     # archived between the status read below and EXEC aborts the merge, which
                     # would otherwise write its keys (its hash too) back
                     pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
-                    (is_merged, data, (status, spp, target), acc_bytes, tile_samples,
+                    (is_merged, stored, (status, spp, target, total), acc_bytes, tile_samples,
                      tile_state, old_summary) = pipe.eval(
                         _MERGE_READ, 7, merged_key, pass_key, job_key, acc_key, samples_key,
-                        state_key, err_key, member, str(tile))
+                        state_key, err_key, member, str(tile), "1" if data is not None else "")
+                    if data is None:
+                        data = stored
+                    elif not stored:
+                        data = None  # expired, or merged and deleted by another call
                     # Merged already, no buffer (dropped or merged and deleted), or the job was
                     # deleted or is done: every pass of a done job was merged (this is a late
                     # duplicate) and its tile keys may be archived already.
@@ -832,7 +849,7 @@ class JobStore:
                         if data is not None:
                             r.delete(pass_key)
                         r.srem(self.k("pending"), pass_key)
-                        return False
+                        return 0
                     buf = SampleBuffer.from_bytes(data)
                     acc_bytes = pipe.get(acc_key)
                     if acc_bytes is None:
@@ -869,6 +886,7 @@ class JobStore:
                         pipe.hset(state_key, str(tile), "done")
                     elif requeue:
                         pipe.hset(state_key, str(tile), "queued")
+                    merged_at = len(pipe.command_stack)  # its reply's index in EXEC's
                     pipe.hincrby(job_key, "tasks_merged", 1)
                     pipe.hincrby(job_key, "samples_merged", int(buf.count.sum()))
                     pipe.hincrby(job_key, "dropped", int(buf.dropped.sum()))
@@ -879,11 +897,11 @@ class JobStore:
                         for name, d in zip(("err_sum", "root_sum", "quarter_sum", "err_pixels"),
                                            delta, strict=True):
                             pipe.hincrbyfloat(job_key, name, d)
-                    pipe.execute()
+                    replies = pipe.execute()
                     break
                 except redis.WatchError:
                     continue
-        return True
+        return MERGED_LAST if int(replies[merged_at]) >= int(total or 0) else 1
 
     def tile_buffer(self, job_id: str, tile: int) -> bytes | None:
         """The tile's merged buffer (``SampleBuffer.to_bytes``); None before its first merge."""

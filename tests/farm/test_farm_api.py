@@ -197,6 +197,25 @@ def test_a_tile_runs_only_while_a_pass_of_it_renders(store):
     assert store.tile_states(J1)[1] == "failed"
 
 
+def test_a_merge_given_the_bytes_still_needs_the_stored_pass_and_finishes_the_job(store):
+    """A worker hands its merge the bytes it stored, so the merge does not read them back; the
+    stored buffer still decides (gone: nothing merged), and the merge that counts the job's last
+    task makes it done."""
+    plan = _job(store, spp=8)  # 2 tiles x 1 pass
+    left = _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes()
+    right = _pass_buffer(8, 0, 8, 8, 8, 0.25).to_bytes()
+    assert not merge_pass(store, J1, 0, 0, left)  # never stored (or expired)
+    store.put_pass(J1, 0, 0, left, ttl=60)
+    assert merge_pass(store, J1, 0, 0, left)
+    assert not merge_pass(store, J1, 0, 0, left)  # merged once
+    assert store.get_status(J1) == "queued"
+    store.put_pass(J1, 1, 0, right, ttl=60)
+    assert merge_pass(store, J1, 1, 0, right)
+    assert store.get_status(J1) == "done" and store.get_job(J1).tasks_merged == plan.n_tasks == 2
+    frame, _ = assemble(store, J1)
+    assert np.allclose(frame.mean()[:, :8], 0.5) and np.allclose(frame.mean()[:, 8:], 0.25)
+
+
 def test_a_pass_written_twice_is_merged_once(store):
     plan = _job(store)
     buf = _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes()
