@@ -186,7 +186,12 @@ def assemble(store: JobStore, job_id: str, frame_index: int = 0
     plan = meta.plan
     frame = SampleBuffer.empty(0, 0, plan.width, plan.height)
     first = frame_index * plan.tiles_per_frame
-    for data in store.tile_buffers(job_id, plan.tiles_per_frame, first):
+    buffers = store.tile_buffers(job_id, plan.tiles_per_frame, first)
+    if not store.r.exists(store.job_key(job_id)):
+        # Archived, parked or deleted between the two reads: its buffers may have gone before
+        # they were read (a frame of missing tiles is not its image)
+        return None
+    for data in buffers:
         if data is not None:
             frame.add(SampleBuffer.from_bytes(data))
     return frame, meta.version

@@ -50,6 +50,38 @@ def archived(records, job_id: str) -> bool:
     return record is not None and bool(record.images)
 
 
+def test_an_image_read_while_its_job_is_archived_is_its_image(farm, tiny_scene, tmp_path,
+                                                               wait_for_job, monkeypatch):
+    """The API reads a done job's answer from Redis, then its tiles; archived in between (the
+    tiles deleted from Redis), the frame it would assemble has no tiles: it serves the archived
+    image instead, not a black frame."""
+    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
+    store = farm.store()
+    with TestClient(create_app(settings)) as client:
+        job_id = client.post("/api/jobs", json={"scene": own_scene(tiny_scene),
+                                                "tile_size": 16}).json()["id"]
+        assert wait_for_job(client, job_id)["status"] == "done"
+        before = {path: client.get(f"/api/jobs/{job_id}/{path}").content for path in IMAGES}
+        records, blobs = records_of(settings), FileBlobStore(settings.blob_path)
+        real = JobStore.tile_buffers
+        archived = []
+
+        def archived_first(self, job, n_tiles, first=0):
+            if job == job_id and not archived:
+                archived.append(None)  # (archive_job reads the tiles too)
+                archived[0] = archive_job(store, records, blobs, job_id)
+            return real(self, job, n_tiles, first)
+
+        monkeypatch.setattr(JobStore, "tile_buffers", archived_first)
+        r = client.get(f"/api/jobs/{job_id}/image.png")
+        assert archived == [True]
+        assert r.status_code == 200
+        assert r.content == before["image.png"]
+        monkeypatch.undo()
+        for path, old in before.items():  # and every image after, from the record
+            assert client.get(f"/api/jobs/{job_id}/{path}").content == old
+
+
 def test_a_done_job_leaves_redis_for_its_record(farm, tiny_scene, tmp_path, wait_for_job):
     # Only the sweep at start: the test archives by hand, between the two reads of the image.
     settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})

@@ -311,6 +311,12 @@ def _image(job_id: str, frame: int, fmt: str, request: Request, store: JobStore,
                                        "store")
         # The buffers are read after the version: the image is never older than its ETag says.
         assembled = assemble(store, job_id, frame)
+        if assembled is None and not meta.parked and not meta.images:
+            # Left Redis since its answer was read (archived or parked now): read its record
+            meta = _get_or_404(store, records, job_id)
+            content = final_image(blobs, meta, fmt, exposure, tonemap, frame)
+            if content is not None:
+                return Response(content=content, media_type=_MEDIA[fmt], headers=headers)
         if assembled is None and meta.parked:  # out of Redis: its tiles are in the blob store
             assembled = assemble_parked(blobs, meta, frame)
         if assembled is None:
