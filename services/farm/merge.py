@@ -187,9 +187,9 @@ def assemble(store: JobStore, job_id: str, frame_index: int = 0
     frame = SampleBuffer.empty(0, 0, plan.width, plan.height)
     first = frame_index * plan.tiles_per_frame
     buffers = store.tile_buffers(job_id, plan.tiles_per_frame, first)
-    if not store.r.exists(store.job_key(job_id)):
-        # Archived, parked or deleted between the two reads: its buffers may have gone before
-        # they were read (a frame of missing tiles is not its image)
+    if buffers is None:
+        # Archived, parked or deleted since its hash was read: a frame of missing tiles is not
+        # its image
         return None
     for data in buffers:
         if data is not None:

@@ -907,12 +907,17 @@ class JobStore:
         """The tile's merged buffer (``SampleBuffer.to_bytes``); None before its first merge."""
         return self.r.get(self.acc_key(job_id, tile))
 
-    def tile_buffers(self, job_id: str, n_tiles: int, first: int = 0) -> list[bytes | None]:
-        """The merged buffers of tiles ``first`` to ``first + n_tiles - 1``."""
+    def tile_buffers(self, job_id: str, n_tiles: int, first: int = 0
+                     ) -> list[bytes | None] | None:
+        """The merged buffers of tiles ``first`` to ``first + n_tiles - 1``, read in one
+        transaction with the job's hash; None when the job is no longer in Redis (archived,
+        parked or deleted: its buffers may be gone)."""
         pipe = self.r.pipeline()
+        pipe.exists(self.job_key(job_id))
         for t in range(first, first + n_tiles):
             pipe.get(self.acc_key(job_id, t))
-        return pipe.execute()
+        exists, *buffers = pipe.execute()
+        return buffers if exists else None
 
     def pending_passes(self) -> list[str]:
         """The keys of the pass buffers written and not merged yet."""
