@@ -88,7 +88,9 @@ class JobPublic(BaseModel):
     tasks_merged: int
     samples_planned: int
     samples_merged: int
-    progress: float = Field(description="samples merged / samples planned, 0–1")
+    progress: float = Field(description="samples merged / samples planned, 0–1; for a running "
+                                        "job with render.target_error, target / expected "
+                                        "error (0 before every pixel has an estimate)")
     samples_per_second: float | None
     eta_seconds: float | None
     dropped_samples: int = Field(description="non-finite samples left out")

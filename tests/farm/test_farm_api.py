@@ -4,6 +4,7 @@ against a real Redis."""
 from __future__ import annotations
 
 import threading
+import time
 import uuid
 
 import numpy as np
@@ -262,6 +263,30 @@ def test_the_last_merge_finishes_the_job_and_the_sweeper_merges_leftovers(store,
     assert sweep(store) == 0
     assert store.get_job(J1).status == "done"
     assert store.r.scard(store.k("pending")) == 0
+
+
+def test_a_target_jobs_progress_is_how_far_its_error_has_fallen(client, store):
+    """A job with render.target_error stops at its target, not at render.spp: its progress is
+    target / expected error (0 before every pixel has an estimate), its ETA the samples that
+    error still asks for at its rate; not samples merged / planned."""
+    plan = Plan(width=16, height=8, spp=4096, tile_size=8, spp_per_pass=8)
+    store.create_job(J1, "", 0, plan, "{}", target_error=0.02)
+    job = client.get(f"/api/jobs/{J1}").json()
+    assert job["progress"] == 0.0 and job["expected_error"] is None
+    now = time.time()
+    store.r.hset(store.job_key(J1), mapping={
+        "status": "running", "started_at": now - 2.0, "samples_merged": 16 * 8 * 64,
+        "err_sum": 0.08 * 128, "err_pixels": 128})  # every pixel: expected error 0.08
+    job = client.get(f"/api/jobs/{J1}").json()
+    assert job["expected_error"] == pytest.approx(0.08)
+    assert job["progress"] == pytest.approx(0.25)  # not 64 / 4096
+    rate = job["samples_per_second"]
+    assert job["eta_seconds"] == pytest.approx(16 * 8 * 64 * 3 / rate, rel=1e-6)
+    store.r.hset(store.job_key(J1), mapping={"err_sum": 0.01 * 128})  # below the target
+    assert client.get(f"/api/jobs/{J1}").json()["progress"] == 1.0
+    store.r.hset(store.job_key(J1), "status", "done")
+    job = client.get(f"/api/jobs/{J1}").json()
+    assert job["progress"] == 1.0 and job["eta_seconds"] == 0.0
 
 
 def test_a_failed_tile_is_reported_once_in_errors(client, store):

@@ -59,10 +59,21 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
     if meta.started_at and meta.samples_merged:
         rate = meta.samples_merged / max(end - meta.started_at, 1e-6)
     eta = None
-    if meta.status in ACTIVE and rate:
+    progress = meta.samples_merged / meta.samples_planned if meta.samples_planned else 1.0
+    target, expected = meta.target_error, meta.expected_error
+    if meta.status in ACTIVE and target is not None:
+        # A job with a target error stops when its error is reached, not at render.spp: its
+        # progress is how far the error has fallen (it falls as 1 / samples, so target / error
+        # is the share of the samples it needs that it has), 0 before every pixel has an estimate
+        progress = min(1.0, target / expected) if expected else 0.0
+        if rate and expected:
+            eta = max(0.0, meta.samples_merged * (expected / target - 1.0)) / rate
+    elif meta.status in ACTIVE and rate:
         eta = (meta.samples_planned - meta.samples_merged) / rate
     elif meta.status == "done":
         eta = 0.0
+        if target is not None:
+            progress = 1.0  # reached, whatever share of render.spp it took
     return JobPublic(
         id=meta.id, name=meta.name, status=meta.status, priority=meta.priority,  # type: ignore[arg-type]
         width=plan.width, height=plan.height, spp=plan.spp, tile_size=plan.tile_size,
@@ -72,8 +83,7 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         tiles=plan.n_tiles, frames=plan.frames, tasks_total=plan.n_tasks,
         tasks_merged=meta.tasks_merged, samples_planned=meta.samples_planned,
         samples_merged=meta.samples_merged,
-        progress=meta.samples_merged / meta.samples_planned if meta.samples_planned else 1.0,
-        samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
+        progress=progress, samples_per_second=rate, eta_seconds=eta, dropped_samples=meta.dropped,
         created_at=meta.created_at, started_at=meta.started_at, finished_at=meta.finished_at,
         error=meta.error, image_version=meta.version, methods=meta.methods,
         submitter=meta.submitter, tags=list(meta.tags),
