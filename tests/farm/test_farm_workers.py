@@ -226,6 +226,16 @@ def test_a_target_job_runs_a_chain_of_passes_per_tile_not_every_planned_pass(
     frame, _ = assemble(store, job["id"])
     assert (frame.count + frame.dropped).max() < 4096
     assert 0 < job["expected_error"] <= 0.02
+    assert job["progress"] == 1.0  # reached, at a small share of render.spp's samples
+    # Archived (out of Redis, its record answers): the same target, error and progress
+    from services.farm.archive import archive_job
+    from services.farm.blobs import open_blob_store
+
+    assert archive_job(store, farm.records(), open_blob_store(farm.settings.blob_location),
+                       job["id"])
+    after = farm_client.get(f"/api/jobs/{job['id']}").json()
+    assert (after["target_error"], after["expected_error"], after["progress"]) == (
+        0.02, job["expected_error"], 1.0)
 
 
 def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job, tiny_scene):

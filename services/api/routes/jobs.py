@@ -60,7 +60,11 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         rate = meta.samples_merged / max(end - meta.started_at, 1e-6)
     eta = None
     progress = meta.samples_merged / meta.samples_planned if meta.samples_planned else 1.0
-    target, expected = meta.target_error, meta.expected_error
+    # (a job's record keeps them in its tiles' summary once it leaves Redis)
+    target = (meta.target_error if meta.target_error is not None
+              else meta.tiles_final.get("target_error"))
+    expected = (meta.expected_error if meta.expected_error is not None
+                else meta.tiles_final.get("expected_error"))
     if meta.status in ACTIVE and target is not None:
         # A job with a target error stops when its error is reached, not at render.spp: its
         # progress is how far the error has fallen (it falls as 1 / samples, so target / error
@@ -89,10 +93,7 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         submitter=meta.submitter, tags=list(meta.tags),
         # (a job's record keeps them in its tiles' summary once it leaves Redis)
         denoise=meta.denoise or bool(meta.tiles_final.get("denoise")),
-        target_error=(meta.target_error if meta.target_error is not None
-                      else meta.tiles_final.get("target_error")),
-        expected_error=(meta.expected_error if meta.expected_error is not None
-                        else meta.tiles_final.get("expected_error")),
+        target_error=target, expected_error=expected,
         waiting_for=(waiting_for(meta.tags, live_tags)
                      if live_tags is not None and meta.status in ACTIVE else None),
     )
