@@ -125,7 +125,8 @@ return stalls
 # (KEYS[2] job hash, ARGV[2] now) unless its hash is gone: a deleted job is not brought back
 # (0: the pass renders, and its merge drops it). With a holder (ARGV[3], a worker id), record in
 # the same step that it holds the pass (KEYS[3] the holding hash, value ``ARGV[4] attempt``), so
-# that no worker can die holding a pass unseen.
+# that no worker can die holding a pass unseen. With a tile (ARGV[5]), the tile becomes running
+# if it is queued (KEYS[4] the tile states): a done tile stays done when a late duplicate runs.
 _ADD_ATTEMPT = """
 if redis.call('EXISTS', KEYS[2]) == 0 then return 0 end
 local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
@@ -135,15 +136,6 @@ if ARGV[5] ~= '' and redis.call('HGET', KEYS[4], ARGV[5]) == 'queued' then
   redis.call('HSET', KEYS[4], ARGV[5], 'running')
 end
 return n
-"""
-
-# Only a queued tile becomes running (KEYS[1] the tile states, ARGV[1] the tile): a done tile
-# stays done when a late duplicate runs.
-_SET_RUNNING = """
-if redis.call('HGET', KEYS[1], ARGV[1]) == 'queued' then
-  redis.call('HSET', KEYS[1], ARGV[1], 'running')
-end
-return 0
 """
 
 # A converged tile of a job with a target error (KEYS[1] the merged set, KEYS[2] the job hash,
@@ -380,7 +372,6 @@ class JobStore:
         self._transition = client.register_script(_TRANSITION)
         self._claim_stall = client.register_script(_CLAIM_STALL)
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
-        self._set_running = client.register_script(_SET_RUNNING)
         self._skip_passes = client.register_script(_SKIP_PASSES)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
         self._delete = client.register_script(_DELETE)
@@ -742,10 +733,6 @@ class JobStore:
     def set_tile_state(self, job_id: str, tile: int, state: str) -> None:
         self.r.hset(self.k("job", job_id, "tile_state"), str(tile), state)
 
-    def set_tile_running(self, job_id: str, tile: int) -> None:
-        """A queued tile becomes running (a done or failed one stays as it is)."""
-        self._set_running(keys=[self.k("job", job_id, "tile_state")], args=[str(tile)])
-
     def fail_tile(self, job_id: str, tile: int, reason: str) -> None:
         pipe = self.r.pipeline()
         pipe.hset(self.k("job", job_id, "tile_state"), str(tile), "failed")
@@ -761,7 +748,8 @@ class JobStore:
         """Count a delivery of the pass that is about to run; it is also a sign of life of the
         job (``active_at``: the sweeper's stall clock starts again). ``holder``: the worker
         process that runs it, recorded as holding the pass until ``release_pass``. ``running``:
-        in the same step, the tile becomes running if it is queued (``set_tile_running``)."""
+        in the same step, the tile becomes running if it is queued (a done or failed tile stays
+        as it is: a late duplicate does not reopen it)."""
         return int(self._add_attempt(
             keys=[self.k("job", job_id, "attempts"), self.job_key(job_id), self.k("holding"),
                   self.k("job", job_id, "tile_state")],

@@ -183,12 +183,12 @@ def test_a_tile_runs_only_while_a_pass_of_it_renders(store):
     queued again (the dashboard once showed every started tile as running until its last pass),
     and its last merge makes it done. A failed tile stays failed."""
     _job(store)
-    store.set_tile_running(J1, 0)
+    store.add_attempt(J1, 0, 0, running=True)  # a worker begins pass 0 (begin_pass)
     assert store.tile_states(J1)[0] == "running"
     store.put_pass(J1, 0, 0, _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
     assert merge_pass(store, J1, 0, 0)
     assert store.tile_states(J1)[0] == "queued"
-    store.set_tile_running(J1, 0)
+    store.add_attempt(J1, 0, 1, running=True)
     store.put_pass(J1, 0, 1, _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
     assert merge_pass(store, J1, 0, 1)
     assert store.tile_states(J1)[0] == "done"
@@ -350,7 +350,7 @@ def test_status_has_an_etag_that_changes_with_the_answer_and_304_otherwise(clien
     store = client.app.state.store
     seen = {etag}
     for change in (lambda: store.note_tile_error(job_id, 1, "try 1: boom"),
-                   lambda: store.set_tile_running(job_id, 2),
+                   lambda: store.add_attempt(job_id, 2, 0, running=True),
                    lambda: client.delete(f"/api/jobs/{job_id}")):
         change()
         r = client.get(f"/api/jobs/{job_id}", headers={"If-None-Match": etag})
