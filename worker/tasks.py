@@ -78,13 +78,36 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
 
     Returns what happened (``merged``, ``duplicate``, ``skipped: <status>``, ``failed``), for logs.
     """
-    try:
-        return _render_pass(job_id, tile, pass_index)
-    except REDIS_DOWN as err:
-        # Put the message back rather than let Celery acknowledge a failed task: acknowledged,
-        # the pass would never run again and its job would never finish. If Redis is still down
-        # the message stays unacknowledged, and comes back after the visibility timeout.
-        raise Reject(f"Redis unreachable: {err}", requeue=True) from err
+    state = runtime.STATE
+    deadline = time.monotonic() + state.settings.redis_outage_wait
+    while True:
+        try:
+            return _render_pass(job_id, tile, pass_index)
+        except REDIS_DOWN as err:
+            # Redis went away mid-pass (restarted, a network cut). The message cannot be given
+            # back meanwhile: its channel died with the connection, so a rejection is lost and
+            # the message waits in kombu's unacked hash for the stall rule (minutes) or the
+            # visibility timeout (an hour). Wait for Redis and run the pass again instead: it is
+            # idempotent, and its message, unacknowledged, comes back later as a duplicate.
+            if not _wait_for_redis(state.store, deadline):
+                raise Reject(f"Redis unreachable: {err}", requeue=True) from err
+            log.warning("Redis was unreachable during job %s tile %d pass %d (%s); it is back: "
+                        "running the pass again", job_id, tile, pass_index, err)
+
+
+def _wait_for_redis(store, deadline: float) -> bool:
+    """Ping Redis until it answers (True) or ``deadline`` (``time.monotonic``) passes (False)."""
+    pause = 0.1
+    while True:
+        try:
+            store.ping()
+            return True
+        except REDIS_DOWN:
+            left = deadline - time.monotonic()
+            if left <= 0:
+                return False
+            time.sleep(min(pause, left))
+            pause = min(2 * pause, 2.0)
 
 
 def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
@@ -110,7 +133,7 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
         state.set_task(f"{job_id}/{tile}/{pass_index}")
         return _render_and_merge(state, delivery.meta, tile, pass_index, t_task)
     except REDIS_DOWN:
-        raise  # not the pass's fault: no try is spent on recording it
+        raise  # not the pass's fault: not recorded as a failure (render_pass runs it again)
     except Exception as err:  # every other failure is recorded on the tile
         assert isinstance(delivery, Delivery)
         reason = ("timed out" if isinstance(err, SoftTimeLimitExceeded)

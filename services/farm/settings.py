@@ -132,6 +132,12 @@ class Settings(BaseSettings):
     """Stall re-queues of one job in a row (no pass started or merged in between) before the job
     fails with the reason: a pass that is lost every time does not loop forever."""
 
+    redis_outage_wait: float = Field(default=60.0, ge=0)
+    """Seconds a worker process waits for Redis to come back when it goes away during a pass
+    (restarted, a network cut), then runs the pass again from its start. Past it the message is
+    given back: it stays in kombu's ``unacked`` hash, and comes back after the stall rule or the
+    visibility timeout. The pass's own time limits still bound the wait."""
+
     heartbeat_interval: float = 2.0
     """Seconds between worker heartbeats; a worker silent for 3 intervals is shown as lost."""
 

@@ -702,6 +702,63 @@ def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
         server.stop()
 
 
+def test_a_pass_caught_by_a_redis_restart_waits_for_redis_and_merges(tmp_path, prefix, cornell,
+                                                                     monkeypatch):
+    """Redis SIGKILLed while a worker process talks to it at the start of a pass (as
+    ``lucent up``'s test caught it): the task cannot give its message back (its channel died with
+    the connection; the message waits in kombu's unacked hash for the stall rule, 7 minutes by
+    default), so it waits for Redis and runs the pass again. Without that the task raised
+    ``Reject`` and the job's last pass came minutes later."""
+    from celery.exceptions import Reject
+
+    from worker import runtime, tasks
+
+    data = tmp_path / "redis"
+    data.mkdir()
+    server = EmbeddedRedis(data_dir=str(data), appendonly=True).start()
+    servers = [server]
+    done = threading.Event()
+    store = JobStore.from_url(server.url, prefix)
+    state = runtime.WorkerState()
+    state.settings = Settings(redis_url=server.url, key_prefix=prefix, redis_outage_wait=30,
+                              **TIMINGS)
+    monkeypatch.setattr(runtime, "STATE", state)
+    try:
+        with _api(server.url, prefix) as api:
+            job_id = _submit(api, _scene(cornell, 16, 16, 4), 16, 4)
+        view = state.store.pass_view
+        calls = []
+
+        def restarted() -> None:
+            time.sleep(1.0)
+            servers.append(EmbeddedRedis(port=server.port, data_dir=server.data_dir,
+                                         appendonly=True).start())
+            # redis-server dies with the thread that started it (its parent-death signal)
+            done.wait()
+
+        def redis_dies_here(*args):
+            calls.append(args)
+            if len(calls) == 1:
+                server.proc.kill()
+                server.proc.wait()
+                threading.Thread(target=restarted, daemon=True).start()
+            return view(*args)
+
+        monkeypatch.setattr(state.store, "pass_view", redis_dies_here)
+        try:
+            result = tasks.render_pass(job_id, 0, 0)
+        except Reject as err:
+            raise AssertionError(f"the pass was given up: {err}") from None
+        assert result == "merged" and len(calls) == 2
+        assert store.is_merged(job_id, 0, 0) and store.get_job(job_id).tasks_merged == 1
+    finally:
+        store.r.close()
+        state.store.close()
+        for s in servers:
+            s.stop()
+        done.set()
+
+
 @pytest.mark.slow
 def test_redis_restarted_without_persistence_loses_the_job_clearly(tmp_path, prefix, cornell):
     """Without persistence a restarted Redis is empty: the job's in-flight state (its hash,
