@@ -22,8 +22,11 @@ nothing in Celery sends it again; so does one killed while it holds the restore 
 nodes restore nothing for ``unacked_mutex_expire``, 300 s). The service knows every planned
 (tile, pass) and which are merged, so ``requeue_stalled`` sends again the unmerged passes of a job
 that has been idle (no pass started or merged) for ``stall_timeout`` while no message of its
-priority or above waits in the queue; merging once makes the duplicates harmless. The same rule
-brings back, before the visibility timeout, the passes of a worker node that died as a whole.
+priority or above waits in the queue, or for ``stall_unheld_timeout`` (30 s) if besides no live
+worker process holds a pass of it; merging once makes the duplicates harmless. The same rule
+brings back, before the visibility timeout, the passes of a worker node that died as a whole,
+and a message left in kombu's ``unacked`` hash by a task whose Redis connection died (its
+acknowledgement or rejection lost with the channel).
 """
 
 from __future__ import annotations
@@ -64,11 +67,19 @@ def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int,
 @dataclass(frozen=True)
 class StallRule:
     """When the sweeper re-queues a job's passes (``Settings.stall_timeout``,
-    ``Settings.max_stall_requeues``) and the Celery app it sends them with."""
+    ``Settings.max_stall_requeues``, ``Settings.stall_unheld_timeout``) and the Celery app it
+    sends them with."""
 
     celery: Celery
     timeout: float
     max_requeues: int
+    unheld_timeout: float | None = None
+    """The stall time of a job no live worker process renders a pass of; None: ``timeout``."""
+
+    @property
+    def shortest(self) -> float:
+        return self.timeout if self.unheld_timeout is None else min(self.timeout,
+                                                                    self.unheld_timeout)
 
 
 def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
@@ -77,23 +88,30 @@ def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
     ``max_requeues`` stalls in a row, fail the job with the reason instead.
 
     Stalled: queued or running, no pass of it started or merged for ``rule.timeout`` (longer than
-    a pass may run), and no message at its priority level or above in the queue, so that none of
-    its passes can be waiting behind other work. The re-queue does not spend a try of a pass
-    (``attempts`` counts deliveries that run), and a pass delivered twice is merged once."""
+    a pass may run), or for ``rule.unheld_timeout`` while no live worker process holds a pass of
+    it (none can be running: a message stuck in kombu's ``unacked`` hash, or lost), and no
+    message at its priority level or above in the queue, so that none of its passes can be
+    waiting behind other work. The re-queue does not spend a try of a pass (``attempts`` counts
+    deliveries that run), and a pass delivered twice is merged once."""
     now = time.time() if now is None else now
     clock = store.stall_clock(job_id)
     if clock is None:
         return []
     priority, since, tags = clock
-    if now - since < rule.timeout:
+    if now - since < rule.shortest:
         return []  # the cheap test first: the queue is looked at only for idle jobs
+    timeout = rule.timeout
+    if now - since < timeout:
+        if store.job_held(job_id):
+            return []  # a live worker renders a pass of it: wait for the pass's time limit
+        timeout = rule.shortest
     if waiting_ahead(rule.celery, store, priority, tags):
         return []
-    stalls = store.claim_stall(job_id, rule.timeout, now)
+    stalls = store.claim_stall(job_id, timeout, now)
     if not stalls:
         return []  # another sweeper claimed it, or the job moved meanwhile
     if stalls > rule.max_requeues:
-        store.fail_job(job_id, f"stalled: no pass started or merged for {rule.timeout:g} s "
+        store.fail_job(job_id, f"stalled: no pass started or merged for {timeout:g} s "
                        f"after {rule.max_requeues} re-queues of its unmerged passes")
         return []
     meta = store.get_job(job_id)

@@ -128,6 +128,13 @@ class Settings(BaseSettings):
     of its passes waiting in Celery's queue, before the sweeper re-queues its unmerged passes
     (a message lost by the broker; a worker node lost as a whole). Above ``task_time_limit``."""
 
+    stall_unheld_timeout: float = Field(default=30.0, gt=0)
+    """The stall time of a job none of whose passes a live worker process holds (records as
+    rendering: ``JobStore.job_held``): nothing of it can be running, so there is no pass's time
+    limit to wait for. A message stuck in kombu's ``unacked`` hash (its worker lost Redis, or
+    died with it), or lost between ``BRPOP`` and kombu's record of it, comes back within this
+    and a sweep. Used as at most ``stall_timeout``; above ``sweep_interval``."""
+
     max_stall_requeues: int = Field(default=3, ge=1)
     """Stall re-queues of one job in a row (no pass started or merged in between) before the job
     fails with the reason: a pass that is lost every time does not loop forever."""
@@ -267,9 +274,10 @@ class Settings(BaseSettings):
         if not self.task_time_limit < self.stall_timeout:
             raise ValueError("need task_time_limit < stall_timeout (a running pass is not "
                              f"stalled; got {self.task_time_limit}, {self.stall_timeout})")
-        if not self.sweep_interval < self.stall_timeout:
-            raise ValueError("need sweep_interval < stall_timeout "
-                             f"(got {self.sweep_interval}, {self.stall_timeout})")
+        if not self.sweep_interval < min(self.stall_timeout, self.stall_unheld_timeout):
+            raise ValueError("need sweep_interval < stall_timeout and stall_unheld_timeout "
+                             f"(got {self.sweep_interval}, {self.stall_timeout}, "
+                             f"{self.stall_unheld_timeout})")
         return self
 
 

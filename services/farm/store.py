@@ -839,7 +839,6 @@ class JobStore:
                         r.srem(self.k("pending"), pass_key)
                         return 0
                     buf = SampleBuffer.from_bytes(data)
-                    acc_bytes = pipe.get(acc_key)
                     if acc_bytes is None:
                         acc = buf
                     else:
@@ -962,6 +961,16 @@ class JobStore:
             pipe.exists(self.k("worker", worker_id))
         return {w: v for (w, v), alive in zip(held.items(), pipe.execute(), strict=True)
                 if not alive}
+
+    def job_held(self, job_id: str) -> bool:
+        """Whether a worker process whose heartbeat has not expired holds a pass of the job (it
+        is rendering it, or about to: ``add_attempt`` records the holding)."""
+        prefix = f"{job_id} "
+        holders = [k.decode() for k, v in self.r.hgetall(self.k("holding")).items()
+                   if v.decode().startswith(prefix)]
+        if not holders:
+            return False
+        return bool(self.r.exists(*(self.k("worker", w) for w in holders)))
 
     def claim_holding(self, worker_id: str, value: str) -> bool:
         """Take the lost worker's holding if it is still ``value``; True for one caller only."""

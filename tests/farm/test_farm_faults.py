@@ -343,6 +343,48 @@ def test_stall_rule_requeues_then_fails_the_job(own_redis, prefix):
     store.r.close()
 
 
+def test_a_job_no_live_worker_renders_stalls_sooner(own_redis, prefix):
+    """The stall time of a job none of whose passes a live worker process holds is
+    ``unheld_timeout``, not the full one (which waits out a running pass's time limit): nothing
+    of it can be running, e.g. its last message sits in kombu's unacked hash after its worker
+    lost Redis. A pass held by a worker whose heartbeat has expired does not count."""
+    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None, **TIMINGS)
+    store = JobStore.from_url(own_redis.url, prefix)
+    rule = StallRule(celery_client(settings), STALL_TIMEOUT, 3, unheld_timeout=2.0)
+    plan = Plan(16, 16, 8, 8, 4)  # 4 tiles x 2 passes
+    store.create_job("u", "", 0, plan, "{}")
+    store.r.hset(store.job_key("u"), "created_at", time.time() - 100)
+    todo = plan.order()
+    # A live worker holds one of its passes: only the full stall time counts.
+    store.heartbeat("w1", {"state": "busy"}, ttl=600)
+    store.add_attempt("u", 0, 0, holder="w1")
+    assert store.job_held("u")
+    active = float(store.r.hget(store.job_key("u"), "active_at"))
+    assert requeue_stalled(store, rule, "u", now=active + 3) == []
+    assert requeue_stalled(store, rule, "u", now=active + STALL_TIMEOUT + 0.1) == todo
+    store.r.delete(*_queue_keys(0))
+    since = active + STALL_TIMEOUT + 0.1
+    # Its worker's heartbeat expired: the holding no longer counts.
+    store.r.delete(store.k("worker", "w1"))
+    assert not store.job_held("u")
+    assert requeue_stalled(store, rule, "u", now=since + 1.9) == []
+    assert requeue_stalled(store, rule, "u", now=since + 2.1) == todo
+    store.r.delete(*_queue_keys(0))
+    # Held by nobody (a pass of another job held does not count), and nothing queued.
+    store.release_pass("w1")
+    store.heartbeat("w2", {"state": "busy"}, ttl=600)
+    store.create_job("other", "", 0, plan, "{}")
+    store.add_attempt("other", 0, 0, holder="w2")
+    assert not store.job_held("u")
+    assert requeue_stalled(store, rule, "u", now=since + 4.3) == todo
+    store.r.delete(*_queue_keys(0))
+    assert requeue_stalled(store, rule, "u", now=since + 6.5) == []  # the 4th in a row fails it
+    meta = store.get_job("u")
+    assert meta.status == "failed" and meta.error.startswith(
+        "stalled: no pass started or merged for 2 s after 3 re-queues"), meta.error
+    store.r.close()
+
+
 def test_a_target_job_queues_only_each_tiles_first_pass(own_redis, prefix, tiny_scene):
     """Submitted through the API (no workers): a job with a target error puts pass 0 of each
     tile in the queue; the same job without one puts every planned pass."""
