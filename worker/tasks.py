@@ -80,15 +80,17 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
     """
     state = runtime.STATE
     deadline = time.monotonic() + state.settings.redis_outage_wait
+    begun: dict[str, bool] = {}  # "counted": begin_pass has counted this delivery
     while True:
         try:
-            return _render_pass(job_id, tile, pass_index)
+            return _render_pass(job_id, tile, pass_index, begun)
         except REDIS_DOWN as err:
             # Redis went away mid-pass (restarted, a network cut). The message cannot be given
             # back meanwhile: its channel died with the connection, so a rejection is lost and
             # the message waits in kombu's unacked hash for the stall rule (minutes) or the
             # visibility timeout (an hour). Wait for Redis and run the pass again instead: it is
-            # idempotent, and its message, unacknowledged, comes back later as a duplicate.
+            # idempotent, and its message, unacknowledged, comes back later as a duplicate. The
+            # outage is not the pass's fault: a delivery already counted is not counted again.
             if not _wait_for_redis(state.store, deadline):
                 raise Reject(f"Redis unreachable: {err}", requeue=True) from err
             log.warning("Redis was unreachable during job %s tile %d pass %d (%s); it is back: "
@@ -110,7 +112,7 @@ def _wait_for_redis(store, deadline: float) -> bool:
             pause = min(2 * pause, 2.0)
 
 
-def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
+def _render_pass(job_id: str, tile: int, pass_index: int, begun: dict[str, bool]) -> str:
     t_task = time.perf_counter()
     state = runtime.STATE
     store = state.store
@@ -118,7 +120,9 @@ def _render_pass(job_id: str, tile: int, pass_index: int) -> str:
 
     node = runtime.NODE or state.worker_id
     delivery = begin_pass(store, settings, job_id, tile, pass_index, holder=state.worker_id,
-                          node=node)
+                          node=node, count=not begun.get("counted"))
+    if isinstance(delivery, Delivery):
+        begun["counted"] = True
     try:
         if isinstance(delivery, str):
             return delivery

@@ -43,12 +43,14 @@ class HandBack:
 
 
 def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
-               pass_index: int, holder: str = "", node: str = "") -> Delivery | HandBack | str:
+               pass_index: int, holder: str = "", node: str = "",
+               count: bool = True) -> Delivery | HandBack | str:
     """A ``Delivery`` to render, a ``HandBack``, or what happened instead (``skipped: …``,
     ``duplicate``, ``failed``), for the logs. ``holder``: the worker process, recorded as holding
     the pass from the moment its delivery is counted until ``end_pass`` (a holder whose heartbeat
     expires meanwhile has its pass sent again: ``services.farm.lost_workers``). ``node``: its
-    worker node, the blocklist's unit."""
+    worker node, the blocklist's unit. ``count=False``: a delivery already counted, begun again
+    after a Redis outage (not a try of its own)."""
     meta, blocked, merged = store.pass_view(job_id, tile, pass_index, node)
     if meta is None or meta.status in FINAL:
         return f"skipped: {meta.status if meta else 'no such job'}"
@@ -69,7 +71,7 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
     # deliveries that run are counted (one lost by the broker, then re-queued by the sweeper, is
     # not), and counting one marks the job alive for the sweeper's stall rule.
     # (and the tile becomes running if it is queued, in the same step)
-    attempt = store.add_attempt(job_id, tile, pass_index, holder, running=True)
+    attempt = store.add_attempt(job_id, tile, pass_index, holder, running=True, count=count)
     if attempt > settings.max_attempts:
         store.fail_tile(job_id, tile, f"pass {pass_index} gave up after {attempt - 1} tries "
                         "(its worker was lost or timed out each time)")

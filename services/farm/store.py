@@ -127,9 +127,10 @@ return stalls
 # the same step that it holds the pass (KEYS[3] the holding hash, value ``ARGV[4] attempt``), so
 # that no worker can die holding a pass unseen. With a tile (ARGV[5]), the tile becomes running
 # if it is queued (KEYS[4] the tile states): a done tile stays done when a late duplicate runs.
+# ARGV[6]: 1 to count the delivery, 0 for the same delivery begun again (the tries so far).
 _ADD_ATTEMPT = """
 if redis.call('EXISTS', KEYS[2]) == 0 then return 0 end
-local n = redis.call('HINCRBY', KEYS[1], ARGV[1], 1)
+local n = redis.call('HINCRBY', KEYS[1], ARGV[1], tonumber(ARGV[6]))
 redis.call('HSET', KEYS[2], 'active_at', ARGV[2])
 if ARGV[3] ~= '' then redis.call('HSET', KEYS[3], ARGV[3], ARGV[4] .. ' ' .. n) end
 if ARGV[5] ~= '' and redis.call('HGET', KEYS[4], ARGV[5]) == 'queued' then
@@ -744,17 +745,19 @@ class JobStore:
         self.r.hset(self.k("job", job_id, "tile_error"), str(tile), reason)
 
     def add_attempt(self, job_id: str, tile: int, pass_index: int, holder: str = "",
-                    running: bool = False) -> int:
+                    running: bool = False, count: bool = True) -> int:
         """Count a delivery of the pass that is about to run; it is also a sign of life of the
         job (``active_at``: the sweeper's stall clock starts again). ``holder``: the worker
         process that runs it, recorded as holding the pass until ``release_pass``. ``running``:
         in the same step, the tile becomes running if it is queued (a done or failed tile stays
-        as it is: a late duplicate does not reopen it)."""
+        as it is: a late duplicate does not reopen it). ``count=False``: the same delivery begun
+        again (after a Redis outage), not counted; returns the tries so far."""
         return int(self._add_attempt(
             keys=[self.k("job", job_id, "attempts"), self.job_key(job_id), self.k("holding"),
                   self.k("job", job_id, "tile_state")],
             args=[pass_member(tile, pass_index), time.time(), holder,
-                  f"{job_id} {tile} {pass_index}", str(tile) if running else ""]))
+                  f"{job_id} {tile} {pass_index}", str(tile) if running else "",
+                  1 if count else 0]))
 
     def skip_passes(self, job_id: str, tile: int, first: int, n_passes: int) -> int:
         """A converged tile of a job with a target error: its passes ``first`` … ``n_passes - 1``

@@ -744,13 +744,14 @@ def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
         server.stop()
 
 
+@pytest.mark.parametrize("where", ["pass_view", "put_pass"])
 def test_a_pass_caught_by_a_redis_restart_waits_for_redis_and_merges(tmp_path, prefix, cornell,
-                                                                     monkeypatch):
-    """Redis SIGKILLed while a worker process talks to it at the start of a pass (as
-    ``lucent up``'s test caught it): the task cannot give its message back (its channel died with
-    the connection; the message waits in kombu's unacked hash for the stall rule, 7 minutes by
-    default), so it waits for Redis and runs the pass again. Without that the task raised
-    ``Reject`` and the job's last pass came minutes later."""
+                                                                     monkeypatch, where):
+    """Redis SIGKILLed while a worker process talks to it, at the start of a pass (as ``lucent
+    up``'s test caught it) or once rendered: the task cannot give its message back (its channel
+    died with the connection; the message waits in kombu's unacked hash for the stall rule), so
+    it waits for Redis and runs the pass again, without counting the same delivery twice as a
+    try. Without that the task raised ``Reject`` and the job's last pass came minutes later."""
     from celery.exceptions import Reject
 
     from worker import runtime, tasks
@@ -768,7 +769,7 @@ def test_a_pass_caught_by_a_redis_restart_waits_for_redis_and_merges(tmp_path, p
     try:
         with _api(server.url, prefix) as api:
             job_id = _submit(api, _scene(cornell, 16, 16, 4), 16, 4)
-        view = state.store.pass_view
+        view = getattr(state.store, where)
         calls = []
 
         def restarted() -> None:
@@ -778,21 +779,22 @@ def test_a_pass_caught_by_a_redis_restart_waits_for_redis_and_merges(tmp_path, p
             # redis-server dies with the thread that started it (its parent-death signal)
             done.wait()
 
-        def redis_dies_here(*args):
+        def redis_dies_here(*args, **kwargs):
             calls.append(args)
             if len(calls) == 1:
                 server.proc.kill()
                 server.proc.wait()
                 threading.Thread(target=restarted, daemon=True).start()
-            return view(*args)
+            return view(*args, **kwargs)
 
-        monkeypatch.setattr(state.store, "pass_view", redis_dies_here)
+        monkeypatch.setattr(state.store, where, redis_dies_here)
         try:
             result = tasks.render_pass(job_id, 0, 0)
         except Reject as err:
             raise AssertionError(f"the pass was given up: {err}") from None
         assert result == "merged" and len(calls) == 2
         assert store.is_merged(job_id, 0, 0) and store.get_job(job_id).tasks_merged == 1
+        assert store.attempts(job_id, 0, 0) == 1  # one delivery, one try
     finally:
         store.r.close()
         state.store.close()
