@@ -16,6 +16,7 @@ import time
 import redis
 from celery import signals
 from celery.exceptions import Reject, SoftTimeLimitExceeded
+from kombu.exceptions import OperationalError
 
 from renderer.film.buffer import SampleBuffer
 from services.farm.blocklist import HAND_BACK_PAUSE
@@ -31,6 +32,7 @@ from services.farm.passes import (
 )
 from services.farm.planner import celery_priority
 from services.farm.pools import queue_for
+from services.farm.queue import continue_chain
 from services.farm.settings import get_settings
 from worker import runtime
 from worker.celery_app import app
@@ -68,8 +70,10 @@ def _shutdown_process(**_: object) -> None:
     runtime.STATE.stop_heartbeat()
 
 
-# Redis unreachable (restarting, a network cut): nothing about the pass can be recorded.
-REDIS_DOWN = (redis.ConnectionError, redis.TimeoutError)
+# Redis unreachable (restarting, a network cut): nothing about the pass can be recorded, and no
+# message sent (kombu's OperationalError: a publish that failed its retries; the broker is the
+# same Redis).
+REDIS_DOWN = (redis.ConnectionError, redis.TimeoutError, OperationalError)
 
 
 @app.task(name="worker.tasks.render_pass", bind=True)
@@ -83,7 +87,12 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
     begun: dict[str, bool] = {}  # "counted": begin_pass has counted this delivery
     while True:
         try:
-            return _render_pass(job_id, tile, pass_index, begun)
+            result = _render_pass(job_id, tile, pass_index, begun)
+            if result == "duplicate" and begun.get("again"):
+                # Merged before the outage, perhaps without queuing its tile's next pass (a job
+                # with a target error runs each tile's passes as a chain): queue it unless merged
+                continue_chain(state.store, app, job_id, tile, pass_index)
+            return result
         except REDIS_DOWN as err:
             # Redis went away mid-pass (restarted, a network cut). The message cannot be given
             # back meanwhile: its channel died with the connection, so a rejection is lost and
@@ -93,6 +102,7 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
             # outage is not the pass's fault: a delivery already counted is not counted again.
             if not _wait_for_redis(state.store, deadline):
                 raise Reject(f"Redis unreachable: {err}", requeue=True) from err
+            begun["again"] = True
             log.warning("Redis was unreachable during job %s tile %d pass %d (%s); it is back: "
                         "running the pass again", job_id, tile, pass_index, err)
 

@@ -744,9 +744,56 @@ def test_redis_restarted_with_persistence(tmp_path, prefix, cornell):
         server.stop()
 
 
+class InProcessWorker:
+    """A worker process's state in this process, on an embedded Redis with an append-only file
+    that ``kill_and_restart`` SIGKILLs and starts again on the same port and folder 1 s later."""
+
+    def __init__(self, tmp_path: Path, prefix: str, monkeypatch) -> None:
+        from worker import runtime
+
+        data = tmp_path / "redis"
+        data.mkdir()
+        self.server = EmbeddedRedis(data_dir=str(data), appendonly=True).start()
+        self.servers = [self.server]
+        self.done = threading.Event()
+        self.store = JobStore.from_url(self.server.url, prefix)
+        self.state = runtime.WorkerState()
+        self.state.settings = Settings(redis_url=self.server.url, key_prefix=prefix,
+                                       redis_outage_wait=30, **TIMINGS)
+        monkeypatch.setattr(runtime, "STATE", self.state)
+
+    def kill_and_restart(self) -> None:
+        def restarted() -> None:
+            time.sleep(1.0)
+            self.servers.append(EmbeddedRedis(port=self.server.port,
+                                              data_dir=self.server.data_dir,
+                                              appendonly=True).start())
+            # redis-server dies with the thread that started it (its parent-death signal)
+            self.done.wait()
+
+        self.server.proc.kill()
+        self.server.proc.wait()
+        threading.Thread(target=restarted, daemon=True).start()
+
+    def close(self) -> None:
+        self.store.r.close()
+        self.state.store.close()
+        for server in self.servers:
+            server.stop()
+        self.done.set()
+
+
+@pytest.fixture
+def in_process_worker(tmp_path, prefix, monkeypatch) -> Iterator[InProcessWorker]:
+    w = InProcessWorker(tmp_path, prefix, monkeypatch)
+    yield w
+    w.close()
+
+
 @pytest.mark.parametrize("where", ["pass_view", "put_pass"])
-def test_a_pass_caught_by_a_redis_restart_waits_for_redis_and_merges(tmp_path, prefix, cornell,
-                                                                     monkeypatch, where):
+def test_a_pass_caught_by_a_redis_restart_waits_for_redis_and_merges(in_process_worker, prefix,
+                                                                     cornell, monkeypatch,
+                                                                     where):
     """Redis SIGKILLed while a worker process talks to it, at the start of a pass (as ``lucent
     up``'s test caught it) or once rendered: the task cannot give its message back (its channel
     died with the connection; the message waits in kombu's unacked hash for the stall rule), so
@@ -754,53 +801,62 @@ def test_a_pass_caught_by_a_redis_restart_waits_for_redis_and_merges(tmp_path, p
     try. Without that the task raised ``Reject`` and the job's last pass came minutes later."""
     from celery.exceptions import Reject
 
-    from worker import runtime, tasks
+    from worker import tasks
 
-    data = tmp_path / "redis"
-    data.mkdir()
-    server = EmbeddedRedis(data_dir=str(data), appendonly=True).start()
-    servers = [server]
-    done = threading.Event()
-    store = JobStore.from_url(server.url, prefix)
-    state = runtime.WorkerState()
-    state.settings = Settings(redis_url=server.url, key_prefix=prefix, redis_outage_wait=30,
-                              **TIMINGS)
-    monkeypatch.setattr(runtime, "STATE", state)
+    w = in_process_worker
+    with _api(w.server.url, prefix) as api:
+        job_id = _submit(api, _scene(cornell, 16, 16, 4), 16, 4)
+    call = getattr(w.state.store, where)
+    calls = []
+
+    def redis_dies_here(*args, **kwargs):
+        calls.append(args)
+        if len(calls) == 1:
+            w.kill_and_restart()
+        return call(*args, **kwargs)
+
+    monkeypatch.setattr(w.state.store, where, redis_dies_here)
     try:
-        with _api(server.url, prefix) as api:
-            job_id = _submit(api, _scene(cornell, 16, 16, 4), 16, 4)
-        view = getattr(state.store, where)
-        calls = []
+        result = tasks.render_pass(job_id, 0, 0)
+    except Reject as err:
+        raise AssertionError(f"the pass was given up: {err}") from None
+    assert result == "merged" and len(calls) == 2
+    assert w.store.is_merged(job_id, 0, 0) and w.store.get_job(job_id).tasks_merged == 1
+    assert w.store.attempts(job_id, 0, 0) == 1  # one delivery, one try
 
-        def restarted() -> None:
-            time.sleep(1.0)
-            servers.append(EmbeddedRedis(port=server.port, data_dir=server.data_dir,
-                                         appendonly=True).start())
-            # redis-server dies with the thread that started it (its parent-death signal)
-            done.wait()
 
-        def redis_dies_here(*args, **kwargs):
-            calls.append(args)
-            if len(calls) == 1:
-                server.proc.kill()
-                server.proc.wait()
-                threading.Thread(target=restarted, daemon=True).start()
-            return view(*args, **kwargs)
+def test_a_chain_cut_by_a_redis_restart_goes_on(in_process_worker, prefix, cornell, monkeypatch):
+    """A job with a target error: its pass merged, then Redis died as the worker queued the
+    tile's next pass (kombu's publish gives up: ``OperationalError``). The task waits for Redis,
+    finds its pass merged and queues the next one itself. It used to record a failed try of the
+    merged pass, send it again, and leave the tile's chain to the stall rule."""
+    from kombu.exceptions import OperationalError
 
-        monkeypatch.setattr(state.store, where, redis_dies_here)
-        try:
-            result = tasks.render_pass(job_id, 0, 0)
-        except Reject as err:
-            raise AssertionError(f"the pass was given up: {err}") from None
-        assert result == "merged" and len(calls) == 2
-        assert store.is_merged(job_id, 0, 0) and store.get_job(job_id).tasks_merged == 1
-        assert store.attempts(job_id, 0, 0) == 1  # one delivery, one try
-    finally:
-        store.r.close()
-        state.store.close()
-        for s in servers:
-            s.stop()
-        done.set()
+    from services.farm import queue
+    from worker import tasks
+
+    w = in_process_worker
+    scene = _scene(cornell, 16, 16, 64)
+    scene["render"]["target_error"] = 0.01
+    with _api(w.server.url, prefix) as api:
+        job_id = _submit(api, scene, 16, 8)  # 8 passes of 8 samples
+    sent, published = [], []
+    monkeypatch.setattr(queue, "enqueue",
+                        lambda celery, job, todo, *args, **kwargs: sent.append((job, todo)))
+
+    def publish_fails(args, **kwargs):
+        published.append(args)
+        if len(published) == 1:
+            w.kill_and_restart()
+            raise OperationalError("Error 111 connecting to 127.0.0.1. Connection refused.")
+
+    monkeypatch.setattr(tasks.render_pass, "apply_async", publish_fails)
+    assert tasks.render_pass(job_id, 0, 0) == "duplicate"
+    assert published == [(job_id, 0, 1)]  # the chain's own attempt, which failed
+    assert sent == [(job_id, [(0, 1)])]  # then the next pass, queued after the outage
+    assert w.store.is_merged(job_id, 0, 0) and w.store.attempts(job_id, 0, 0) == 1
+    assert w.store.get_job(job_id).status == "running"  # no failure recorded on the tile
+    assert not w.store.r.hgetall(w.store.k("job", job_id, "tile_error"))
 
 
 @pytest.mark.slow
