@@ -84,7 +84,8 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
     """
     state = runtime.STATE
     deadline = time.monotonic() + state.settings.redis_outage_wait
-    begun: dict[str, bool] = {}  # "counted": begin_pass has counted this delivery
+    # "counted": begin_pass has counted this delivery; "again": it runs again after an outage
+    begun: dict[str, bool] = {}
     while True:
         try:
             result = _render_pass(job_id, tile, pass_index, begun)
@@ -96,10 +97,11 @@ def render_pass(self, job_id: str, tile: int, pass_index: int) -> str:
         except REDIS_DOWN as err:
             # Redis went away mid-pass (restarted, a network cut). The message cannot be given
             # back meanwhile: its channel died with the connection, so a rejection is lost and
-            # the message waits in kombu's unacked hash for the stall rule (minutes) or the
-            # visibility timeout (an hour). Wait for Redis and run the pass again instead: it is
-            # idempotent, and its message, unacknowledged, comes back later as a duplicate. The
-            # outage is not the pass's fault: a delivery already counted is not counted again.
+            # the message waits in kombu's unacked hash for the stall rule (30 s once no live
+            # worker holds a pass of its job) or the visibility timeout (an hour). Wait for
+            # Redis and run the pass again instead: it is idempotent, and its message,
+            # unacknowledged, comes back later as a duplicate. The outage is not the pass's
+            # fault: a delivery already counted is not counted again.
             if not _wait_for_redis(state.store, deadline):
                 raise Reject(f"Redis unreachable: {err}", requeue=True) from err
             begun["again"] = True
