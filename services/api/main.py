@@ -45,7 +45,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
         app.state.status_views = jobs.StatusViews(store, records)
         app.state.celery = celery_client(settings)
         stall = StallRule(app.state.celery, settings.stall_timeout, settings.max_stall_requeues,
-                          min(settings.stall_unheld_timeout, settings.stall_timeout))
+                          settings.stall_unheld_timeout)
         app.state.blobs = open_blob_store(settings.blob_location)
         sweeper = Sweeper(store, settings.sweep_interval, stall,
                           chores(store, records, app.state.blobs, settings.archive_done,

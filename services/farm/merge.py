@@ -74,10 +74,12 @@ class StallRule:
     timeout: float
     max_requeues: int
     unheld_timeout: float | None = None
-    """The stall time of a job no live worker process renders a pass of; None: ``timeout``."""
+    """The stall time of a job no live worker process renders a pass of, at most ``timeout``;
+    None: ``timeout``."""
 
     @property
     def shortest(self) -> float:
+        """The unheld stall time as applied: never above ``timeout``."""
         return self.timeout if self.unheld_timeout is None else min(self.timeout,
                                                                     self.unheld_timeout)
 

@@ -955,25 +955,26 @@ class JobStore:
         """The worker process holds no pass any more (it ended, whichever way)."""
         self.r.hdel(self.k("holding"), worker_id)
 
-    def lost_holdings(self) -> dict[str, str]:
-        """worker id -> ``job tile pass attempt`` of each pass held by a worker process whose
-        heartbeat has expired (its hash is gone: the process died, or cannot reach Redis)."""
+    def _holdings(self) -> list[tuple[str, str, bool]]:
+        """(worker id, ``job tile pass attempt``, whether its heartbeat lives) of every pass held
+        (the heartbeat's hash is gone once the process died, or cannot reach Redis)."""
         held = {k.decode(): v.decode() for k, v in self.r.hgetall(self.k("holding")).items()}
         pipe = self.r.pipeline()
         for worker_id in held:
             pipe.exists(self.k("worker", worker_id))
-        return {w: v for (w, v), alive in zip(held.items(), pipe.execute(), strict=True)
-                if not alive}
+        return [(w, v, bool(alive))
+                for (w, v), alive in zip(held.items(), pipe.execute(), strict=True)]
+
+    def lost_holdings(self) -> dict[str, str]:
+        """worker id -> ``job tile pass attempt`` of each pass held by a worker process whose
+        heartbeat has expired."""
+        return {w: v for w, v, alive in self._holdings() if not alive}
 
     def job_held(self, job_id: str) -> bool:
         """Whether a worker process whose heartbeat has not expired holds a pass of the job (it
         is rendering it, or about to: ``add_attempt`` records the holding)."""
         prefix = f"{job_id} "
-        holders = [k.decode() for k, v in self.r.hgetall(self.k("holding")).items()
-                   if v.decode().startswith(prefix)]
-        if not holders:
-            return False
-        return bool(self.r.exists(*(self.k("worker", w) for w in holders)))
+        return any(alive and v.startswith(prefix) for _, v, alive in self._holdings())
 
     def claim_holding(self, worker_id: str, value: str) -> bool:
         """Take the lost worker's holding if it is still ``value``; True for one caller only."""
