@@ -24,14 +24,21 @@ __version__ = "0.1.0"
 @functools.cache
 def source_digest() -> str:
     """A hash of every renderer source file (16 hex digits): one per renderer version. Computed
-    once a process, when the package is imported (``_cache_dir``), so the worker's warm marker
-    (``worker.runtime.warm_marker``) names the version whose folder numba uses."""
+    once a process, when the package is imported (``_cache_dir``), so the warm marker
+    (``warm_marker``) names the version whose folder numba uses."""
     root = Path(__file__).parent
     digest = hashlib.sha1()
     for path in sorted(root.rglob("*.py")):
         digest.update(str(path.relative_to(root)).encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()[:16]
+
+
+def warm_marker() -> Path:
+    """The file a warm-up leaves in numba's cache folder once it has compiled (or loaded) every
+    kernel there (``worker.runtime.warm_up_kernels``), named by the renderer version (a folder
+    set with ``NUMBA_CACHE_DIR`` is not keyed by it, the default one is: ``_cache_dir``)."""
+    return Path(os.environ["NUMBA_CACHE_DIR"]) / f"lucent-warm-{source_digest()}"
 
 
 def _cache_dir() -> str:

@@ -34,7 +34,7 @@ COLD_COMPILE = "a minute on 2 cores"
 
 def kernels_cached() -> bool:
     """Whether a worker warm-up already filled this renderer version's kernel cache."""
-    from worker.runtime import warm_marker
+    from renderer import warm_marker
 
     return warm_marker().exists()
 

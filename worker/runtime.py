@@ -18,6 +18,7 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
+from renderer import warm_marker
 from services.farm.blobs import AssetCache, open_blob_store
 from services.farm.settings import get_settings
 from services.farm.store import JobStore
@@ -42,15 +43,6 @@ WARM_UP_SCENE = {
          "material": "white", "emission": [4, 4, 4]},
     ],
 }
-
-
-def warm_marker() -> Path:
-    """The file a warm-up leaves in numba's cache folder once it has compiled (or loaded) every
-    kernel there, named by the renderer version (a folder set with ``NUMBA_CACHE_DIR`` is not
-    keyed by it, the default one is: ``renderer/__init__.py``)."""
-    import renderer
-
-    return Path(os.environ["NUMBA_CACHE_DIR"]) / f"lucent-warm-{renderer.source_digest()}"
 
 
 def warm_up_kernels() -> float:

@@ -149,7 +149,7 @@ def _demo_stderr(monkeypatch, capsys, cache: Path) -> str:
 def test_demo_says_it_compiles_on_a_cold_cache_only(tmp_path, monkeypatch, capsys):
     """A cold `make demo` spends its first minute compiling; it says so rather than show a
     progress bar stuck at 0 %. With the warm-up's marker in the cache folder it says nothing."""
-    from worker.runtime import warm_marker
+    from renderer import warm_marker
 
     cache = tmp_path / "cache"
     assert "compiling the renderer, first run only" in _demo_stderr(monkeypatch, capsys, cache)
