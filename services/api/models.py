@@ -80,6 +80,8 @@ class JobPublic(BaseModel):
     spp_per_pass: int
     max_spp_per_pass: int = Field(description="the largest pass allowed")
     passes: int = Field(description="passes per tile")
+    pass_growth: int = Field(default=1, description="each pass after the first holds this many "
+                             "times the samples before it, up to max_spp_per_pass")
     largest_pass: int = Field(description="samples of the job's largest pass (at most "
                                           "max_spp_per_pass)")
     tiles: int = Field(description="tiles of the whole job (tiles_per_frame x frames)")

@@ -151,7 +151,11 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
                               f"(spp_per_pass {first})", "value_error")])
     tile = options.tile_size or default_tile_size(scene.width, scene.height,
                                                   settings.default_tile_size)
-    plan = Plan(scene.width, scene.height, scene.spp, tile, first, largest, scene.n_frames)
+    # A job with a target error: passes that double the samples so far (its chain stops a tile
+    # at the first pass that finds it converged; larger steps would overshoot the target)
+    growth = settings.pass_growth if scene.target_error is None else 1
+    plan = Plan(scene.width, scene.height, scene.spp, tile, first, largest, scene.n_frames,
+                growth)
     if plan.n_tasks > settings.max_tasks_per_job:
         msg = (f"{plan.n_tiles} tiles{f' ({plan.frames} frames)' if plan.frames > 1 else ''} x "
                f"{plan.n_passes} passes = {plan.n_tasks} tasks exceed the "

@@ -1,16 +1,18 @@
 """The planner: a frame cut into tiles, each tile's samples into passes, and the order they run in.
 
 Tiles are numbered in row-major order (tile ``t`` covers columns ``(t % nx) * size`` ...). A
-tile's samples are cut into passes that grow: ``spp_per_pass`` samples in pass 0 and in pass 1,
-then each pass as many as all before it (so every pass halves the noise variance of the tile, the
-progressive schedule of a converging preview), until a pass would exceed ``max_spp_per_pass``;
-from there on every pass has ``max_spp_per_pass`` samples, the last cut to ``spp``. With
+tile's samples are cut into passes that grow: ``spp_per_pass`` samples in pass 0, then each pass
+``pass_growth`` times as many as all before it, until a pass would exceed ``max_spp_per_pass``;
+from there on every pass has ``max_spp_per_pass`` samples, the last cut to ``spp``. With growth
+1 (8, 8, 16, 32, … samples) every pass halves the noise variance of the tile; with growth 2, a
+new job's default (8, 16, 48, …), every pass divides it by three, in fewer passes. With
 ``max_spp_per_pass`` equal to ``spp_per_pass`` (or 0) the passes are all equal. Pass 0 stays small
 for a fast first preview while long jobs run few, large tasks: a task's fixed cost (fetching the
-scene, encoding and merging its buffer, the broker round trips: ~10 ms, docs/performance.md) is
-paid once per pass, not once per ``spp_per_pass`` samples. Pass ``p`` renders the global sample
-indices ``[start_p, start_p + count_p)`` of every pixel, so the passes of a tile add up to
-``render_tile`` over ``[0, spp)`` and the farm's image equals ``lucent render`` of the same scene.
+scene, encoding and merging its buffer, the broker round trips: ~5-6 ms of wall clock,
+docs/performance.md) is paid once per pass, not once per ``spp_per_pass`` samples. Pass ``p``
+renders the global sample indices ``[start_p, start_p + count_p)`` of every pixel, so the passes
+of a tile add up to ``render_tile`` over ``[0, spp)`` and the farm's image equals ``lucent
+render`` of the same scene.
 
 The order: pass 0 of every tile first (a whole, coarse preview early), then pass 1 of every tile,
 ...; within a pass, tiles nearest the centre of the frame first (where the subject usually is).
@@ -39,6 +41,10 @@ class Plan:
     """The largest pass; 0 or anything up to ``spp_per_pass``: every pass ``spp_per_pass``."""
     frames: int = 1
     """Frames of the job (each ``width x height``, the same spp)."""
+    pass_growth: int = 1
+    """Each pass after the first: this many times the samples before it (at most the cap).
+    1: the rule of jobs stored before the growth was a field, and of jobs with a target error
+    (``services.farm.jobs.queue_job``)."""
 
     @property
     def pass_cap(self) -> int:
@@ -50,11 +56,13 @@ class Plan:
         """``(sample_start, sample_count)`` of every pass of a tile, in order."""
         base = max(1, self.spp_per_pass)
         cap = self.pass_cap
+        growth = max(1, self.pass_growth)
         out = []
         start = 0
         while start < self.spp:
-            # pass 0 and 1: base; then the samples so far, doubling the total; at most cap
-            count = base if start < base else min(cap, start)
+            # pass 0: base; then growth x the samples so far (growth 1: pass 1 is base too, and
+            # every later pass doubles the total); at most cap
+            count = base if start == 0 else min(cap, growth * start)
             count = min(count, self.spp - start)
             out.append((start, count))
             start += count

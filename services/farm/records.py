@@ -28,6 +28,7 @@ timings                ``created_at``, ``started_at``, ``finished_at`` (Unix sec
 ``tags``               the worker tags it requires, comma-separated (``services.farm.pools``)
 ``frames``             its frames (``services.farm.frames``); NULL for one. Once archived,
                        ``tiles`` lists each frame's images (``frame_images``)
+``pass_growth``        how its passes grow (``services.farm.planner``); NULL for 1
 =====================  ========================================================================
 
 ``job_counts`` holds the number of jobs of each status, kept by triggers on ``jobs`` (a listing's
@@ -117,6 +118,7 @@ jobs = Table(
     Column("state_blob", String(71)),
     Column("tags", String(300)),
     Column("frames", Integer),
+    Column("pass_growth", Integer),
     Index("jobs_created_at", "created_at", "id"),
     Index("jobs_status_created_at", "status", "created_at", "id"),
     Index("jobs_finished_at", "finished_at"),
@@ -469,11 +471,13 @@ def _row(meta: JobMeta) -> dict[str, Any]:
            "max_spp_per_pass": plan.max_spp_per_pass, "tasks_total": plan.n_tasks,
            "created_at": meta.created_at, "methods": json.dumps(meta.methods),
            **_progress(meta)}
-    # (columns of migrations 0003 and 0004: a row without them is written as before those)
+    # (columns of migrations 0003 to 0005: a row without them is written as before those)
     if meta.tags:
         row["tags"] = ",".join(meta.tags)
     if plan.frames > 1:
         row["frames"] = plan.frames
+    if plan.pass_growth != 1:
+        row["pass_growth"] = plan.pass_growth
     if meta.images:  # archived before the farm kept records (the hash held the blob keys)
         row.update(tiles=json.dumps(meta.tiles_final), image_exr=meta.images.get("exr"),
                    image_png=meta.images.get("png"), archived_at=time.time())
@@ -493,7 +497,8 @@ def _meta(row: Any) -> JobMeta:
     return JobMeta(
         id=row["id"], name=row["name"], status=row["status"], priority=row["priority"],
         plan=Plan(row["width"], row["height"], row["spp"], row["tile_size"],
-                  row["spp_per_pass"], row["max_spp_per_pass"], row.get("frames") or 1),
+                  row["spp_per_pass"], row["max_spp_per_pass"], row.get("frames") or 1,
+                  row.get("pass_growth") or 1),
         tasks_merged=row["tasks_merged"], samples_merged=row["samples_merged"],
         dropped=row["dropped"], version=row["version"], created_at=row["created_at"],
         started_at=row["started_at"], finished_at=row["finished_at"], error=row["error"],

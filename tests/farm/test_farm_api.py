@@ -3,6 +3,7 @@ against a real Redis."""
 
 from __future__ import annotations
 
+import copy
 import threading
 import time
 import uuid
@@ -141,9 +142,14 @@ def test_submission_is_planned_and_listed(client, tiny_scene):
 def test_a_submission_gets_growing_passes_by_default(client, tiny_scene):
     tiny_scene["render"]["spp"] = 64
     job = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32}).json()
-    # 8, 8, 16, 32 samples: 4 passes of 1 tile (the default first pass 8, largest 64)
-    assert (job["spp_per_pass"], job["max_spp_per_pass"], job["passes"]) == (8, 64, 4)
-    assert job["tasks_total"] == 4 and job["largest_pass"] == 32
+    # 8, 16, 40 samples: 3 passes of 1 tile (the default first pass 8, growth 2, largest 64)
+    assert (job["spp_per_pass"], job["max_spp_per_pass"], job["passes"]) == (8, 64, 3)
+    assert (job["pass_growth"], job["tasks_total"], job["largest_pass"]) == (2, 3, 40)
+    # A job with a target error keeps passes that double the samples so far: 8, 8, 16, 32
+    target = copy.deepcopy(tiny_scene)
+    target["render"]["target_error"] = 0.05
+    chained = client.post("/api/jobs", json={"scene": target, "tile_size": 32}).json()
+    assert (chained["pass_growth"], chained["passes"], chained["largest_pass"]) == (1, 4, 32)
     equal = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32,
                                            "spp_per_pass": 8, "max_spp_per_pass": 8}).json()
     assert (equal["passes"], equal["tasks_total"], equal["largest_pass"]) == (8, 8, 8)

@@ -57,12 +57,12 @@ def test_migration_at_start_up_is_idempotent(settings):
     with TestClient(create_app(settings)) as c:
         assert c.get("/api/jobs").json()["count"] == 0
     records = records_of(settings)
-    assert records.revision() == "0004"
+    assert records.revision() == "0005"
     records.create(_meta(time.time()))
     records.migrate()
     with TestClient(create_app(settings)) as c:
         assert c.get("/api/jobs").json()["count"] == 1
-    assert records.revision() == "0004"
+    assert records.revision() == "0005"
     indexes = {i["name"] for i in inspect(records.engine).get_indexes("jobs")}
     assert {"jobs_created_at", "jobs_status_created_at", "jobs_finished_at", "jobs_image_exr",
             "jobs_image_png"} <= indexes
@@ -77,7 +77,7 @@ def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
     for status in ("done", "done", "failed", "running"):
         records.create(_meta(t0, status))
     records.migrate()
-    assert records.revision() == "0004"
+    assert records.revision() == "0005"
     assert records.count_by_status() == {"queued": 0, "running": 1, "done": 2, "failed": 1,
                                          "cancelled": 0}
     first = records.page("done")[0][0]
@@ -86,6 +86,42 @@ def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
     assert records.count_by_status() == {"queued": 0, "running": 0, "done": 1, "failed": 2,
                                          "cancelled": 0}
     assert records.page()[1] == 3 and records.page("failed")[1] == 2
+
+
+def test_a_plans_pass_growth_lasts_in_the_records_redis_and_a_snapshot(tmp_path, store):
+    """A job's pass growth decides which samples each pass index renders, so it is kept
+    wherever the plan is: the job's hash, its record, a parked job's snapshot. Each written
+    before the growth was a field (a database at 0004, a hash or snapshot without it) reads as
+    growth 1, the rule those jobs were planned with."""
+    import json
+
+    from services.farm.store import JobSnapshot
+
+    records = Records(f"sqlite:///{tmp_path}/old.db")
+    records.migrate("0004")
+    old = _meta(time.time(), "done")
+    records.create(old)
+    records.migrate()
+    assert records.get(old.id).plan.pass_growth == 1
+    grown = dataclasses.replace(_meta(time.time()),
+                                plan=Plan(64, 64, 64, 32, 8, 64, pass_growth=2))
+    records.create(grown)
+    assert records.get(grown.id).plan == grown.plan
+    assert records.get(grown.id).plan.n_passes == 3  # 8, 16, 40
+
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, grown.plan, b"{}", {}, time.time())
+    assert store.get_job(job_id).plan == grown.plan
+    store.r.hdel(store.job_key(job_id), "pass_growth")  # a job stored before the field
+    assert store.get_job(job_id).plan.pass_growth == 1
+
+    snap = JobSnapshot(grown, b"{}", {}, {}, {}, [], [None] * grown.plan.n_tiles)
+    assert JobSnapshot.from_bytes(snap.to_bytes()).meta.plan == grown.plan
+    line, _, rest = snap.to_bytes().partition(b"\n")
+    head = json.loads(line)
+    head["meta"]["plan"] = head["meta"]["plan"][:7]  # a snapshot from before the field
+    before = JobSnapshot.from_bytes(json.dumps(head).encode() + b"\n" + rest)
+    assert before.meta.plan.pass_growth == 1
 
 
 def test_listing_pages_and_filters_in_the_database(client, settings):

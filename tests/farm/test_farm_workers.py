@@ -88,7 +88,7 @@ def test_a_task_delivered_twice_is_merged_once(farm, farm_client, wait_for_job, 
     job_id = r.json()["id"]
     # Every (tile, pass) delivered a second time, as Redis does after a visibility timeout.
     plan = farm.store().get_job(job_id).plan
-    assert plan == Plan(32, 24, 16, 16, 4, 64) and plan.n_passes == 3  # 4, 4, 8 samples
+    assert plan == Plan(32, 24, 16, 16, 4, 64, pass_growth=2) and plan.n_passes == 3  # 4, 8, 4
     enqueue(farm_client.app.state.celery, job_id, plan.order(), 0)
     job = wait_for_job(farm_client, job_id)
     assert job["status"] == "done"
@@ -108,7 +108,7 @@ def test_a_message_for_a_pass_outside_the_plan_is_skipped(farm, farm_client, wai
     enqueue(farm_client.app.state.celery, job_id, stale, 9)
     job = wait_for_job(farm_client, job_id)
     assert job["status"] == "done", job
-    assert job["tasks_merged"] == job["tasks_total"] == 4 * 3  # 2 x 2 tiles, 4 + 4 + 8 spp
+    assert job["tasks_merged"] == job["tasks_total"] == 4 * 3  # 2 x 2 tiles, 4 + 8 + 4 spp
     assert all(t["error"] is None for t in job["tile_states"])
     _assert_complete(farm, job_id, tiny_scene, _image(farm_client, job_id))
 

@@ -79,6 +79,26 @@ def test_passes_grow_from_the_first_to_the_largest_and_cover_every_sample():
         Plan(8, 8, 20, 8, 8).sample_range(3)
 
 
+@pytest.mark.parametrize("growth", [2, 3])
+def test_passes_grow_by_the_plans_growth_and_cover_every_sample(growth):
+    """Growth g: pass 0 is the first pass, every later one g times the samples before it (the
+    total grows (g + 1)-fold), at most the largest; contiguous from 0 to spp, none empty."""
+    plan = Plan(8, 8, 1000, 8, 8, 64, pass_growth=2)
+    assert [c for _, c in plan.passes][:5] == [8, 16, 48, 64, 64]
+    assert Plan(8, 8, 64, 8, 8, 64, pass_growth=2).passes == ((0, 8), (8, 16), (24, 40))
+    for spp, first, largest in [(1000, 8, 64), (64, 8, 64), (17, 3, 5), (5, 8, 64), (1, 1, 1),
+                                (300, 7, 7), (300, 7, 0), (4096, 1, 1000), (65, 8, 64)]:
+        p = Plan(8, 8, spp, 8, first, largest, pass_growth=growth)
+        counts = [c for _, c in p.passes]
+        assert [s for s, _ in p.passes] == [0] + list(np.cumsum(counts)[:-1])
+        assert sum(counts) == spp and min(counts) >= 1 and max(counts) <= max(first, largest)
+        assert counts[0] == min(first, spp)
+        for start, count in p.passes[1:]:
+            assert count == min(max(first, largest), growth * start, spp - start)
+        # Never more passes than growth 1 gives
+        assert p.n_passes <= Plan(8, 8, spp, 8, first, largest).n_passes
+
+
 def test_chain_heads_keep_each_tiles_first_pass_in_order():
     plan = Plan(width=32, height=16, spp=24, tile_size=8, spp_per_pass=8)  # 8 tiles x 3 passes
     order = plan.order()

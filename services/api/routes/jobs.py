@@ -82,7 +82,7 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         id=meta.id, name=meta.name, status=meta.status, priority=meta.priority,  # type: ignore[arg-type]
         width=plan.width, height=plan.height, spp=plan.spp, tile_size=plan.tile_size,
         spp_per_pass=plan.spp_per_pass,
-        max_spp_per_pass=plan.pass_cap, passes=plan.n_passes,
+        max_spp_per_pass=plan.pass_cap, passes=plan.n_passes, pass_growth=plan.pass_growth,
         largest_pass=max(count for _, count in plan.passes),
         tiles=plan.n_tiles, frames=plan.frames, tasks_total=plan.n_tasks,
         tasks_merged=meta.tasks_merged, samples_planned=meta.samples_planned,
