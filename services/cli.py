@@ -378,7 +378,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tile-size", type=int, help="tile edge in pixels (default: the planner's)")
     p.add_argument("--spp-per-pass", type=int, help="samples of the first pass (default 8)")
     p.add_argument("--max-spp-per-pass", type=int,
-                   help="the largest pass: passes double the samples so far up to it (default 64)")
+                   help="the largest pass: passes grow up to it (LUCENT_PASS_GROWTH) "
+                        "(default 64)")
     p.add_argument("--priority", type=int, help="0-9, 9 runs first (default 0)")
     p.add_argument("--sweep", metavar="PATH=V1,V2,...",
                    help="one frame a value of a scene field, e.g. materials.wax.density=1,2,4,8 "
