@@ -223,6 +223,41 @@ def test_a_merge_given_the_bytes_still_needs_the_stored_pass_and_finishes_the_jo
     assert np.allclose(frame.mean()[:, :8], 0.5) and np.allclose(frame.mean()[:, 8:], 0.25)
 
 
+def test_a_jobs_tasks_are_sent_in_pipelines_in_order(settings, store, monkeypatch):
+    """``enqueue`` sends a job's messages in kombu's publish batches (pipelines of up to 1000
+    commands, one round trip each) rather than one round trip a message, and every message
+    arrives once, in order, as Celery's protocol 2 (to a pool's queue no worker consumes)."""
+    import base64
+    import json
+
+    from kombu.transport import redis as kombu_redis
+
+    from services.farm.pools import queue_for
+    from services.farm.queue import TASK, celery_client, enqueue
+
+    flushes = []
+    flush = kombu_redis.PublishBatch.flush
+
+    def counted(self):
+        flushes.append(self._buffered)
+        return flush(self)
+
+    monkeypatch.setattr(kombu_redis.PublishBatch, "flush", counted)
+    tags = (f"enqueue{uuid.uuid4().hex[:8]}",)
+    todo = [(t, p) for p in range(5) for t in range(500)]
+    enqueue(celery_client(settings), J1, todo, 0, tags)
+    assert [n for n in flushes if n] == [1000, 1000, 500]
+    key = f"{queue_for(tags)}:9"  # job priority 0: the last of kombu's lists
+    try:
+        raw = store.r.lrange(key, 0, -1)[::-1]  # LPUSHed, taken from the other end
+        messages = [json.loads(m) for m in raw]
+        assert {m["headers"]["task"] for m in messages} == {TASK}
+        assert [tuple(json.loads(base64.b64decode(m["body"]))[0]) for m in messages] == \
+            [(J1, t, p) for t, p in todo]
+    finally:
+        store.r.delete(key)
+
+
 def test_a_pass_written_twice_is_merged_once(store):
     plan = _job(store)
     buf = _pass_buffer(0, 0, 8, 8, 8, 0.5).to_bytes()
