@@ -244,13 +244,14 @@ def measure_farm(processes: int, shapes: list[tuple[int, int, int]], scene: dict
                 med = {k: statistics.median(r[k] for r in runs) for k in runs[0]}
                 row = {"mode": "netns" if network else "loopback", "workers": processes,
                        "nodes": len(sizes), "tile": tile, "spp_per_pass": per_pass,
-                       "max_spp_per_pass": largest,
+                       "max_spp_per_pass": largest, "pass_growth": settings.pass_growth,
                        "tasks": int(med["tasks"]), "done_s": med["done"],
                        "preview_s": med["preview"], "samples_per_s": med["samples"] / med["done"],
                        "local_s": statistics.median(local),
                        "of_local": statistics.median(local) / med["done"],
                        "overhead_ms": med["overhead_ms"],
-                       "wall_overhead_ms": med["wall_overhead_ms"], "veth_mb_per_job": veth_mb}
+                       "wall_overhead_ms": med["wall_overhead_ms"],
+                       "rendering": med["rendering"], "veth_mb_per_job": veth_mb}
                 rows.append(row)
                 print(f"  {processes:>3} workers ({len(sizes)} nodes), tile {tile:>3} px / "
                       f"{pass_label(per_pass, largest):>10}: done {row['done_s']:.2f} s, "

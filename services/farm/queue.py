@@ -32,8 +32,8 @@ def enqueue(app: Celery, job_id: str, tasks: list[tuple[int, int]], priority: in
 
     In one batch (kombu's ``Producer.batch``, from kombu 5.7: the messages' ``LPUSH``es go in
     pipelines of up to 1000 instead of a round trip each) and with the queue declared once
-    instead of once a message: a 1080p job of 1024 spp (9180 tasks) is sent in ~1.7 s instead of
-    ~4.4 s (docs/performance.md, "Sending a job's tasks"). Were Redis to fail within a batch, some
+    instead of once a message: a 1080p job of 1024 spp (9180 tasks) is sent in ~1.3 s instead of
+    ~3.7 s (docs/performance.md, "Sending a job's tasks"). Were Redis to fail within a batch, some
     of its messages may have been sent: the job's passes left unsent come back by the stall
     rule, and a pass sent twice is merged once."""
     level = celery_priority(priority)
