@@ -14,8 +14,12 @@ renders the global sample indices ``[start_p, start_p + count_p)`` of every pixe
 of a tile add up to ``render_tile`` over ``[0, spp)`` and the farm's image equals ``lucent
 render`` of the same scene.
 
-The order: pass 0 of every tile first (a whole, coarse preview early), then pass 1 of every tile,
-...; within a pass, tiles nearest the centre of the frame first (where the subject usually is).
+The order: pass 0 of every tile first (a whole, coarse preview early), then the other passes,
+the largest first (ties in pass order), each of every tile; within a pass, tiles nearest the
+centre of the frame first (where the subject usually is). The workers take the tasks in that
+order, so the last tasks of a job are its smallest: when one process has run out of work, the
+other finishes a small pass, not a large one (the tail of the job; with growth 2 and 64 spp the
+passes run 8, 40, 16). A tile's passes add up in any order, and its image is the same.
 
 A job of ``frames`` frames (``services.farm.frames``) numbers its tiles across them: tile ``t``
 is tile ``t % tiles_per_frame`` of frame ``t // tiles_per_frame``, so that every per-tile key and
@@ -127,12 +131,17 @@ class Plan:
 
         return sorted(range(self.tiles_per_frame), key=lambda t: (distance_sq(t), t))
 
+    def pass_order(self) -> list[int]:
+        """The passes in the order they are queued: pass 0 (the preview), then the others
+        largest first, ties in pass order."""
+        return [0] + sorted(range(1, self.n_passes), key=lambda p: (-self.passes[p][1], p))
+
     def order(self) -> list[tuple[int, int]]:
-        """Every ``(tile, pass)`` in the order to enqueue them: passes, then frames, then tiles
-        nearest the centre first."""
+        """Every ``(tile, pass)`` in the order to enqueue them: passes (``pass_order``), then
+        frames, then tiles nearest the centre first."""
         tiles = self.tiles_by_distance()
         per = self.tiles_per_frame
-        return [(f * per + t, p) for p in range(self.n_passes) for f in range(self.frames)
+        return [(f * per + t, p) for p in self.pass_order() for f in range(self.frames)
                 for t in tiles]
 
 

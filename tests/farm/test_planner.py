@@ -99,6 +99,21 @@ def test_passes_grow_by_the_plans_growth_and_cover_every_sample(growth):
         assert p.n_passes <= Plan(8, 8, spp, 8, first, largest).n_passes
 
 
+@pytest.mark.parametrize("growth", [1, 2])
+def test_after_the_preview_the_largest_passes_go_first(growth):
+    """Pass 0 of every tile first; then the other passes largest first (ties in pass order), so
+    that a job ends on its smallest tasks, each pass of every tile, centre first."""
+    plan = Plan(50, 30, 512, 16, 8, 64, pass_growth=growth)
+    sizes = [plan.passes[p][1] for p in plan.pass_order()]
+    assert sorted(plan.pass_order()) == list(range(plan.n_passes)) and plan.pass_order()[0] == 0
+    assert sizes[1:] == sorted(sizes[1:], reverse=True) and sizes[-1] < sizes[1]
+    assert Plan(8, 8, 64, 8, 8, 64, pass_growth=2).pass_order() == [0, 2, 1]  # 8, 40, 16
+    order = plan.order()
+    assert len(order) == len(set(order)) == plan.n_tasks
+    tiles = plan.tiles_by_distance()
+    assert order == [(t, p) for p in plan.pass_order() for t in tiles]
+
+
 def test_chain_heads_keep_each_tiles_first_pass_in_order():
     plan = Plan(width=32, height=16, spp=24, tile_size=8, spp_per_pass=8)  # 8 tiles x 3 passes
     order = plan.order()
