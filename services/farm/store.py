@@ -196,6 +196,15 @@ return n
 """
 
 
+def _plan_fields(plan: Plan) -> dict[str, Any]:
+    """A job's plan as its hash holds it (``JobMeta.from_hash`` reads it back), for a job
+    stored new (``create_job``) and one restored from its snapshot (``restore_job``)."""
+    return {"width": plan.width, "height": plan.height, "spp": plan.spp,
+            "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
+            "max_spp_per_pass": plan.max_spp_per_pass, "pass_growth": plan.pass_growth,
+            "frames": plan.frames, "tasks_total": plan.n_tasks}
+
+
 # ``merge_pass_buffer``'s answer when its merge counted the job's last task
 MERGED_LAST = 2
 
@@ -421,13 +430,10 @@ class JobStore:
         now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
-            "width": plan.width, "height": plan.height, "spp": plan.spp,
-            "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
-            "max_spp_per_pass": plan.max_spp_per_pass, "pass_growth": plan.pass_growth,
-            "tasks_total": plan.n_tasks, "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
+            **_plan_fields(plan), "tasks_merged": 0, "samples_merged": 0, "dropped": 0,
             "version": 0, "status_version": 0, "created_at": now, "started_at": "",
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
-            "submitter": submitter or "", "tags": ",".join(tags), "frames": plan.frames,
+            "submitter": submitter or "", "tags": ",".join(tags),
             "target_error": "" if target_error is None else target_error,
             "denoise": "1" if denoise else "",
         }
@@ -608,16 +614,13 @@ class JobStore:
         plan = meta.plan
         fields: dict[str, Any] = {
             "id": meta.id, "name": meta.name, "status": meta.status, "priority": meta.priority,
-            "width": plan.width, "height": plan.height, "spp": plan.spp,
-            "tile_size": plan.tile_size, "spp_per_pass": plan.spp_per_pass,
-            "max_spp_per_pass": plan.max_spp_per_pass, "pass_growth": plan.pass_growth,
-            "tasks_total": plan.n_tasks, "tasks_merged": meta.tasks_merged,
+            **_plan_fields(plan), "tasks_merged": meta.tasks_merged,
             "samples_merged": meta.samples_merged,
             "dropped": meta.dropped, "version": meta.version, "status_version": 0,
             "created_at": meta.created_at, "started_at": meta.started_at or "",
             "finished_at": meta.finished_at or "", "error": meta.error or "",
             "methods": json.dumps(meta.methods), "submitter": meta.submitter or "",
-            "tags": ",".join(meta.tags), "frames": plan.frames,
+            "tags": ",".join(meta.tags),
             "denoise": "1" if meta.denoise else "",
         }
         pipe = self.r.pipeline()
