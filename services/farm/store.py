@@ -342,7 +342,7 @@ class JobSnapshot:
         head = {"meta": {**{k: getattr(m, k) for k in (
                     "id", "name", "status", "priority", "tasks_merged", "samples_merged",
                     "dropped", "version", "created_at", "started_at", "finished_at", "error",
-                    "methods", "submitter", "tags", "denoise")},
+                    "methods", "submitter", "tags", "denoise", "target_error")},
                     "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
                              m.plan.spp_per_pass, m.plan.max_spp_per_pass, m.plan.frames,
                              m.plan.pass_growth]},
@@ -622,9 +622,26 @@ class JobStore:
             "methods": json.dumps(meta.methods), "submitter": meta.submitter or "",
             "tags": ",".join(meta.tags),
             "denoise": "1" if meta.denoise else "",
+            "target_error": "" if meta.target_error is None else meta.target_error,
         }
+        summaries: dict[str, str] = {}
+        if meta.target_error is not None:
+            # The tiles' error summaries and the job's sums of them, as the merges kept them:
+            # each a pure function of the tile's merged buffer, so computed again here rather
+            # than carried in the snapshot (the next merge of a tile replaces its summary and
+            # adds the change; without them the frame's scale would start from nothing)
+            sums = [0.0, 0.0, 0.0, 0.0]
+            for t, data in enumerate(snap.tile_buffers):
+                if data is not None:
+                    summary = tile_summary(SampleBuffer.from_bytes(data))
+                    summaries[str(t)] = " ".join(repr(float(x)) for x in summary)
+                    sums = [a + b for a, b in zip(sums, summary, strict=True)]
+            fields.update(zip(("err_sum", "root_sum", "quarter_sum", "err_pixels"), sums,
+                              strict=True))
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(meta.id), mapping=fields)
+        if summaries:
+            pipe.hset(self.k("job", meta.id, "tile_err"), mapping=summaries)
         pipe.set(self.k("job", meta.id, "scene"), snap.scene_json)
         if snap.frames_json is not None:
             pipe.set(self.k("job", meta.id, "frames"), snap.frames_json)

@@ -385,18 +385,31 @@ def test_a_job_no_live_worker_renders_stalls_sooner(own_redis, prefix):
     store.r.close()
 
 
-def test_a_target_job_queues_only_each_tiles_first_pass(own_redis, prefix, tiny_scene):
+def test_a_target_job_queues_only_each_tiles_first_pass(own_redis, prefix, tiny_scene,
+                                                        tmp_path):
     """Submitted through the API (no workers): a job with a target error puts pass 0 of each
-    tile in the queue; the same job without one puts every planned pass."""
-    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None, **TIMINGS)
+    tile in the queue; cancelled, parked out of Redis and retried, it comes back with its
+    target and queues each tile's first unmerged pass again, not every planned pass; the same
+    job without a target puts every planned pass."""
+    from tests.conftest import wait_until
+
+    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None,
+                        data_dir=tmp_path, park_after=0.0, sweep_interval=0.2, **TIMINGS)
     store = JobStore.from_url(own_redis.url, prefix)
     target = copy.deepcopy(tiny_scene)
     target["render"].update(spp=256, target_error=0.02)
     with TestClient(create_app(settings)) as api:
         job = api.post("/api/jobs", json={"scene": target, "tile_size": 8}).json()
         assert job["passes"] > 1
-        assert sorted(_queued_passes(store, 0)) == [(job["id"], t, 0)
-                                                    for t in range(job["tiles"])]
+        heads = [(job["id"], t, 0) for t in range(job["tiles"])]
+        assert sorted(_queued_passes(store, 0)) == heads
+        store.r.delete(*_queue_keys(0))
+        assert api.delete(f"/api/jobs/{job['id']}").json()["status"] == "cancelled"
+        wait_until(lambda: store.get_status(job["id"]) is None, 30, "the job parked")
+        r = api.post(f"/api/jobs/{job['id']}/retry")
+        assert r.status_code == 200, r.text
+        assert r.json()["target_error"] == 0.02
+        assert sorted(_queued_passes(store, 0)) == heads
         store.r.delete(*_queue_keys(0))
         plain = copy.deepcopy(target)
         del plain["render"]["target_error"]

@@ -17,6 +17,7 @@ import threading
 import time
 import uuid
 
+import pytest
 from fastapi.testclient import TestClient
 from sqlalchemy import inspect
 
@@ -122,6 +123,60 @@ def test_a_plans_pass_growth_lasts_in_the_records_redis_and_a_snapshot(tmp_path,
     head["meta"]["plan"] = head["meta"]["plan"][:7]  # a snapshot from before the field
     before = JobSnapshot.from_bytes(json.dumps(head).encode() + b"\n" + rest)
     assert before.meta.plan.pass_growth == 1
+
+
+def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
+    """A job with render.target_error keeps, beside its tiles, the target and the sums of its
+    tiles' error summaries (the frame's scale and expected error come from them). Parked and
+    restored (a retry), it has the same target, the same sums and the same per-tile summaries
+    that its merges kept: each is a function of the tile's merged buffer. Without them the
+    retry would send every unmerged pass (not one chain a tile) and the frame's estimate would
+    count only the tiles merged after it."""
+    import numpy as np
+
+    from renderer.film.buffer import SampleBuffer
+    from services.farm.store import JobSnapshot
+
+    rng = np.random.default_rng(7)
+    plan = Plan(32, 16, 64, 16, 8)  # 2 tiles x 8 passes of 8
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02)
+    for t, passes in ((0, 2), (1, 1)):
+        for p in range(passes):
+            buf = SampleBuffer.empty(*plan.tile_rect(t))
+            x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
+            buf.sum[:] = x.sum(axis=0)
+            buf.sum_sq[:] = (x * x).sum(axis=0)
+            buf.count[:] = 8
+            store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
+            assert store.merge_pass_buffer(job_id, t, p)
+    before = store.get_job(job_id)
+    kept = store.r.hgetall(store.k("job", job_id, "tile_err"))
+    assert before.target_error == 0.02 and before.expected_error is not None and len(kept) == 2
+
+    snap = store.snapshot(job_id)
+    assert JobSnapshot.from_bytes(snap.to_bytes()).meta.target_error == 0.02
+    assert store.delete_job(job_id, statuses=("queued", "running"))
+    store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
+    after = store.get_job(job_id)
+    assert after.target_error == 0.02
+    for name in ("err_sum", "root_sum", "quarter_sum", "err_pixels"):
+        assert getattr(after, name) == pytest.approx(getattr(before, name), rel=1e-12), name
+    assert after.expected_error == pytest.approx(before.expected_error, rel=1e-12)
+    restored = store.r.hgetall(store.k("job", job_id, "tile_err"))
+    assert restored.keys() == kept.keys()
+    for t, summary in kept.items():
+        assert [float(x) for x in restored[t].split()] == pytest.approx(
+            [float(x) for x in summary.split()], rel=1e-12)
+
+    # A snapshot of a job without a target restores without one, and no summaries
+    plain = uuid.uuid4().hex
+    store.create_job(plain, "", 0, plan, b"{}", {}, time.time())
+    snap = store.snapshot(plain)
+    assert store.delete_job(plain, statuses=("queued",))
+    store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
+    assert store.get_job(plain).target_error is None
+    assert not store.r.exists(store.k("job", plain, "tile_err"))
 
 
 def test_listing_pages_and_filters_in_the_database(client, settings):
