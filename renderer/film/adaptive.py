@@ -63,8 +63,14 @@ AIM = 0.8
 # (a fraction of the buffer's mean variance): neighbour_variance.
 RADIUS = 2
 FLOOR = 0.1
-# Halvings of the allocation's scale interval (2⁻³⁰ of it: far below one sample's rounding)
-BISECTIONS = 30
+# Halvings of the allocation's scale once bracketed within a factor 2: the scale to 2⁻¹³ of
+# itself, so no pixel's count is more than ~n/8000 above the least that meets the target (one
+# sample at most below 8000 samples).
+BISECTIONS = 12
+# Halvings of [0, hi] for the farm's frame-wide scale (frame_scale: a few scalars, so fine)
+FRAME_BISECTIONS = 60
+# Halvings of [0, scale] for a round's budget (a round's size needs no finer grain)
+BUDGET_BISECTIONS = 12
 # The small-sample correction of the error estimate (small_sample_error)
 SMALL_SAMPLE_K = 3.0
 # A sample's cost besides its path segments (the camera ray, the pixel's bookkeeping), in
@@ -72,25 +78,37 @@ SMALL_SAMPLE_K = 3.0
 SEGMENT_OVERHEAD = 1.0
 
 
+def _window_sums(values: np.ndarray, radius: int) -> np.ndarray:
+    """Σ of ``values`` (h, w, ...) over each pixel's (2r+1)² window less the pixel itself, zero
+    outside. Separable (a row sum, then a column sum: 4r additions of the frame, not (2r+1)² − 1)
+    and without a subtraction, so the pixel's own value never enters its sum, not even as a
+    rounding residue: a firefly's variance cannot leak into its own estimate or wipe out its
+    neighbours' small ones."""
+    h, w = values.shape[:2]
+    r = radius
+    pv = np.pad(values, ((r, r), (r, r)) + ((0, 0),) * (values.ndim - 2))
+    # along the rows: the window less its centre column, then with it
+    side = pv[:, 0:w].copy()
+    for dx in range(1, 2 * r + 1):
+        if dx != r:
+            side += pv[:, dx:dx + w]
+    full = side + pv[:, r:r + w]
+    # down the columns: the full rows above and below, the centre row less its centre
+    out = side[r:r + h].copy()
+    for dy in range(2 * r + 1):
+        if dy != r:
+            out += full[dy:dy + h]
+    return out
+
+
 def _neighbour_mean(values: np.ndarray, ok: np.ndarray,
                     radius: int = 1) -> tuple[np.ndarray, np.ndarray]:
     """The mean of ``values`` (h, w, ...) over each pixel's neighbours within ``radius`` (a
     (2r+1)² window) where ``ok`` (h, w), never the pixel itself; and how many counted, (h, w)."""
-    h, w = ok.shape
     extra = values.shape[2:]
     vals = np.where(ok.reshape(ok.shape + (1,) * len(extra)), values, 0.0)
-    r = radius
-    pad = ((r, r), (r, r)) + ((0, 0),) * len(extra)
-    pv = np.pad(vals, pad)
-    pk = np.pad(ok.astype(np.float64), r)
-    total = np.zeros(values.shape)
-    weight = np.zeros((h, w))
-    for dy in range(2 * r + 1):
-        for dx in range(2 * r + 1):
-            if dy == r and dx == r:
-                continue
-            total += pv[dy:dy + h, dx:dx + w]
-            weight += pk[dy:dy + h, dx:dx + w]
+    total = _window_sums(vals, radius)
+    weight = _window_sums(ok.astype(np.float64), radius)
     with np.errstate(invalid="ignore", divide="ignore"):
         mean = total / weight.reshape(weight.shape + (1,) * len(extra))
     return mean, weight
@@ -139,8 +157,9 @@ def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndar
     mean, s2, ok = _moments(buf)
     if not ok.any():
         return np.full(ok.shape, math.nan)
-    s2_around, k = _neighbour_mean(s2, ok, RADIUS)
-    m_around, _ = _neighbour_mean(mean, ok, RADIUS)
+    # (both in one pass over the neighbourhoods)
+    around, k = _neighbour_mean(np.concatenate([s2, mean], axis=-1), ok, RADIUS)
+    s2_around, m_around = around[..., :3], around[..., 3:]
     with np.errstate(invalid="ignore"):
         v = np.mean(s2_around / (m_around * m_around + EPSILON), axis=-1)
     has = k > 0
@@ -180,18 +199,32 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
         return np.clip(np.ceil(lam * root), lo, cap)
 
     if scale is None:
-        with np.errstate(divide="ignore", invalid="ignore"):
-            def error(lam: float) -> float:
-                n = counts(lam)
-                return small_sample_error(ve, n)
+        # The error of a scale, over the pixels that add to it (small_sample_error's terms
+        # without its masks, on arrays cut to those pixels once: the solve evaluates it ~20 times)
+        pixels = v.size
+        live = ve > 0
+        ve_l, root_l, lo_l = ve[live], root[live], lo[live]
+
+        def error(lam: float) -> float:
+            n = np.maximum(np.clip(np.ceil(lam * root_l), lo_l, cap), 1.0)
+            return float(np.sum(ve_l * (1.0 + SMALL_SAMPLE_K / np.sqrt(n)) / n)) / pixels
 
         if error(0.0) <= target:
             return lo.astype(np.int64)
-        lo_lam, hi_lam = 0.0, 1.0
-        while error(hi_lam) > target:
-            hi_lam *= 2.0
-            if hi_lam * float(root.min(initial=math.inf, where=v > 0)) > cap:
-                return counts(hi_lam).astype(np.int64)  # the cap everywhere that needs samples
+        # Bracket the scale within a factor 2, from where it would be without the clamps and
+        # the correction ((1/P) Σ v_p / (λ root_p) = target), then halve the bracket
+        # BISECTIONS times
+        guess = float(np.sum(ve_l[root_l > 0] / root_l[root_l > 0])) / (pixels * target)
+        hi_lam = guess if math.isfinite(guess) and guess > 0 else 1.0
+        if error(hi_lam) > target:
+            while error(hi_lam) > target:
+                hi_lam *= 2.0
+                if hi_lam * float(root.min(initial=math.inf, where=v > 0)) > cap:
+                    return counts(hi_lam).astype(np.int64)  # the cap everywhere needing samples
+        else:
+            while hi_lam > 1e-300 and error(0.5 * hi_lam) <= target:
+                hi_lam *= 0.5
+        lo_lam = 0.5 * hi_lam
         for _ in range(BISECTIONS):
             mid = 0.5 * (lo_lam + hi_lam)
             if error(mid) > target:
@@ -201,7 +234,7 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
         scale = hi_lam
     if budget is not None and float(np.sum(c * (counts(scale) - lo))) > budget:
         lo_lam, hi_lam = 0.0, scale
-        for _ in range(BISECTIONS):
+        for _ in range(BUDGET_BISECTIONS):
             mid = 0.5 * (lo_lam + hi_lam)
             if float(np.sum(c * (counts(mid) - lo))) > budget:
                 hi_lam = mid
@@ -283,7 +316,7 @@ def frame_scale(root_sum: float, quarter_sum: float, pixels: int, target: float)
     lo, hi = 0.0, 1.0
     while error(hi) < aim:
         hi *= 2.0
-    for _ in range(BISECTIONS * 2):
+    for _ in range(FRAME_BISECTIONS):
         mid = 0.5 * (lo + hi)
         if error(mid) < aim:
             lo = mid
