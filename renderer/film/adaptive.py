@@ -51,6 +51,7 @@ import math
 import numpy as np
 
 from renderer.film.buffer import SampleBuffer
+from renderer.jit import kernel
 
 EPSILON = 0.01
 # Samples every pixel takes before any allocation (the pilot); the variance estimates of the
@@ -142,6 +143,61 @@ def sample_variance(buf: SampleBuffer) -> np.ndarray:
     return np.where(ok, v, np.nan)
 
 
+@kernel
+def _neighbour_variance_kernel(sums, sums_sq, count, radius, eps, moments, rows, window,
+                               out_v, out_k):
+    """``neighbour_variance`` before its fallback and floor, in one kernel instead of the dozen
+    numpy passes it took: each pixel's moments (``_moments``: its mean and s² per
+    channel where it has 2 samples, and 1), their sums over its window less itself (the
+    separable, subtraction-free order of ``_window_sums``), then v = mean_c (Σs²/k) /
+    ((Σm/k)² + eps) into ``out_v`` (NaN where no neighbour has samples) and k into ``out_k``.
+    ``moments``, ``rows`` and ``window`` (h, w, 7) are scratch."""
+    h, w = count.shape
+    for y in range(h):
+        for x in range(w):
+            n = count[y, x]
+            for c in range(7):
+                moments[y, x, c] = 0.0
+            if n >= 2:
+                for c in range(3):
+                    m = sums[y, x, c] / n
+                    moments[y, x, c] = max(sums_sq[y, x, c] - n * m * m, 0.0) / (n - 1)
+                    moments[y, x, 3 + c] = m
+                moments[y, x, 6] = 1.0
+    # along each row: the window less its centre column
+    for y in range(h):
+        for x in range(w):
+            for c in range(7):
+                total = 0.0
+                for xx in range(max(0, x - radius), min(w, x + radius + 1)):
+                    if xx != x:
+                        total += moments[y, xx, c]
+                rows[y, x, c] = total
+    # down each column: the full rows above and below (the row less its centre column, plus
+    # that column), and the centre row less its centre
+    for y in range(h):
+        for x in range(w):
+            for c in range(7):
+                total = 0.0
+                for yy in range(max(0, y - radius), min(h, y + radius + 1)):
+                    total += rows[yy, x, c]
+                    if yy != y:
+                        total += moments[yy, x, c]
+                window[y, x, c] = total
+    for y in range(h):
+        for x in range(w):
+            k = window[y, x, 6]
+            out_k[y, x] = k
+            if k > 0.0:
+                v = 0.0
+                for c in range(3):
+                    m = window[y, x, 3 + c] / k
+                    v += window[y, x, c] / k / (m * m + eps)
+                out_v[y, x] = v / 3.0
+            else:
+                out_v[y, x] = np.nan
+
+
 def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndarray:
     """The allocation's estimate of every pixel's v_p from its neighbours' samples only: over the
     pixels q of its 5×5 neighbourhood but itself that have samples, mean_c [mean_q s²_qc] /
@@ -154,19 +210,37 @@ def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndar
     The pooling and the floor are there because a few samples of heavy-tailed radiance (a path
     that is bright once in hundreds) mostly show no variance at all: on the chart suite a 16-sample
     pilot pooled over 3×3 and trusted as is left the frame 1.5–2× above its target."""
-    mean, s2, ok = _moments(buf)
+    ok = buf.count >= 2
     if not ok.any():
         return np.full(ok.shape, math.nan)
-    # (both in one pass over the neighbourhoods)
-    around, k = _neighbour_mean(np.concatenate([s2, mean], axis=-1), ok, RADIUS)
-    s2_around, m_around = around[..., :3], around[..., 3:]
-    with np.errstate(invalid="ignore"):
-        v = np.mean(s2_around / (m_around * m_around + EPSILON), axis=-1)
+    h, w = ok.shape
+    v, k = np.empty((h, w)), np.empty((h, w))
+    _neighbour_variance_kernel(np.ascontiguousarray(buf.sum, np.float64),
+                               np.ascontiguousarray(buf.sum_sq, np.float64),
+                               np.ascontiguousarray(buf.count, np.int64), RADIUS, EPSILON,
+                               np.empty((h, w, 7)), np.empty((h, w, 7)), np.empty((h, w, 7)),
+                               v, k)
     has = k > 0
-    fallback = float(v[has].mean()) if has.any() else float(
-        np.mean(s2[ok] / (mean[ok] ** 2 + EPSILON)))
+    if has.any():
+        fallback = float(v[has].mean())
+    else:
+        mean, s2, _ = _moments(buf)
+        fallback = float(np.mean(s2[ok] / (mean[ok] ** 2 + EPSILON)))
     v = np.where(has, v, fallback)
     return np.maximum(v, (FLOOR if floor is None else floor) * float(v.mean()))
+
+
+@kernel
+def _allocation_error(lam, root, lo, ve, cap):
+    """Σ v_p (1 + K/√n_p) / n_p with n_p = clamp(⌈λ root_p⌉, lo_p, cap), at least 1: the
+    numerator of ``small_sample_error`` for the counts of scale ``lam`` (``allocate``'s solve
+    evaluates it ~20 times a round), in one pass."""
+    total = 0.0
+    for i in range(root.shape[0]):
+        n = min(max(math.ceil(lam * root[i]), lo[i]), cap)
+        n = max(n, 1.0)
+        total += ve[i] * (1.0 + SMALL_SAMPLE_K / math.sqrt(n)) / n
+    return total
 
 
 def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
@@ -199,15 +273,14 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
         return np.clip(np.ceil(lam * root), lo, cap)
 
     if scale is None:
-        # The error of a scale, over the pixels that add to it (small_sample_error's terms
-        # without its masks, on arrays cut to those pixels once: the solve evaluates it ~20 times)
+        # The error of a scale, over the pixels that add to it (small_sample_error's terms,
+        # on arrays cut to those pixels once)
         pixels = v.size
         live = ve > 0
         ve_l, root_l, lo_l = ve[live], root[live], lo[live]
 
         def error(lam: float) -> float:
-            n = np.maximum(np.clip(np.ceil(lam * root_l), lo_l, cap), 1.0)
-            return float(np.sum(ve_l * (1.0 + SMALL_SAMPLE_K / np.sqrt(n)) / n)) / pixels
+            return _allocation_error(lam, root_l, lo_l, ve_l, float(cap)) / pixels
 
         if error(0.0) <= target:
             return lo.astype(np.int64)

@@ -125,6 +125,35 @@ def test_neighbour_means_are_the_windows_less_the_pixel():
                         assert np.isnan(mean[y, x]).all()
 
 
+def test_neighbour_variance_is_its_definition():
+    """The one-pass kernel against the estimate written out in numpy: per pixel with 2 samples
+    its mean and s² (``_moments``), their means over the 5×5 window less the pixel
+    (``_neighbour_mean``), v = mean_c s̄² / (m̄² + ε); pixels with and without samples mixed,
+    radiance over 16 orders of magnitude, frames down to 1×1 and one row."""
+    rng = np.random.default_rng(13)
+    for shape in ((1, 1), (1, 7), (3, 2), (16, 12)):
+        buf = SampleBuffer.empty(0, 0, shape[1], shape[0])
+        n = rng.integers(2, 40, shape)
+        n[rng.random(shape) < 0.3] = rng.integers(0, 2)
+        x = rng.lognormal(0.0, 2.0, shape + (3,)) * 10.0 ** rng.integers(-8, 8, shape + (1,))
+        buf.count[:] = n
+        buf.sum[:] = x * n[..., None]
+        buf.sum_sq[:] = x * x * n[..., None] * rng.uniform(1.0, 3.0, shape + (1,))
+        mean, s2, ok = adaptive._moments(buf)
+        if not ok.any():
+            assert np.isnan(neighbour_variance(buf)).all()
+            continue
+        s2_around, k = adaptive._neighbour_mean(s2, ok, adaptive.RADIUS)
+        m_around, _ = adaptive._neighbour_mean(mean, ok, adaptive.RADIUS)
+        with np.errstate(invalid="ignore"):
+            v = np.mean(s2_around / (m_around**2 + EPSILON), axis=-1)
+        fallback = v[k > 0].mean() if (k > 0).any() else np.mean(s2[ok] / (mean[ok]**2 + EPSILON))
+        v = np.where(k > 0, v, fallback)
+        np.testing.assert_allclose(neighbour_variance(buf, floor=0.0), v, rtol=1e-12)
+        np.testing.assert_allclose(neighbour_variance(buf), np.maximum(v, 0.1 * v.mean()),
+                                   rtol=1e-12)
+
+
 # --------------------------------------------------------------------------------------------------
 # The allocation
 # --------------------------------------------------------------------------------------------------
