@@ -79,27 +79,42 @@ SMALL_SAMPLE_K = 3.0
 SEGMENT_OVERHEAD = 1.0
 
 
+@kernel
+def _window_sums_kernel(values, radius, rows, out):
+    """Σ of ``values`` (h, w, c) over each pixel's (2r+1)² window less the pixel itself (zero
+    outside the frame) into ``out`` (h, w, c); ``rows`` (h, w, c) is scratch. Separable (along
+    each row the window less its centre column, then down each column the full rows above and
+    below and the centre row less its centre: 4r additions a value, not (2r+1)² − 1) and without
+    a subtraction, so a pixel's own value never enters its sum, not even as a rounding residue:
+    a firefly's variance cannot leak into its own estimate or wipe out its neighbours' small
+    ones."""
+    h, w, channels = values.shape
+    for y in range(h):
+        for x in range(w):
+            for c in range(channels):
+                total = 0.0
+                for xx in range(max(0, x - radius), min(w, x + radius + 1)):
+                    if xx != x:
+                        total += values[y, xx, c]
+                rows[y, x, c] = total
+    for y in range(h):
+        for x in range(w):
+            for c in range(channels):
+                total = 0.0
+                for yy in range(max(0, y - radius), min(h, y + radius + 1)):
+                    total += rows[yy, x, c]
+                    if yy != y:
+                        total += values[yy, x, c]
+                out[y, x, c] = total
+
+
 def _window_sums(values: np.ndarray, radius: int) -> np.ndarray:
-    """Σ of ``values`` (h, w, ...) over each pixel's (2r+1)² window less the pixel itself, zero
-    outside. Separable (a row sum, then a column sum: 4r additions of the frame, not (2r+1)² − 1)
-    and without a subtraction, so the pixel's own value never enters its sum, not even as a
-    rounding residue: a firefly's variance cannot leak into its own estimate or wipe out its
-    neighbours' small ones."""
+    """``_window_sums_kernel`` for an array (h, w, ...) of any trailing shape."""
     h, w = values.shape[:2]
-    r = radius
-    pv = np.pad(values, ((r, r), (r, r)) + ((0, 0),) * (values.ndim - 2))
-    # along the rows: the window less its centre column, then with it
-    side = pv[:, 0:w].copy()
-    for dx in range(1, 2 * r + 1):
-        if dx != r:
-            side += pv[:, dx:dx + w]
-    full = side + pv[:, r:r + w]
-    # down the columns: the full rows above and below, the centre row less its centre
-    out = side[r:r + h].copy()
-    for dy in range(2 * r + 1):
-        if dy != r:
-            out += full[dy:dy + h]
-    return out
+    flat = np.ascontiguousarray(values, np.float64).reshape(h, w, -1)
+    out = np.empty_like(flat)
+    _window_sums_kernel(flat, radius, np.empty_like(flat), out)
+    return out.reshape(values.shape)
 
 
 def _neighbour_mean(values: np.ndarray, ok: np.ndarray,
@@ -147,11 +162,10 @@ def sample_variance(buf: SampleBuffer) -> np.ndarray:
 def _neighbour_variance_kernel(sums, sums_sq, count, radius, eps, moments, rows, window,
                                out_v, out_k):
     """``neighbour_variance`` before its fallback and floor, in one kernel instead of the dozen
-    numpy passes it took: each pixel's moments (``_moments``: its mean and s² per
-    channel where it has 2 samples, and 1), their sums over its window less itself (the
-    separable, subtraction-free order of ``_window_sums``), then v = mean_c (Σs²/k) /
-    ((Σm/k)² + eps) into ``out_v`` (NaN where no neighbour has samples) and k into ``out_k``.
-    ``moments``, ``rows`` and ``window`` (h, w, 7) are scratch."""
+    numpy passes it took: each pixel's moments (``_moments``: its mean and s² per channel where
+    it has 2 samples, and 1), their sums over its window less itself (``_window_sums_kernel``),
+    then v = mean_c (Σs²/k) / ((Σm/k)² + eps) into ``out_v`` (NaN where no neighbour has
+    samples) and k into ``out_k``. ``moments``, ``rows`` and ``window`` (h, w, 7) are scratch."""
     h, w = count.shape
     for y in range(h):
         for x in range(w):
@@ -164,26 +178,7 @@ def _neighbour_variance_kernel(sums, sums_sq, count, radius, eps, moments, rows,
                     moments[y, x, c] = max(sums_sq[y, x, c] - n * m * m, 0.0) / (n - 1)
                     moments[y, x, 3 + c] = m
                 moments[y, x, 6] = 1.0
-    # along each row: the window less its centre column
-    for y in range(h):
-        for x in range(w):
-            for c in range(7):
-                total = 0.0
-                for xx in range(max(0, x - radius), min(w, x + radius + 1)):
-                    if xx != x:
-                        total += moments[y, xx, c]
-                rows[y, x, c] = total
-    # down each column: the full rows above and below (the row less its centre column, plus
-    # that column), and the centre row less its centre
-    for y in range(h):
-        for x in range(w):
-            for c in range(7):
-                total = 0.0
-                for yy in range(max(0, y - radius), min(h, y + radius + 1)):
-                    total += rows[yy, x, c]
-                    if yy != y:
-                        total += moments[yy, x, c]
-                window[y, x, c] = total
+    _window_sums_kernel(moments, radius, rows, window)
     for y in range(h):
         for x in range(w):
             k = window[y, x, 6]
