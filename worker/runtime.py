@@ -46,14 +46,16 @@ WARM_UP_SCENE = {
 
 
 def warm_up_kernels() -> float:
-    """Render the warm-up scene once (loads or compiles the kernels) and mark the cache folder
-    warm; returns seconds."""
+    """Render the warm-up scene once and run the adaptive rule's kernels (loads or compiles
+    them) and mark the cache folder warm; returns seconds."""
+    from renderer.film import adaptive
     from renderer.render import render_tile
     from renderer.scene import load_scene
     from renderer.scene.compile import compile_scene
 
     t0 = time.perf_counter()
     render_tile(compile_scene(load_scene(WARM_UP_SCENE)), 0, 0, 4, 4, 0, 1)
+    adaptive.warm_up()
     seconds = time.perf_counter() - t0
     try:
         marker = warm_marker()

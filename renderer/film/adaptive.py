@@ -418,6 +418,18 @@ def tile_converged(buf: SampleBuffer, target: float, cap: int,
     return not bool(pass_counts(buf, target, cap, cap, scale).any())
 
 
+def warm_up() -> None:
+    """Load (or compile) the kernels of the rule on a 4×4 frame of 8 samples a pixel, so that a
+    farm worker's first pass of a job with a target does not pay for them (its warm-up calls
+    this: ``worker.runtime.warm_up_kernels``)."""
+    buf = SampleBuffer.empty(0, 0, 4, 4)
+    buf.count[:] = PILOT
+    buf.sum[:] = np.arange(16, dtype=np.float64).reshape(4, 4, 1)
+    buf.sum_sq[:] = 2.0 * buf.sum * buf.sum + 1.0
+    pass_counts(buf, 0.01, 64, 8)
+    tile_summary(buf)
+
+
 def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: int,
                      plan=None, progress=None, max_pass: int | None = None,
                      max_rounds: int = 64) -> SampleBuffer:
