@@ -205,6 +205,15 @@ def _plan_fields(plan: Plan) -> dict[str, Any]:
             "frames": plan.frames, "tasks_total": plan.n_tasks}
 
 
+# A job with a target: the job-hash fields that sum its tiles' error summaries, in the order of
+# ``renderer.film.adaptive.tile_summary``'s tuple, and a summary as its ``tile_err`` entry
+ERROR_SUMS = ("err_sum", "root_sum", "quarter_sum", "err_pixels")
+
+
+def _summary_text(summary: tuple[float, float, float, int]) -> str:
+    return " ".join(repr(float(x)) for x in summary)
+
+
 # ``merge_pass_buffer``'s answer when its merge counted the job's last task
 MERGED_LAST = 2
 
@@ -634,10 +643,9 @@ class JobStore:
             for t, data in enumerate(snap.tile_buffers):
                 if data is not None:
                     summary = tile_summary(SampleBuffer.from_bytes(data))
-                    summaries[str(t)] = " ".join(repr(float(x)) for x in summary)
+                    summaries[str(t)] = _summary_text(summary)
                     sums = [a + b for a, b in zip(sums, summary, strict=True)]
-            fields.update(zip(("err_sum", "root_sum", "quarter_sum", "err_pixels"), sums,
-                              strict=True))
+            fields.update(zip(ERROR_SUMS, sums, strict=True))
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(meta.id), mapping=fields)
         if summaries:
@@ -906,9 +914,8 @@ class JobStore:
                     pipe.hincrby(job_key, "version", 1)
                     pipe.hset(job_key, "active_at", time.time())  # the stall clock restarts
                     if summary is not None and delta is not None:
-                        pipe.hset(err_key, str(tile), " ".join(repr(float(x)) for x in summary))
-                        for name, d in zip(("err_sum", "root_sum", "quarter_sum", "err_pixels"),
-                                           delta, strict=True):
+                        pipe.hset(err_key, str(tile), _summary_text(summary))
+                        for name, d in zip(ERROR_SUMS, delta, strict=True):
                             pipe.hincrbyfloat(job_key, name, d)
                     replies = pipe.execute()
                     break
