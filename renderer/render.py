@@ -14,7 +14,7 @@ from renderer.integrators.path import render_tile_kernel
 from renderer.scene.compile import CompiledScene, compile_scene
 from renderer.wavefront.cpu import render_tile_wavefront, unsupported
 
-KERNELS = ("scalar", "wavefront")  # render_tile's kernels (the CLI's --kernel)
+KERNELS = ("scalar", "wavefront", "gpu")  # render_tile's kernels (the CLI's --kernel)
 
 
 def render_tile(
@@ -34,9 +34,10 @@ def render_tile(
     rendered as passes 0–7 and 8–15 adds up to the tile rendered as 0–15. ``active`` (h, w)
     limits the pass to the pixels where it is true (a bool or uint8 mask), or gives each pixel
     its number of samples, the first ones of the range (integers; adaptive sampling). ``kernel`` is
-    ``"scalar"`` (one path at a time, every method) or ``"wavefront"`` (batches of paths stage by
-    stage, ``renderer.wavefront``), which renders the scenes it covers (surface materials, the
-    independent sampler) and leaves the others to the scalar kernel.
+    ``"scalar"`` (one path at a time, every method), ``"wavefront"`` (batches of paths stage by
+    stage, ``renderer.wavefront``) or ``"gpu"`` (the same stages as CUDA kernels on this
+    process's GPU, ``renderer.wavefront.gpu``). The last two render the scenes they cover
+    (surface materials, the independent sampler) and leave the others to the scalar kernel.
     """
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {KERNELS}, not {kernel!r}")
@@ -55,11 +56,16 @@ def render_tile(
         counts = np.where(active.astype(bool), sample_count, 0).astype(np.int32)
     else:
         counts = np.clip(active, 0, sample_count).astype(np.int32)
-    if kernel == "wavefront" and unsupported(scene) is None:
-        # The wavefront kernel takes a mask: one call per distinct count
+    if kernel != "scalar" and unsupported(scene) is None:
+        if kernel == "gpu":
+            # numba.cuda is imported only by a process that renders on a GPU
+            from renderer.wavefront.gpu import render_tile_gpu as batched
+        else:
+            batched = render_tile_wavefront
+        # The batched kernels take a mask: one call per distinct count
         for c in np.unique(counts[counts > 0]):
-            buf.add(render_tile_wavefront(scene, x0, y0, width, height, sample_start, int(c),
-                                          np.ascontiguousarray(counts == c, dtype=np.uint8)))
+            buf.add(batched(scene, x0, y0, width, height, sample_start, int(c),
+                            np.ascontiguousarray(counts == c, dtype=np.uint8)))
         return buf
     if width and height and sample_count:
         render_tile_kernel(

@@ -10,6 +10,7 @@ On a farm (the code lives in ``services/`` and ``worker/``):
 
     lucent up [--host 127.0.0.1] [--port 8000] [--workers N] [--tags gpu,bigmem]
     lucent worker --redis URL [--concurrency N] [--threads N] [--tags gpu,bigmem]
+                  [--kernel scalar|wavefront|gpu]
     lucent submit SCENE.json [--server URL] [--wait] [-o OUT.{exr,png,npy}]
     lucent demo [SCENE.json] [-o OUT ...]
 """
@@ -101,6 +102,7 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from renderer.render import render_buffer
     from renderer.scene.compile import CompileError, compile_scene
+    from renderer.wavefront import gpu_missing
     from renderer.wavefront.cpu import unsupported
 
     t0 = time.perf_counter()
@@ -120,9 +122,12 @@ def cmd_render(args: argparse.Namespace) -> int:
         f"{threads} threads (scene compiled in {t_compile:.2f} s)",
         file=sys.stderr,
     )
-    if args.kernel == "wavefront" and (reason := unsupported(compiled)) is not None:
-        print(f"the wavefront kernel does not cover {reason}: the scalar kernel renders it",
+    if args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
+        print(f"the {args.kernel} kernel does not cover {reason}: the scalar kernel renders it",
               file=sys.stderr)
+    elif args.kernel == "gpu" and (missing := gpu_missing()) is not None:
+        print(f"--kernel gpu: {missing}", file=sys.stderr)
+        return 1
     total = compiled.width * compiled.height * spp
     with tqdm(total=total, unit="samples", unit_scale=True, disable=args.quiet,
               file=sys.stderr, smoothing=0.3) as bar:
@@ -222,8 +227,19 @@ def cmd_worker(args: argparse.Namespace) -> int:
 
     from services.launcher import worker_command, worker_env
 
-    env = worker_env(args.redis, args.threads,
-                     {"LUCENT_WORKER_TAGS": ",".join(args.tags)} if args.tags else None)
+    extra = {"LUCENT_WORKER_TAGS": ",".join(args.tags)} if args.tags else {}
+    if args.kernel is not None:
+        if args.kernel == "gpu":
+            from renderer.wavefront import gpu_missing
+
+            # CUDA is initialised here, in the process that execs Celery: the exec drops it, so
+            # the pool's forks start without it and each initialises its own
+            missing = gpu_missing()
+            if missing is not None:
+                print(f"--kernel gpu: {missing}", file=sys.stderr)
+                return 1
+        extra["LUCENT_WORKER_KERNEL"] = args.kernel
+    env = worker_env(args.redis, args.threads, extra)
     cmd = worker_command(args.concurrency, args.name, args.loglevel)
     os.execvpe(cmd[0], cmd, env)
     return 0  # not reached
@@ -321,10 +337,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampler", choices=["independent", "sobol"],
                    help="random numbers of a sample (default: the scene's render.sampler)")
     p.add_argument("--threads", type=int, help="render threads (default: all cores)")
-    p.add_argument("--kernel", choices=["scalar", "wavefront"], default="scalar",
+    p.add_argument("--kernel", choices=["scalar", "wavefront", "gpu"], default="scalar",
                    help="scalar: one path at a time, every method (default); wavefront: batches "
                         "of paths stage by stage, surface materials only (others fall back to "
-                        "scalar)")
+                        "scalar); gpu: the wavefront stages on this machine's CUDA GPU")
     p.add_argument("--exposure", type=float, default=0.0,
                    help="PNG only: exposure in stops, the image is scaled by 2^EV (default 0)")
     p.add_argument("--tonemap", choices=["clamp", "reinhard", "aces"], default="clamp",
@@ -365,6 +381,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pool tags, comma-separated, e.g. gpu,bigmem (default: "
                         "LUCENT_WORKER_TAGS): the node takes untagged jobs and those whose "
                         "tags it has all of")
+    p.add_argument("--kernel", choices=["scalar", "wavefront", "gpu"], default=None,
+                   help="the kernel the node renders with (default: LUCENT_WORKER_KERNEL, else "
+                        "scalar); gpu: the wavefront stages on this host's CUDA GPU, refused "
+                        "where none is seen; tag such a node gpu")
     p.set_defaults(func=cmd_worker)
 
     p = sub.add_parser("submit", help="submit a scene to a farm")

@@ -45,16 +45,22 @@ WARM_UP_SCENE = {
 }
 
 
-def warm_up_kernels() -> float:
+def warm_up_kernels(kernel: str = "scalar") -> float:
     """Render the warm-up scene once and run the adaptive rule's kernels (loads or compiles
-    them) and mark the cache folder warm; returns seconds."""
+    them) and mark the cache folder warm; returns seconds. With another ``kernel`` (the node's
+    ``worker_kernel``) the scene is rendered with it too: the scalar kernel stays the one for
+    scenes the batched kernels do not cover. numba does not cache CUDA kernels on disk, so with
+    ``gpu`` each pool process compiles them here (21.6 s on an H200's host, docs/performance.md)."""
     from renderer.film import adaptive
     from renderer.render import render_tile
     from renderer.scene import load_scene
     from renderer.scene.compile import compile_scene
 
     t0 = time.perf_counter()
-    render_tile(compile_scene(load_scene(WARM_UP_SCENE)), 0, 0, 4, 4, 0, 1)
+    compiled = compile_scene(load_scene(WARM_UP_SCENE))
+    render_tile(compiled, 0, 0, 4, 4, 0, 1)
+    if kernel != "scalar":
+        render_tile(compiled, 0, 0, 4, 4, 0, 1, kernel=kernel)
     adaptive.warm_up()
     seconds = time.perf_counter() - t0
     try:
@@ -156,7 +162,18 @@ class WorkerState:
     # --- JIT warm-up ----------------------------------------------------------------------------
     def warm_up(self) -> float:
         """Render the warm-up scene once (loads or compiles the kernels); returns seconds."""
-        return warm_up_kernels()
+        kernel = self.settings.worker_kernel
+        if kernel == "gpu":
+            from renderer.wavefront import gpu_missing
+
+            missing = gpu_missing()
+            if missing is not None:
+                # LUCENT_WORKER_KERNEL=gpu where no GPU is seen (``lucent worker`` refuses to
+                # start so): each pass fails with this reason on its tile, and the node is
+                # blocklisted for the job (pass_failed)
+                log.error("worker_kernel gpu: %s", missing)
+                kernel = "scalar"
+        return warm_up_kernels(kernel)
 
     # --- heartbeat ------------------------------------------------------------------------------
     def start_heartbeat(self) -> None:

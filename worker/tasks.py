@@ -213,7 +213,8 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
             store.finish_if_complete(job_id)
             return "converged" if merged else "duplicate"
     t0 = time.perf_counter()
-    buf = render_tile(compiled, x0, y0, w, h, start, count, counts)
+    buf = render_tile(compiled, x0, y0, w, h, start, count, counts,
+                      kernel=state.settings.worker_kernel)
     seconds = time.perf_counter() - t0
     paths = w * h * count if counts is None else int(counts.sum())
     state.count_pass(paths, seconds)

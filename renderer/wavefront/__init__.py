@@ -13,3 +13,16 @@ paths, and at the end accumulate each path's radiance into the tile's sample buf
   (``unsupported``); other scenes are rendered by the scalar kernel.
 - ``gpu``: the same stages as numba.cuda kernels, calling the same per-path functions.
 """
+
+
+def gpu_missing() -> str | None:
+    """Why this process cannot run the ``gpu`` kernel, or None when it can (imports numba.cuda,
+    which is left to the processes that ask)."""
+    try:
+        from numba import cuda
+    except ImportError as err:  # a numba without its CUDA target
+        return f"numba.cuda does not import ({err})"
+    if not cuda.is_available():
+        return ("this process sees no CUDA GPU and driver (numba.cuda.is_available() is false); "
+                "the scalar and wavefront kernels run on the CPU")
+    return None

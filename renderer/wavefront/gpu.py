@@ -9,9 +9,18 @@ stack (``cuda.local.array``), and compaction appends the live paths to a new que
 counter. The queue's order then varies from run to run, but a path's result depends on its own
 slot only, and accumulation adds each pixel's samples in sample order, so the image does not.
 
+Launches are dear from Python: numba passes every field of the scene and path state as
+kernel arguments, so a launch costs far more than a short stage's work, and a queue that runs one
+launch a stage a segment spends most of its time launching once few paths are left (measured on
+an H200 in docs/performance.md, "GPU"). So a batch runs stage by stage only while at least
+``tail`` of its paths are live; ``finish_kernel`` then traces each remaining path to its end in
+one thread, in one launch. The scene's arrays stay on the device between the tiles of a scene,
+and so does the path state between batches of one size.
+
 The CUDA simulator runs these kernels on the CPU in Python (``NUMBA_ENABLE_CUDASIM=1``, with
 ``NUMBA_DISABLE_JIT=1`` so the shared functions are plain Python too): that is how the tests
-check them (tests/renderer/wavefront/test_gpu.py). They have not yet run on a GPU.
+check them (tests/renderer/wavefront/test_gpu.py). On an H200 their sample buffers equal the
+CPU wavefront kernel's (``python -m bench.gpu_speed``).
 """
 
 from __future__ import annotations
@@ -22,7 +31,8 @@ from numba import cuda, float64, int64
 from renderer.film.buffer import SampleBuffer
 from renderer.geometry.flat import FLAT_MAX
 from renderer.integrators.path import MAX_SEGMENTS
-from renderer.wavefront.cpu import BATCH_PATHS, batching, unsupported
+from renderer.wavefront import gpu_missing
+from renderer.wavefront.cpu import batching, unsupported
 from renderer.wavefront.stages import (
     accumulate_one,
     generate_one,
@@ -36,6 +46,11 @@ from renderer.wavefront.state import path_state
 # (STACK − 2) / 7 = 36 levels, far more than compile_scene builds for a million triangles
 STACK = 256
 THREADS = 128  # a block
+# Paths a batch on a GPU: an H200 holds 132 × 2048 threads in flight, so the CPU's 64 Ki paths
+# would leave most of it idle; 1 Mi paths' state is ~320 MiB (bench.gpu_speed sweeps this)
+GPU_BATCH_PATHS = 1 << 20
+# With at most this share of a batch's paths live, finish_kernel traces the rest in one launch
+TAIL = 0.25
 
 
 @cuda.jit
@@ -69,6 +84,24 @@ def shade_kernel(S, P, live, n_live, max_depth):
 
 
 @cuda.jit
+def finish_kernel(S, P, live, n_live, max_depth, segments_left):
+    """Each live path to its end, segment after segment in one thread: what the queue's trace,
+    shade, shadow and compact launches would do to it (a path that shade ends still has its
+    shadow ray traced)."""
+    j = cuda.grid(1)
+    if j < n_live:
+        i = live[j]
+        stack = (cuda.local.array(STACK, int64), cuda.local.array(STACK, float64),
+                 cuda.local.array((3, FLAT_MAX), float64))
+        for _ in range(segments_left):
+            if P.alive[i] == 0:
+                break
+            intersect_one(S, P, i, stack)
+            shade_one(S, P, i, max_depth)
+            shadow_one(S, P, i, stack)
+
+
+@cuda.jit
 def compact_kernel(P, live, n_live, out, count):
     """Append the live paths of the queue to ``out`` (``count[0]`` of them so far)."""
     j = cuda.grid(1)
@@ -96,10 +129,38 @@ def to_device(arrays):
     return type(arrays)(*(cuda.to_device(np.ascontiguousarray(a)) for a in arrays))
 
 
+# The last scene's arrays on the device, and the last batch size's path state: a worker renders
+# many tiles × passes of one scene in a row (the host arrays are held, so an id is not reused)
+_resident: dict[str, tuple] = {}
+
+
+def _scene_on_device(scene):
+    held = _resident.get("scene")
+    if held is None or held[0] is not scene.arrays:
+        held = (scene.arrays, to_device(scene.arrays))
+        _resident["scene"] = held
+    return held[1]
+
+
+def _paths_on_device(n_max: int):
+    held = _resident.get("paths")
+    if held is None or held[0] != n_max:
+        _resident.pop("paths", None)  # free the old state before allocating the new
+        held = (n_max, to_device(path_state(n_max)), cuda.device_array(n_max, np.int64),
+                cuda.device_array(n_max, np.int64), cuda.device_array(1, np.int64))
+        _resident["paths"] = held
+    return held[1:]
+
+
 def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, active=None,
-                    batch_paths: int = BATCH_PATHS) -> SampleBuffer:
+                    batch_paths: int = GPU_BATCH_PATHS, tail: float = TAIL) -> SampleBuffer:
     """``renderer.render.render_tile`` on the GPU: the same sample buffer as the wavefront kernel
-    on the CPU, up to rounding. Scenes the wavefront kernel does not cover are refused."""
+    on the CPU, up to rounding. Scenes the wavefront kernel does not cover are refused, and so is
+    a process that sees no CUDA GPU. ``tail``: at most this share of a batch's paths live,
+    ``finish_kernel`` ends them (0: stage by stage to the end; 1: all in one thread a path)."""
+    missing = gpu_missing()
+    if missing is not None:
+        raise RuntimeError(f"the gpu kernel: {missing}")
     reason = unsupported(scene)
     if reason is not None:
         raise ValueError(f"the GPU kernel does not cover {reason}")
@@ -111,9 +172,9 @@ def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, ac
     work, total, n_max = batching(active, sample_count, batch_paths)
     if total == 0:
         return buf
-    S = to_device(scene.arrays)
-    P = to_device(path_state(n_max))
-    live, spare = cuda.device_array(n_max, np.int64), cuda.device_array(n_max, np.int64)
+    S = _scene_on_device(scene)
+    P, live, spare, count = _paths_on_device(n_max)
+    zero = np.zeros(1, np.int64)
     d_work = cuda.to_device(work)
     out = [cuda.to_device(a) for a in (buf.sum, buf.sum_sq, buf.count, buf.dropped)]
     for g0 in range(0, total, n_max):
@@ -122,14 +183,17 @@ def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, ac
                                              width, d_work, sample_start, sample_count, g0, n,
                                              live)
         n_live = n
-        for _ in range(MAX_SEGMENTS):
+        for segment in range(MAX_SEGMENTS):
             if n_live == 0:
                 break
             grid = _blocks(n_live), THREADS
+            if n_live <= tail * n:
+                finish_kernel[grid](S, P, live, n_live, scene.max_depth, MAX_SEGMENTS - segment)
+                break
             trace_kernel[grid](S, P, live, n_live, False)
             shade_kernel[grid](S, P, live, n_live, scene.max_depth)
             trace_kernel[grid](S, P, live, n_live, True)
-            count = cuda.to_device(np.zeros(1, np.int64))
+            count.copy_to_device(zero)
             compact_kernel[grid](P, live, n_live, spare, count)
             n_live = int(count.copy_to_host()[0])
             live, spare = spare, live

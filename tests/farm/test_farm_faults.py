@@ -1053,3 +1053,40 @@ def test_a_lost_nodes_pass_is_requeued_once_its_heartbeat_expires(own_redis, pre
     finally:
         store.close()
         nodes.stop()
+
+
+def test_a_worker_renders_its_passes_with_its_configured_kernel(in_process_worker, prefix,
+                                                                 cornell, monkeypatch):
+    """A node's ``worker_kernel`` (``lucent worker --kernel``) is the kernel its passes render
+    with: with ``wavefront`` the pass goes through the batched kernel (a GPU node's ``gpu`` takes
+    the same branch of render_tile), and the merged tile is that kernel's buffer."""
+    import renderer.render as rr
+    from worker import tasks
+
+    w = in_process_worker
+    w.state.settings = w.state.settings.model_copy(update={"worker_kernel": "wavefront"})
+    calls = []
+    wavefront = rr.render_tile_wavefront
+
+    def batched(*args, **kwargs):
+        calls.append(args[1:7])
+        return wavefront(*args, **kwargs)
+
+    monkeypatch.setattr(rr, "render_tile_wavefront", batched)
+    scene = _scene(cornell, 16, 16, 4)
+    with _api(w.server.url, prefix) as api:
+        job_id = _submit(api, scene, 16, 4)
+    def failed(store, settings, delivery, tile, pass_index, reason, node):
+        raise AssertionError(reason)
+
+    monkeypatch.setattr(tasks, "pass_failed", failed)
+    assert tasks.render_pass(job_id, 0, 0) == "merged"
+    assert calls == [(0, 0, 16, 16, 0, 4)]
+    from renderer.film.buffer import SampleBuffer
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    merged = SampleBuffer.from_bytes(w.store.tile_buffer(job_id, 0))
+
+    want = rr.render_tile(compile_scene(load_scene(scene)), 0, 0, 16, 16, 0, 4)
+    np.testing.assert_allclose(merged.sum, want.sum, rtol=1e-10)

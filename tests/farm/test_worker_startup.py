@@ -53,6 +53,21 @@ def test_the_warm_up_loads_the_adaptive_rules_kernels():
     assert out.stdout.split()[-1] == "True", out.stdout
 
 
+def test_the_warm_up_loads_the_nodes_kernel():
+    """A node with ``worker_kernel`` wavefront (or gpu) warms that kernel up too, beside the
+    scalar one, so its first pass does not compile it. In a fresh process, after the warm-up of
+    a WorkerState so configured, the wavefront kernel's trace stage (``trace_rays``, which the
+    host calls) has a signature."""
+    code = ("from worker import runtime; s = runtime.WorkerState(); s.warm_up(); "
+            "from renderer.wavefront import stages; "
+            "print(bool(stages.trace_rays.signatures))")
+    env = dict(os.environ, LUCENT_WORKER_KERNEL="wavefront")
+    out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
+                         timeout=600, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[-1] == "True", out.stdout
+
+
 @pytest.mark.slow
 def test_a_cold_node_compiles_once_and_its_pool_processes_only_load(redis_base_url, tmp_path):
     # An empty kernel cache: the node's main process compiles (in a child) before the pool

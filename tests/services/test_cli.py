@@ -209,3 +209,46 @@ def test_render_aovs_to_png_says_they_are_exr_only(tmp_path, capsys):
     path.write_text(json.dumps(data))
     assert main(["render", str(path), "-o", str(tmp_path / "o.png"), "--spp", "1", "-q"]) == 0
     assert ".exr outputs only" in capsys.readouterr().err
+
+
+def _sees_a_gpu() -> bool:
+    from renderer.wavefront import gpu_missing
+
+    return gpu_missing() is None
+
+
+@pytest.mark.skipif(_sees_a_gpu(), reason="this machine has a CUDA GPU")
+def test_the_gpu_kernel_where_no_gpu_is_seen_is_refused_with_the_reason(tmp_path, capsys,
+                                                                         monkeypatch):
+    """``lucent render --kernel gpu`` and ``lucent worker --kernel gpu`` on a machine without a
+    CUDA GPU stop at once and say why (the worker before it execs Celery), instead of a render
+    failing deep in numba or a node that fails every pass it takes."""
+    scene = small_scene(tmp_path)
+    assert main(["render", str(scene), "-o", str(tmp_path / "x.npy"), "--kernel", "gpu",
+                 "-q"]) == 1
+    assert "--kernel gpu: this process sees no CUDA GPU" in capsys.readouterr().err
+    assert not (tmp_path / "x.npy").exists()
+    monkeypatch.setattr(os, "execvpe", lambda *a: pytest.fail("the worker was started"))
+    assert main(["worker", "--redis", "redis://127.0.0.1:1", "--kernel", "gpu"]) == 1
+    assert "--kernel gpu: this process sees no CUDA GPU" in capsys.readouterr().err
+
+
+def test_worker_kernel_reaches_the_node_and_the_settings(monkeypatch):
+    """``lucent worker --kernel wavefront`` starts Celery with LUCENT_WORKER_KERNEL set, which
+    the settings read; a kernel the renderer does not have is refused by both."""
+    import pydantic
+
+    from services.cli import build_parser
+    from services.farm.settings import Settings
+
+    started = {}
+    monkeypatch.setattr(os, "execvpe", lambda cmd, argv, env: started.update(env))
+    main(["worker", "--redis", "redis://127.0.0.1:1", "--kernel", "wavefront"])
+    assert started["LUCENT_WORKER_KERNEL"] == "wavefront"
+    monkeypatch.setenv("LUCENT_WORKER_KERNEL", "wavefront")
+    assert Settings().worker_kernel == "wavefront"
+    monkeypatch.setenv("LUCENT_WORKER_KERNEL", "vulkan")
+    with pytest.raises(pydantic.ValidationError, match="worker_kernel"):
+        Settings()
+    with pytest.raises(SystemExit):
+        build_parser().parse_args(["worker", "--redis", "redis://x", "--kernel", "vulkan"])

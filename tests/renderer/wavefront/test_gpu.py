@@ -11,6 +11,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
+from renderer.render import render_tile
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
 from renderer.wavefront.cpu import render_tile_wavefront
@@ -26,14 +27,25 @@ import numpy as np
 warnings.simplefilter("ignore")  # SplitMix64's uint64 products wrap, as intended, in NumPy too
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
+from renderer.render import render_tile
 from renderer.wavefront.gpu import render_tile_gpu
 out = {}
 for name, data in json.loads(sys.argv[1]).items():
     cs = compile_scene(load_scene(data))
     active = np.ones((cs.height, cs.width), np.uint8)
     active[0, :3] = 0
-    b = render_tile_gpu(cs, 0, 0, cs.width, cs.height, 2, 6, active, batch_paths=60)
-    out[name] = {"sum": b.sum.tolist(), "sum_sq": b.sum_sq.tolist(), "count": b.count.tolist()}
+    for tail in (0.0, 0.5, 1.0):
+        b = render_tile_gpu(cs, 0, 0, cs.width, cs.height, 2, 6, active, batch_paths=60,
+                            tail=tail)
+        out[f"{name} {tail}"] = {"sum": b.sum.tolist(), "sum_sq": b.sum_sq.tolist(),
+                                 "count": b.count.tolist()}
+    # render_tile's gpu kernel, a pixel's samples given by counts (adaptive sampling)
+    counts = np.full((cs.height, cs.width), 6, np.int32)
+    counts[1:3, :] = 3
+    counts[0, :3] = 0
+    b = render_tile(cs, 0, 0, cs.width, cs.height, 2, 6, counts, kernel="gpu")
+    out[f"{name} counts"] = {"sum": b.sum.tolist(), "sum_sq": b.sum_sq.tolist(),
+                             "count": b.count.tolist()}
 print(json.dumps(out))
 """
 
@@ -53,7 +65,9 @@ def test_cuda_kernels_on_the_simulator_match_the_cpu_kernel():
     batches of 10 pixels: the CUDA kernels (queues compacted with an atomic counter, so in a
     varying order) give the CPU wavefront kernel's sample buffers to rounding — the same paths,
     as they run the same per-path code; a stage that lost a path, or read another path's slot,
-    would change whole pixels."""
+    would change whole pixels. So do they whether the batch's tail is finished one thread a
+    path from the start (tail 1), from half the paths live (0.5) or never (0), and through
+    ``render_tile(kernel="gpu")`` with a count a pixel."""
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", NUMBA_DISABLE_JIT="1", PYTHONPATH=str(ROOT))
     run = subprocess.run([sys.executable, "-c", SIMULATED, json.dumps(scenes())], env=env,
                          cwd=ROOT, capture_output=True, text=True, timeout=600)
@@ -64,10 +78,16 @@ def test_cuda_kernels_on_the_simulator_match_the_cpu_kernel():
         active = np.ones((cs.height, cs.width), np.uint8)
         active[0, :3] = 0
         cpu = render_tile_wavefront(cs, 0, 0, cs.width, cs.height, 2, 6, active)
-        gpu = simulated[name]
-        np.testing.assert_array_equal(np.array(gpu["count"]), cpu.count)
         assert cpu.count.sum() == 6 * (8 * 6 - 3)
-        np.testing.assert_allclose(np.array(gpu["sum"]), cpu.sum, rtol=1e-12, atol=1e-300)
-        np.testing.assert_allclose(np.array(gpu["sum_sq"]), cpu.sum_sq, rtol=1e-12,
-                                   atol=1e-300)
         assert cpu.sum.mean() > 0.1  # lit pixels, not a blank image matching a blank image
+        counts = np.full((cs.height, cs.width), 6, np.int32)
+        counts[1:3, :] = 3
+        counts[0, :3] = 0
+        cpu_counts = render_tile(cs, 0, 0, cs.width, cs.height, 2, 6, counts, kernel="wavefront")
+        assert cpu_counts.count.sum() == 6 * (8 * 4 - 3) + 3 * 8 * 2
+        for case, want in ((0.0, cpu), (0.5, cpu), (1.0, cpu), ("counts", cpu_counts)):
+            gpu = simulated[f"{name} {case}"]
+            np.testing.assert_array_equal(np.array(gpu["count"]), want.count)
+            np.testing.assert_allclose(np.array(gpu["sum"]), want.sum, rtol=1e-12, atol=1e-300)
+            np.testing.assert_allclose(np.array(gpu["sum_sq"]), want.sum_sq, rtol=1e-12,
+                                       atol=1e-300)

@@ -1,0 +1,199 @@
+"""Paths per second on a GPU: Lucent's CUDA kernels against its CPU kernels and Mitsuba 3, one run.
+
+    python -m bench.gpu_speed [--scenes cornell_box glass_sphere] [--spp 256] [--repeats 3]
+        [--batches 16 18 20 22] [--tails 0 0.25 1] [--tile 64] [--tile-spp 16]
+        [--ref-spp 4096] [--film WxH] [--json OUT.json]
+
+Run it on a host with a CUDA GPU (numba.cuda sees it); it is how docs/performance.md's GPU table
+was measured. For each scene (``examples/<name>.json`` at its own resolution):
+
+- **gpu**: ``render_tile_gpu`` over the whole frame at ``--spp``. The first call, at 1 spp,
+  includes compiling the CUDA kernels (``compile_seconds``); then each batch size of ``--batches``
+  (paths a batch, as powers of two) at the default ``tail``, and each ``tail`` of ``--tails`` at
+  the default batch size, is timed, best of ``--repeats``. A farm pass is timed too: one
+  ``--tile`` × ``--tile`` tile at ``--tile-spp``.
+- **cpu scalar**, **cpu wavefront**: ``render_buffer`` on every core of the host, at ``--spp``,
+  best of ``--repeats`` after a 1-spp warm-up (``bench.cornell_speed.time_lucent``).
+- **mitsuba cuda_ad_rgb** and **llvm_ad_rgb** (the optional extra; a variant that does not load is
+  reported as unavailable): ``bench.mitsuba_side.time_mitsuba`` at ``--spp``.
+
+Correctness on the device: the GPU image and the CPU wavefront image are the same paths, so they
+are compared pixel by pixel (``gpu_vs_cpu``: the share of pixels equal to 10⁻⁶ relative, and the
+relative difference of the two frame means); and each is scored against a Mitsuba 3 reference of
+``--ref-spp`` (cuda_ad_rgb, else llvm_ad_rgb; relMSE as bench.accuracy's ``rel_mse``), so a GPU
+that computed something else would show a larger error than the CPU kernel's at equal spp.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+import platform
+import time
+from pathlib import Path
+
+import numpy as np
+
+ROOT = Path(__file__).resolve().parents[1]
+
+
+def time_gpu(compiled, spp: int, repeats: int, batches: list[int], tails: list[float],
+             tile: int, tile_spp: int) -> dict:
+    from renderer.wavefront.gpu import GPU_BATCH_PATHS, TAIL, render_tile_gpu
+
+    w, h = compiled.width, compiled.height
+    start = time.perf_counter()
+    render_tile_gpu(compiled, 0, 0, w, h, 0, 1, tail=0.5)  # compiles the stages and the tail
+    compile_seconds = time.perf_counter() - start
+    image = None
+
+    def best_of(batch_paths: int, tail: float) -> dict:
+        nonlocal image
+        best = float("inf")
+        for _ in range(repeats):
+            start = time.perf_counter()
+            buf = render_tile_gpu(compiled, 0, 0, w, h, 0, spp, batch_paths=batch_paths,
+                                  tail=tail)
+            best = min(best, time.perf_counter() - start)
+        if image is None or (batch_paths == GPU_BATCH_PATHS and tail == TAIL):
+            image = buf
+        return {"seconds": best, "paths_per_second": w * h * spp / best}
+
+    by_batch = {b: best_of(1 << b, TAIL) for b in batches}
+    by_tail = {t: best_of(GPU_BATCH_PATHS, t) for t in tails}
+    tw, th = min(tile, w), min(tile, h)
+    render_tile_gpu(compiled, 0, 0, tw, th, 0, tile_spp)
+    best_tile = float("inf")
+    for k in range(repeats):
+        start = time.perf_counter()
+        render_tile_gpu(compiled, 0, 0, tw, th, tile_spp * (k + 1), tile_spp)
+        best_tile = min(best_tile, time.perf_counter() - start)
+    return {"compile_seconds": compile_seconds, "by_batch": by_batch, "by_tail": by_tail,
+            "batch_paths": GPU_BATCH_PATHS, "tail": TAIL, "image": image,
+            "tile": {"size": [tw, th], "spp": tile_spp, "seconds": best_tile,
+                     "paths_per_second": tw * th * tile_spp / best_tile}}
+
+
+def cpu_model() -> str:
+    try:
+        for line in Path("/proc/cpuinfo").read_text().splitlines():
+            if line.startswith("model name"):
+                return line.split(":", 1)[1].strip()
+    except OSError:
+        pass
+    return platform.processor() or platform.machine()
+
+
+def compare(gpu_buf, cpu_buf) -> dict:
+    """How far the GPU's sample buffer is from the CPU wavefront kernel's (the same paths)."""
+    same_count = bool(np.array_equal(gpu_buf.count, cpu_buf.count))
+    a, b = gpu_buf.mean(), cpu_buf.mean()
+    close = np.isclose(a, b, rtol=1e-6, atol=1e-9).all(axis=-1)
+    return {"same_counts": same_count, "pixels_equal_1e-6": float(close.mean()),
+            "mean_relative_difference": float(abs(a.mean() - b.mean()) / b.mean())}
+
+
+def main() -> int:
+    parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    parser.add_argument("--scenes", nargs="+", default=["cornell_box", "glass_sphere"])
+    parser.add_argument("--spp", type=int, default=256)
+    parser.add_argument("--repeats", type=int, default=3)
+    parser.add_argument("--batches", type=int, nargs="+", default=[16, 18, 20, 22],
+                        help="paths a batch, as powers of two")
+    parser.add_argument("--tails", type=float, nargs="+", default=[0.0, 0.25, 1.0],
+                        help="shares of a batch live at which one launch finishes the rest")
+    parser.add_argument("--tile", type=int, default=64)
+    parser.add_argument("--tile-spp", type=int, default=16)
+    parser.add_argument("--ref-spp", type=int, default=4096)
+    parser.add_argument("--variants", nargs="*", default=["cuda_ad_rgb", "llvm_ad_rgb"])
+    parser.add_argument("--film", help="WxH instead of each scene's resolution (a smoke run on "
+                        "numba's CUDA simulator: NUMBA_ENABLE_CUDASIM=1 NUMBA_DISABLE_JIT=1)")
+    parser.add_argument("--json", help="write the results here too")
+    args = parser.parse_args()
+
+    from numba import cuda
+
+    from bench.accuracy import rel_mse
+    from bench.cornell_speed import time_lucent
+    from renderer.render import render_buffer
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    if not cuda.is_available():
+        print("no CUDA GPU is visible to numba.cuda: nothing to measure")
+        return 1
+    if os.environ.get("NUMBA_ENABLE_CUDASIM") == "1":
+        gpu, cc = "numba's CUDA simulator", [0, 0]
+    else:
+        device = cuda.get_current_device()
+        gpu = device.name.decode() if isinstance(device.name, bytes) else str(device.name)
+        cc = list(device.compute_capability)
+    host = {"gpu": gpu, "compute_capability": cc, "cpu_cores": os.cpu_count(), "cpu": cpu_model()}
+    print(f"GPU {host['gpu']} (cc {host['compute_capability']}), {host['cpu_cores']} CPU cores")
+    results: dict = {"host": host, "spp": args.spp, "scenes": {}}
+
+    def save() -> None:
+        if args.json:
+            Path(args.json).write_text(json.dumps(results, indent=1))
+
+    for name in args.scenes:
+        scene = json.loads((ROOT / "examples" / f"{name}.json").read_text())
+        if args.film:
+            fw, fh = (int(v) for v in args.film.lower().split("x"))
+            scene["film"] = {**scene["film"], "width": fw, "height": fh}
+        compiled = compile_scene(load_scene(scene))
+        w, h = compiled.width, compiled.height
+        print(f"\n{name}: {w}x{h}, {args.spp} spp")
+        row: dict = {"size": [w, h]}
+        results["scenes"][name] = row
+        g = time_gpu(compiled, args.spp, args.repeats, args.batches, args.tails, args.tile,
+                     args.tile_spp)
+        gpu_image = g.pop("image")
+        row["gpu"] = g
+        print(f"  gpu: compile {g['compile_seconds']:.1f} s; " + ", ".join(
+            f"2^{b} paths a batch {r['paths_per_second'] / 1e6:.1f} Mpaths/s"
+            for b, r in g["by_batch"].items()) + "; " + ", ".join(
+            f"tail {t:g} {r['paths_per_second'] / 1e6:.1f} Mpaths/s"
+            for t, r in g["by_tail"].items())
+            + f"; a {g['tile']['size'][0]}x{g['tile']['size'][1]} tile × {args.tile_spp} spp "
+              f"{g['tile']['paths_per_second'] / 1e6:.2f} Mpaths/s")
+        save()
+        ref = None
+        for variant in args.variants:
+            try:
+                from bench.mitsuba_side import time_mitsuba
+                from renderer.mitsuba_bridge import render_mitsuba
+
+                r = time_mitsuba(scene, args.spp, variant, args.repeats)
+                row[f"mitsuba {variant}"] = r
+                print(f"  mitsuba {variant}: {r['paths_per_second'] / 1e6:.2f} Mpaths/s "
+                      f"(warm-up {r['warmup_seconds']:.1f} s)")
+                if ref is None:
+                    ref = render_mitsuba(scene, args.ref_spp, seed=99, variant=variant)
+                    row["reference"] = {"variant": variant, "spp": args.ref_spp}
+            except Exception as err:  # the optional extra, or a variant that does not load
+                row[f"mitsuba {variant}"] = {"unavailable": f"{type(err).__name__}: {err}"[:300]}
+                print(f"  mitsuba {variant}: unavailable ({type(err).__name__}: {err})")
+            save()
+        for kernel in ("wavefront", "scalar"):
+            r = time_lucent(scene, args.spp, args.repeats, kernel)
+            row[f"cpu {kernel}"] = r
+            print(f"  cpu {kernel}: {r['paths_per_second'] / 1e6:.2f} Mpaths/s "
+                  f"(warm-up {r['warmup_seconds']:.1f} s)")
+            save()
+        cpu_buf = render_buffer(compiled, args.spp, kernel="wavefront")
+        row["gpu_vs_cpu"] = compare(gpu_image, cpu_buf)
+        print(f"  gpu vs cpu wavefront: {row['gpu_vs_cpu']}")
+        save()
+        if ref is not None:
+            row["rel_mse"] = {"gpu": rel_mse(gpu_image.mean(), ref),
+                              "cpu wavefront": rel_mse(cpu_buf.mean(), ref)}
+            print(f"  relMSE against the reference at {args.spp} spp: {row['rel_mse']}")
+        save()
+    print("\n" + json.dumps(results, indent=1))
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
