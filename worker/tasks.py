@@ -29,6 +29,7 @@ from services.farm.passes import (
     deliver,
     end_pass,
     pass_failed,
+    settle_converged,
 )
 from services.farm.planner import celery_priority
 from services.farm.pools import queue_for
@@ -167,6 +168,14 @@ def _render_pass(job_id: str, tile: int, pass_index: int, begun: dict[str, bool]
             end_pass(store, state.worker_id)
 
 
+def _send_passes(todo: list[tuple[int, int]], meta) -> None:
+    """Queue passes of a job (converged tiles asked again, ``settle_converged``)."""
+    for tile, pass_index in todo:
+        render_pass.apply_async((meta.id, tile, pass_index),
+                                priority=celery_priority(meta.priority),
+                                queue=queue_for(meta.tags))
+
+
 def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: int,
                       t_task: float) -> str:
     from renderer.render import render_tile
@@ -203,15 +212,17 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
         # Adaptive sampling: each pixel's share of this pass, from the tile's merged buffer
         counts = adaptive_counts(store, meta, tile, compiled.target_error, count)
         if counts is not None and not counts.any():
-            # Nothing to add: the tile has converged. The pass is merged empty and the tile's
-            # later passes (never queued: each pass of a target job queues the next) count as
-            # merged too, so the job's task count completes as planned.
-            merged = deliver(store, state.settings, job_id, tile, pass_index,
-                             SampleBuffer.empty(x0, y0, w, h))
-            store.skip_passes(job_id, tile, pass_index + 1, meta.plan.n_passes)
-            store.set_tile_state(job_id, tile, "done")
-            store.finish_if_complete(job_id)
-            return "converged" if merged else "duplicate"
+            # Nothing to add under the frame's scale now: the pass is merged empty and the tile
+            # waits, converged, with its later passes unsent (each pass of a target job queues
+            # the next). Once no tile renders, settle_converged asks every converged tile again
+            # under the scale the other tiles' merges have moved it to: it queues those that
+            # would take samples, or ends the job (their later passes count as merged, empty).
+            if not deliver(store, state.settings, job_id, tile, pass_index,
+                           SampleBuffer.empty(x0, y0, w, h)):
+                return "duplicate"  # the delivery that merged it decided for the tile
+            store.set_tile_state(job_id, tile, "converged")
+            settle_converged(store, _send_passes, job_id)
+            return "converged"
     t0 = time.perf_counter()
     buf = render_tile(compiled, x0, y0, w, h, start, count, counts,
                       kernel=state.settings.worker_kernel)
@@ -228,6 +239,9 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
         render_pass.apply_async((job_id, tile, pass_index + 1),
                                 priority=celery_priority(meta.priority),
                                 queue=queue_for(meta.tags))
+    elif merged and meta.target_error is not None:
+        # The tile's last pass: with no tile left rendering, the converged ones are asked again
+        settle_converged(store, _send_passes, job_id)
     # task_seconds - render_seconds: the per-task overhead (Redis, buffers, merge, bookkeeping).
     store.count(tasks_done=1, render_seconds=seconds, paths=paths,
                 task_seconds=time.perf_counter() - t_task)

@@ -12,7 +12,7 @@ slot only, and accumulation adds each pixel's samples in sample order, so the im
 Launches are dear from Python: numba passes every field of the scene and path state as
 kernel arguments, so a launch costs far more than a short stage's work, and a queue that runs one
 launch a stage a segment spends most of its time launching once few paths are left (measured on
-an H200 in docs/performance.md, "GPU"). So a batch runs stage by stage only while at least
+an H200: docs/performance.md, "On a GPU"). So a batch runs stage by stage only while at least
 ``tail`` of its paths are live; ``finish_kernel`` then traces each remaining path to its end in
 one thread, in one launch. The scene's arrays stay on the device between the tiles of a scene,
 and so does the path state between batches of one size.

@@ -15,7 +15,8 @@ const POLL_MS = 1000;         // while the job is queued or running
 const PREVIEW_MIN_MS = 2000;
 const PREVIEW_COST_FACTOR = 25;
 const FINAL_POLL_MS = 5000;   // once it is over (someone may retry it)
-const TILE_COLOURS = { queued: "#5b6270", running: "#e0a526", done: "#2f9e61", failed: "#d9453b" };
+const TILE_COLOURS = { queued: "#5b6270", running: "#e0a526", converged: "#3a8fb7", done: "#2f9e61",
+                       failed: "#d9453b" };
 
 // Samples per pixel -> colour: dark blue (none) to pale yellow (all planned), viridis-like.
 function samplesColour(fraction) {
@@ -154,7 +155,9 @@ export function renderJob(view, jobId) {
     if (colourBy === "state") {
       const counts = {};
       for (const t of job.tile_states) counts[t.state] = (counts[t.state] || 0) + 1;
-      legend.replaceChildren(...Object.entries(TILE_COLOURS).map(([s, c]) =>
+      // "converged": a tile of a job with a target error that has nothing to add for now
+      legend.replaceChildren(...Object.entries(TILE_COLOURS)
+        .filter(([s]) => s !== "converged" || counts[s]).map(([s, c]) =>
         h("span", {}, h("i", { style: `background:${c}` }), `${s} ${counts[s] || 0}`)));
     } else {
       legend.replaceChildren(h("span", {}, "0 spp"),

@@ -11,10 +11,13 @@ the rules are here, beside the store they read and write.
 - a delivery to a node blocklisted for the job is handed back (``services.farm.blocklist``), and a
   failed try counts against its node as well as its pass.
 - ``deliver``: the buffer is stored under the pass's deterministic key and merged exactly once.
+- ``settle_converged``: a job with a target error whose tiles have all converged or ended asks
+  its converged tiles again under the frame's final scale.
 """
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -23,6 +26,7 @@ from renderer.film.adaptive import frame_scale, pass_counts
 from renderer.film.buffer import SampleBuffer
 from services.farm.blocklist import no_eligible_reason
 from services.farm.merge import merge_pass
+from services.farm.planner import chain_heads
 from services.farm.settings import Settings
 from services.farm.store import FINAL, JobMeta, JobStore
 
@@ -127,6 +131,46 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
         scale = frame_scale(meta.root_sum, meta.quarter_sum, meta.err_pixels, target_error)
     return pass_counts(SampleBuffer.from_bytes(data), target_error, meta.plan.spp,
                        pass_samples, scale)
+
+
+def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
+                     job_id: str) -> list[tuple[int, int]]:
+    """A job with a target error, once none of its tiles renders or waits for a pass: each tile
+    that converged (``tile_state`` ``converged``: its rule found nothing to add) is asked again,
+    under the frame's scale now, which the other tiles' merges have moved since. A tile the rule
+    now gives samples is queued again at its next pass (``send``); when none is, each converged
+    tile's remaining passes count as merged, empty (``skip_passes``), and the job is finished.
+    Returns the passes sent. While a tile still has a chain (its next pass queued or rendering)
+    this does nothing: that tile's end settles the job. Called by the worker after a tile
+    converges and after a tile's last pass merges; two calls at once send a pass twice at most,
+    and a pass is merged once."""
+    meta = store.get_job(job_id)
+    if meta is None or meta.target_error is None or meta.status not in ("queued", "running"):
+        return []
+    heads = dict(chain_heads(store.unmerged(job_id, meta.plan)))
+    states = store.tile_states(job_id)
+    if any(states.get(tile) != "converged" for tile in heads):
+        return []
+    again = []
+    for tile, pass_index in heads.items():
+        counts = adaptive_counts(store, meta, tile, meta.target_error,
+                                 meta.plan.sample_range(pass_index)[1])
+        if counts is not None and counts.any():
+            again.append((tile, pass_index))
+    if again:
+        for tile, _ in again:
+            store.set_tile_state(job_id, tile, "queued")
+        send(again, meta)
+        return again
+    for tile, pass_index in heads.items():
+        store.skip_passes(job_id, tile, pass_index, meta.plan.n_passes)
+    for tile, state in states.items():
+        # a tile converged at its last pass, or one whose chain ended at it with fewer samples
+        # than render.spp (its merge left it queued)
+        if tile not in heads and state not in ("done", "failed"):
+            store.set_tile_state(job_id, tile, "done")
+    store.finish_if_complete(job_id)
+    return []
 
 
 def deliver(store: JobStore, settings: Settings, job_id: str, tile: int, pass_index: int,

@@ -9,7 +9,9 @@ Key                                Type    What
                                            ``active_at``, ``stalls`` (the stall re-queues)
 ``{p}:job:{id}:scene``             string  the scene JSON as submitted (workers re-fetch it)
 ``{p}:job:{id}:frames``            string  its frames' JSON Patches (a job of frames only)
-``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass renders) / done / failed
+``{p}:job:{id}:tile_state``        hash    tile -> queued / running (a pass renders) / converged
+                                           (a target job's tile, nothing to add for now) / done /
+                                           failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
 ``{p}:job:{id}:tile_err``          hash    tile -> its error summary (a job with a target)
@@ -133,8 +135,11 @@ if redis.call('EXISTS', KEYS[2]) == 0 then return 0 end
 local n = redis.call('HINCRBY', KEYS[1], ARGV[1], tonumber(ARGV[6]))
 redis.call('HSET', KEYS[2], 'active_at', ARGV[2])
 if ARGV[3] ~= '' then redis.call('HSET', KEYS[3], ARGV[3], ARGV[4] .. ' ' .. n) end
-if ARGV[5] ~= '' and redis.call('HGET', KEYS[4], ARGV[5]) == 'queued' then
-  redis.call('HSET', KEYS[4], ARGV[5], 'running')
+if ARGV[5] ~= '' then
+  local state = redis.call('HGET', KEYS[4], ARGV[5])
+  if state == 'queued' or state == 'converged' then
+    redis.call('HSET', KEYS[4], ARGV[5], 'running')
+  end
 end
 return n
 """
@@ -780,9 +785,10 @@ class JobStore:
         """Count a delivery of the pass that is about to run; it is also a sign of life of the
         job (``active_at``: the sweeper's stall clock starts again). ``holder``: the worker
         process that runs it, recorded as holding the pass until ``release_pass``. ``running``:
-        in the same step, the tile becomes running if it is queued (a done or failed tile stays
-        as it is: a late duplicate does not reopen it). ``count=False``: the same delivery begun
-        again (after a Redis outage), not counted; returns the tries so far."""
+        in the same step, the tile becomes running if it is queued or converged (a done or
+        failed tile stays as it is: a late duplicate does not reopen it). ``count=False``: the
+        same delivery begun again (after a Redis outage), not counted; returns the tries so
+        far."""
         return int(self._add_attempt(
             keys=[self.k("job", job_id, "attempts"), self.job_key(job_id), self.k("holding"),
                   self.k("job", job_id, "tile_state")],

@@ -306,7 +306,8 @@ def api_wait(api, job_id, status, timeout=60.0):
 
 def test_job_page_shows_what_a_job_waits_for_and_its_blocklist(dashboard, page):
     """A job requiring a tag no worker has says what it waits for; a node blocklisted for it is
-    listed with its failed passes. (The job is made in the store, not queued: it stays so.)"""
+    listed with its failed passes; its tile legend counts the states. (The job is made in the
+    store, not queued: it stays so.)"""
     import uuid
 
     from services.farm.planner import Plan
@@ -321,6 +322,13 @@ def test_job_page_shows_what_a_job_waits_for_and_its_blocklist(dashboard, page):
     assert waiting.inner_text() == "waiting for a worker with tags gpu"
     listed = page.wait_for_selector("#job-errors li.blocklisted[data-node='bad@host']")
     assert "bad@host (3 failed passes)" in listed.inner_text()
+    # The legend names the states there are: a converged tile (a job with a target error that
+    # has nothing to add for now) gets its own colour, and no entry while there is none
+    assert "converged" not in page.inner_text("#tile-legend")
+    store.set_tile_state(job_id, 1, "converged")
+    page.wait_for_function("() => document.querySelector('#tile-legend').innerText"
+                           ".includes('converged 1')")
+    assert "queued 3" in page.inner_text("#tile-legend")
     store.cancel_job(job_id)
     no_page_errors(page)
 

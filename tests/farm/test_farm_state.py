@@ -416,3 +416,67 @@ def test_the_database_going_away_mid_job_is_503_and_loses_no_pass(farm, tmp_path
             proxy.shutdown()
             proxy.server_close()
         drop_farm_state(settings.model_copy(update={"database_url": url}) if url else settings)
+
+
+@pytest.mark.parametrize("noise, asked_again", [(0.8, True), (1e-6, False)])
+def test_converged_tiles_are_asked_again_once_no_tile_renders(store, noise, asked_again):
+    """A tile of a job with a target error that found nothing to add waits, converged, with its
+    later passes unsent: the frame's scale, which the other tiles' merges move, may give it
+    samples later. Once no tile renders or waits for a pass (the last chain ended),
+    settle_converged asks it again under the frame's scale then: a noisy tile (8 samples a
+    pixel of σ 0.8, relMSE ~0.08 against a target of 0.02) is queued again at its next pass and
+    begins as any pass does; a flat one ends, its passes counted as merged, and the job is done.
+    While another tile's chain goes on, nothing is decided."""
+    import numpy as np
+
+    from renderer.film.buffer import SampleBuffer
+    from services.farm.passes import settle_converged
+
+    rng = np.random.default_rng(11)
+    # 2 tiles x passes of 8, 8, 16, 32, which the plan's order lists largest first: a tile's
+    # next pass is its lowest unmerged one, not the first unmerged in that order
+    plan = Plan(32, 16, 64, 16, 8, 32)
+    assert plan.order()[2] == (0, 3)
+
+    def merge(t: int, p: int, sigma: float) -> None:
+        buf = SampleBuffer.empty(*plan.tile_rect(t))
+        x = 1.0 + sigma * rng.standard_normal(size=(8,) + buf.sum.shape)
+        buf.sum[:] = x.sum(axis=0)
+        buf.sum_sq[:] = (x * x).sum(axis=0)
+        buf.count[:] = 8
+        store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
+        assert store.merge_pass_buffer(job_id, t, p)
+
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02)
+    sent: list[tuple[int, int]] = []
+
+    def send(todo, meta) -> None:
+        assert meta.id == job_id
+        sent.extend(todo)
+
+    merge(0, 0, noise)
+    store.set_tile_state(job_id, 0, "converged")  # as the worker that found nothing to add
+    merge(1, 0, 0.3)  # tile 1 goes on: its next pass is queued
+    assert settle_converged(store, send, job_id) == [] and sent == []
+    assert store.tile_states(job_id)[0] == "converged"
+    assert not store.is_merged(job_id, 0, 1)
+    # The stall rule's re-send of a converged tile's next pass begins like any: the tile runs
+    # (until that pass, finding nothing to add either, leaves it converged again)
+    store.add_attempt(job_id, 0, 1, running=True)
+    assert store.tile_states(job_id)[0] == "running"
+    store.set_tile_state(job_id, 0, "converged")
+
+    for p in range(1, plan.n_passes):  # tile 1's chain ends with its last pass
+        merge(1, p, 0.3)
+    again = settle_converged(store, send, job_id)
+    job = store.get_job(job_id)
+    if asked_again:
+        assert again == sent == [(0, 1)]
+        assert store.tile_states(job_id)[0] == "queued" and job.status in ("queued", "running")
+        assert not store.is_merged(job_id, 0, 1)
+    else:
+        assert again == sent == []
+        assert job.status == "done" and job.tasks_merged == plan.n_tasks
+        assert store.tile_states(job_id) == {0: "done", 1: "done"}
+        assert store.is_merged(job_id, 0, plan.n_passes - 1)
