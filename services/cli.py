@@ -9,6 +9,7 @@ On this machine:
 On a farm (the code lives in ``services/`` and ``worker/``):
 
     lucent up [--host 127.0.0.1] [--port 8000] [--workers N] [--tags gpu,bigmem]
+              [--kernel scalar|wavefront|gpu]
     lucent worker --redis URL [--concurrency N] [--threads N] [--tags gpu,bigmem]
                   [--kernel scalar|wavefront|gpu]
     lucent submit SCENE.json [--server URL] [--wait] [-o OUT.{exr,png,npy}]
@@ -206,9 +207,11 @@ def cmd_up(args: argparse.Namespace) -> int:
 
     from services.launcher import LocalFarm
 
+    if not _kernel_usable(args.kernel):
+        return 1
     farm = LocalFarm(args.host, args.port, args.workers, os.environ.get("REDIS_URL") or None,
                      threads=args.threads, api_processes=args.api_processes,
-                     tags=args.tags)
+                     tags=args.tags, kernel=args.kernel)
     try:
         farm.start(serve_in_thread=False)
         print(f"Lucent farm at {farm.url} (API docs {farm.url}/docs); Redis {farm.redis_url}"
@@ -222,22 +225,29 @@ def cmd_up(args: argparse.Namespace) -> int:
     return 0
 
 
+def _kernel_usable(kernel: str | None) -> bool:
+    """``--kernel gpu`` of a worker node only where a CUDA GPU is seen; else say why (False). The
+    check initialises CUDA in this process, which is not one the worker's pool forks from (``lucent
+    worker`` execs Celery, ``lucent up`` starts it as a child)."""
+    if kernel != "gpu":
+        return True
+    from renderer.wavefront import gpu_missing
+
+    missing = gpu_missing()
+    if missing is not None:
+        print(f"--kernel gpu: {missing}", file=sys.stderr)
+    return missing is None
+
+
 def cmd_worker(args: argparse.Namespace) -> int:
     """Join a farm: a Celery worker node (replaces this process)."""
 
     from services.launcher import worker_command, worker_env
 
     extra = {"LUCENT_WORKER_TAGS": ",".join(args.tags)} if args.tags else {}
+    if not _kernel_usable(args.kernel):
+        return 1
     if args.kernel is not None:
-        if args.kernel == "gpu":
-            from renderer.wavefront import gpu_missing
-
-            # CUDA is initialised here, in the process that execs Celery: the exec drops it, so
-            # the pool's forks start without it and each initialises its own
-            missing = gpu_missing()
-            if missing is not None:
-                print(f"--kernel gpu: {missing}", file=sys.stderr)
-                return 1
         extra["LUCENT_WORKER_KERNEL"] = args.kernel
     env = worker_env(args.redis, args.threads, extra)
     cmd = worker_command(args.concurrency, args.name, args.loglevel)
@@ -364,6 +374,9 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tags", type=_tags, default=None,
                    help="the worker node's pool tags, comma-separated (default: "
                         "LUCENT_WORKER_TAGS): it also takes the jobs that require them")
+    p.add_argument("--kernel", choices=["scalar", "wavefront", "gpu"], default=None,
+                   help="the kernel the worker node renders with (default: "
+                        "LUCENT_WORKER_KERNEL, else scalar); gpu: on this machine's CUDA GPU")
     p.add_argument("--api-processes", type=int, default=API_PROCESSES,
                    help=f"processes serving the API (default {API_PROCESSES}; 1 serves it in "
                         "this process): the status polls one process answers are bounded by "

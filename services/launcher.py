@@ -153,11 +153,15 @@ WORKER_NICE = 10
 
 def start_worker(redis_url: str, concurrency: int, threads: int = 1, name: str | None = None,
                  extra_env: dict[str, str] | None = None, log=None,
-                 nice: int = WORKER_NICE, tags: tuple[str, ...] = ()) -> subprocess.Popen:
-    """A worker node; ``tags``: its worker pool tags (``LUCENT_WORKER_TAGS``)."""
+                 nice: int = WORKER_NICE, tags: tuple[str, ...] = (),
+                 kernel: str | None = None) -> subprocess.Popen:
+    """A worker node; ``tags``: its worker pool tags (``LUCENT_WORKER_TAGS``); ``kernel``: the
+    kernel it renders with (``LUCENT_WORKER_KERNEL``)."""
     root = str(Path(__file__).resolve().parents[1])
     if tags:
         extra_env = {**(extra_env or {}), "LUCENT_WORKER_TAGS": ",".join(tags)}
+    if kernel:
+        extra_env = {**(extra_env or {}), "LUCENT_WORKER_KERNEL": kernel}
 
     def preexec() -> None:
         _die_with_parent()
@@ -303,9 +307,10 @@ class LocalFarm:
     def __init__(self, host: str = "127.0.0.1", port: int = 8000, workers: int | None = None,
                  redis_url: str | None = None, threads: int = 1, quiet: bool = False,
                  say: Callable[[str], None] = _stderr, api_processes: int = 1,
-                 tags: tuple[str, ...] = ()):
+                 tags: tuple[str, ...] = (), kernel: str | None = None):
         self.host, self.port = host, port
         self.tags = tags  # the worker node's pool tags
+        self.kernel = kernel  # the kernel it renders with (None: LUCENT_WORKER_KERNEL, scalar)
         self.workers = DEFAULT_WORKERS if workers is None else workers
         # 1: the API serves in this process (a thread, or serve_forever); more: a uvicorn child
         # with that many processes (supervised like the rest)
@@ -354,7 +359,8 @@ class LocalFarm:
         if self.workers > 0:
             log = subprocess.DEVNULL if self.quiet else None
             self.worker_child = Child("the worker node", lambda: start_worker(
-                redis_url, self.workers, self.threads, log=log, tags=self.tags))
+                redis_url, self.workers, self.threads, log=log, tags=self.tags,
+                kernel=self.kernel))
             self.worker_child.run()
             children.append(self.worker_child)
         if self.api_processes > 1:

@@ -220,9 +220,9 @@ def _sees_a_gpu() -> bool:
 @pytest.mark.skipif(_sees_a_gpu(), reason="this machine has a CUDA GPU")
 def test_the_gpu_kernel_where_no_gpu_is_seen_is_refused_with_the_reason(tmp_path, capsys,
                                                                          monkeypatch):
-    """``lucent render --kernel gpu`` and ``lucent worker --kernel gpu`` on a machine without a
-    CUDA GPU stop at once and say why (the worker before it execs Celery), instead of a render
-    failing deep in numba or a node that fails every pass it takes."""
+    """``lucent render``, ``lucent worker`` and ``lucent up`` with ``--kernel gpu`` on a machine
+    without a CUDA GPU stop at once and say why (before Celery or the farm starts), instead of a
+    render failing deep in numba or a node that fails every pass it takes."""
     scene = small_scene(tmp_path)
     assert main(["render", str(scene), "-o", str(tmp_path / "x.npy"), "--kernel", "gpu",
                  "-q"]) == 1
@@ -231,11 +231,18 @@ def test_the_gpu_kernel_where_no_gpu_is_seen_is_refused_with_the_reason(tmp_path
     monkeypatch.setattr(os, "execvpe", lambda *a: pytest.fail("the worker was started"))
     assert main(["worker", "--redis", "redis://127.0.0.1:1", "--kernel", "gpu"]) == 1
     assert "--kernel gpu: this process sees no CUDA GPU" in capsys.readouterr().err
+    import services.launcher
+
+    monkeypatch.setattr(services.launcher.LocalFarm, "start",
+                        lambda *a, **k: pytest.fail("the farm was started"))
+    assert main(["up", "--kernel", "gpu"]) == 1
+    assert "--kernel gpu: this process sees no CUDA GPU" in capsys.readouterr().err
 
 
 def test_worker_kernel_reaches_the_node_and_the_settings(monkeypatch):
     """``lucent worker --kernel wavefront`` starts Celery with LUCENT_WORKER_KERNEL set, which
-    the settings read; a kernel the renderer does not have is refused by both."""
+    the settings read, and so does ``lucent up --kernel``'s worker node; a kernel the renderer
+    does not have is refused by both."""
     import pydantic
 
     from services.cli import build_parser
@@ -252,3 +259,13 @@ def test_worker_kernel_reaches_the_node_and_the_settings(monkeypatch):
         Settings()
     with pytest.raises(SystemExit):
         build_parser().parse_args(["worker", "--redis", "redis://x", "--kernel", "vulkan"])
+    # lucent up's worker node: the same variable, set by start_worker
+    import subprocess
+
+    import services.launcher
+
+    assert build_parser().parse_args(["up", "--kernel", "wavefront"]).kernel == "wavefront"
+    spawned = {}
+    monkeypatch.setattr(subprocess, "Popen", lambda cmd, **kw: spawned.update(kw["env"]))
+    services.launcher.start_worker("redis://127.0.0.1:1", 1, kernel="wavefront")
+    assert spawned["LUCENT_WORKER_KERNEL"] == "wavefront"
