@@ -49,8 +49,9 @@ def warm_up_kernels(kernel: str = "scalar") -> float:
     """Render the warm-up scene once and run the adaptive rule's kernels (loads or compiles
     them) and mark the cache folder warm; returns seconds. With another ``kernel`` (the node's
     ``worker_kernel``) the scene is rendered with it too: the scalar kernel stays the one for
-    scenes the batched kernels do not cover. numba does not cache CUDA kernels on disk, so with
-    ``gpu`` each pool process compiles them here (21.6 s on an H200's host, docs/performance.md)."""
+    scenes the batched kernels do not cover. The CUDA kernels are not cached on disk (their
+    ``cuda.jit`` has no ``cache=True``), so with ``gpu`` each pool process compiles them here
+    (21.6 s on an H200's host, docs/performance.md)."""
     from renderer.film import adaptive
     from renderer.render import render_tile
     from renderer.scene import load_scene
