@@ -29,6 +29,9 @@ DEFAULT_SERVER = "http://127.0.0.1:8000"
 # Processes serving the API in `lucent up` (uvicorn --workers): one process's event loop and GIL
 # bound the status polls it answers (docs/performance.md, "Load").
 API_PROCESSES = 2
+# renderer.render.KERNELS, written out: the parser is built without importing the renderer
+# (numba); tests/services/test_cli.py checks that the two agree
+KERNELS = ("scalar", "wavefront", "gpu")
 # What a cold compile of the kernels takes on a 2-core machine (docs/performance.md, "Start-up":
 # `python -m bench.startup`).
 COLD_COMPILE = "a minute on 2 cores"
@@ -103,7 +106,6 @@ def cmd_render(args: argparse.Namespace) -> int:
 
     from renderer.render import render_buffer
     from renderer.scene.compile import CompileError, compile_scene
-    from renderer.wavefront import gpu_missing
     from renderer.wavefront.cpu import unsupported
 
     t0 = time.perf_counter()
@@ -126,8 +128,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     if args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
         print(f"the {args.kernel} kernel does not cover {reason}: the scalar kernel renders it",
               file=sys.stderr)
-    elif args.kernel == "gpu" and (missing := gpu_missing()) is not None:
-        print(f"--kernel gpu: {missing}", file=sys.stderr)
+    elif not _kernel_usable(args.kernel):
         return 1
     total = compiled.width * compiled.height * spp
     with tqdm(total=total, unit="samples", unit_scale=True, disable=args.quiet,
@@ -226,9 +227,9 @@ def cmd_up(args: argparse.Namespace) -> int:
 
 
 def _kernel_usable(kernel: str | None) -> bool:
-    """``--kernel gpu`` of a worker node only where a CUDA GPU is seen; else say why (False). The
-    check initialises CUDA in this process, which is not one the worker's pool forks from (``lucent
-    worker`` execs Celery, ``lucent up`` starts it as a child)."""
+    """``--kernel gpu`` only where a CUDA GPU is seen; else say why (False). The check initialises
+    CUDA in this process, which is not one a worker's pool forks from (``lucent worker`` execs
+    Celery, ``lucent up`` starts it as a child)."""
     if kernel != "gpu":
         return True
     from renderer.wavefront import gpu_missing
@@ -347,7 +348,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampler", choices=["independent", "sobol"],
                    help="random numbers of a sample (default: the scene's render.sampler)")
     p.add_argument("--threads", type=int, help="render threads (default: all cores)")
-    p.add_argument("--kernel", choices=["scalar", "wavefront", "gpu"], default="scalar",
+    p.add_argument("--kernel", choices=KERNELS, default="scalar",
                    help="scalar: one path at a time, every method (default); wavefront: batches "
                         "of paths stage by stage, surface materials only (others fall back to "
                         "scalar); gpu: the wavefront stages on this machine's CUDA GPU")
@@ -374,7 +375,7 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--tags", type=_tags, default=None,
                    help="the worker node's pool tags, comma-separated (default: "
                         "LUCENT_WORKER_TAGS): it also takes the jobs that require them")
-    p.add_argument("--kernel", choices=["scalar", "wavefront", "gpu"], default=None,
+    p.add_argument("--kernel", choices=KERNELS, default=None,
                    help="the kernel the worker node renders with (default: "
                         "LUCENT_WORKER_KERNEL, else scalar); gpu: on this machine's CUDA GPU")
     p.add_argument("--api-processes", type=int, default=API_PROCESSES,
@@ -394,7 +395,7 @@ def build_parser() -> argparse.ArgumentParser:
                    help="pool tags, comma-separated, e.g. gpu,bigmem (default: "
                         "LUCENT_WORKER_TAGS): the node takes untagged jobs and those whose "
                         "tags it has all of")
-    p.add_argument("--kernel", choices=["scalar", "wavefront", "gpu"], default=None,
+    p.add_argument("--kernel", choices=KERNELS, default=None,
                    help="the kernel the node renders with (default: LUCENT_WORKER_KERNEL, else "
                         "scalar); gpu: the wavefront stages on this host's CUDA GPU, refused "
                         "where none is seen; tag such a node gpu")

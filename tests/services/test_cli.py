@@ -259,6 +259,14 @@ def test_worker_kernel_reaches_the_node_and_the_settings(monkeypatch):
         Settings()
     with pytest.raises(SystemExit):
         build_parser().parse_args(["worker", "--redis", "redis://x", "--kernel", "vulkan"])
+    # The CLI's and the settings' lists of kernels are the renderer's
+    from typing import get_args
+
+    from renderer.render import KERNELS
+    from services.cli import KERNELS as CLI_KERNELS
+
+    assert CLI_KERNELS == KERNELS
+    assert get_args(Settings.model_fields["worker_kernel"].annotation) == KERNELS
     # lucent up's worker node: the same variable, set by start_worker
     import subprocess
 
