@@ -1,17 +1,19 @@
 """Paths per second on a GPU: Lucent's CUDA kernels against its CPU kernels and Mitsuba 3, one run.
 
     python -m bench.gpu_speed [--scenes cornell_box glass_sphere] [--spp 256] [--repeats 3]
-        [--batches 16 18 20 22] [--tails 0 0.25 1] [--tile 64] [--tile-spp 16]
+        [--batches 16 18 20 22] [--tails 0 0.25 1] [--grid] [--tile 64] [--tile-spp 16]
         [--ref-spp 4096] [--film WxH] [--json OUT.json]
 
 Run it on a host with a CUDA GPU (numba.cuda sees it); it is how docs/performance.md's GPU table
 was measured. For each scene (``examples/<name>.json`` at its own resolution):
 
 - **gpu**: ``render_tile_gpu`` over the whole frame at ``--spp``. The first call, at 1 spp,
-  includes compiling the CUDA kernels (``compile_seconds``); then each batch size of ``--batches``
-  (paths a batch, as powers of two) at the default ``tail``, and each ``tail`` of ``--tails`` at
-  the default batch size, is timed, best of ``--repeats``. A farm pass is timed too: one
-  ``--tile`` × ``--tile`` tile at ``--tile-spp``.
+  includes compiling the CUDA kernels (``compile_seconds``); an empty launch of a stage is timed
+  (``launch_seconds``: what passing the scene and path state costs); then each batch size of
+  ``--batches`` (paths a batch, as powers of two) at the default ``tail``, and each ``tail`` of
+  ``--tails`` at the default batch size, is timed, best of ``--repeats`` (with ``--grid``, every
+  pair of the two too: ``by_pair``). A farm pass is timed too: one ``--tile`` × ``--tile`` tile
+  at ``--tile-spp``.
 - **cpu scalar**, **cpu wavefront**: ``render_buffer`` on every core of the host, at ``--spp``,
   best of ``--repeats`` after a 1-spp warm-up (``bench.cornell_speed.time_lucent``).
 - **mitsuba cuda_ad_rgb** and **llvm_ad_rgb** (the optional extra; a variant that does not load is
@@ -39,17 +41,21 @@ ROOT = Path(__file__).resolve().parents[1]
 
 
 def time_gpu(compiled, spp: int, repeats: int, batches: list[int], tails: list[float],
-             tile: int, tile_spp: int) -> dict:
+             tile: int, tile_spp: int, grid: bool = False) -> dict:
     from renderer.wavefront.gpu import GPU_BATCH_PATHS, TAIL, render_tile_gpu
 
     w, h = compiled.width, compiled.height
     start = time.perf_counter()
     render_tile_gpu(compiled, 0, 0, w, h, 0, 1, tail=0.5)  # compiles the stages and the tail
     compile_seconds = time.perf_counter() - start
+    launch_seconds = time_launch(compiled)
     image = None
+    timed: dict[tuple[int, float], dict] = {}
 
     def best_of(batch_paths: int, tail: float) -> dict:
         nonlocal image
+        if (batch_paths, tail) in timed:
+            return timed[batch_paths, tail]
         best = float("inf")
         for _ in range(repeats):
             start = time.perf_counter()
@@ -58,10 +64,13 @@ def time_gpu(compiled, spp: int, repeats: int, batches: list[int], tails: list[f
             best = min(best, time.perf_counter() - start)
         if image is None or (batch_paths == GPU_BATCH_PATHS and tail == TAIL):
             image = buf
-        return {"seconds": best, "paths_per_second": w * h * spp / best}
+        timed[batch_paths, tail] = {"seconds": best, "paths_per_second": w * h * spp / best}
+        return timed[batch_paths, tail]
 
     by_batch = {b: best_of(1 << b, TAIL) for b in batches}
     by_tail = {t: best_of(GPU_BATCH_PATHS, t) for t in tails}
+    # every batch size at every tail, where asked: the best pair need not lie on the two lines
+    by_pair = {f"2^{b} {t:g}": best_of(1 << b, t) for b in batches for t in tails} if grid else {}
     tw, th = min(tile, w), min(tile, h)
     render_tile_gpu(compiled, 0, 0, tw, th, 0, tile_spp)
     best_tile = float("inf")
@@ -69,10 +78,29 @@ def time_gpu(compiled, spp: int, repeats: int, batches: list[int], tails: list[f
         start = time.perf_counter()
         render_tile_gpu(compiled, 0, 0, tw, th, tile_spp * (k + 1), tile_spp)
         best_tile = min(best_tile, time.perf_counter() - start)
-    return {"compile_seconds": compile_seconds, "by_batch": by_batch, "by_tail": by_tail,
+    return {"compile_seconds": compile_seconds, "launch_seconds": launch_seconds,
+            "by_batch": by_batch, "by_tail": by_tail,
+            "by_pair": by_pair,
             "batch_paths": GPU_BATCH_PATHS, "tail": TAIL, "image": image,
             "tile": {"size": [tw, th], "spp": tile_spp, "seconds": best_tile,
                      "paths_per_second": tw * th * tile_spp / best_tile}}
+
+
+def time_launch(compiled, launches: int = 100) -> float:
+    """Seconds a launch of a stage takes with nothing to do (no live path): what passing the
+    scene and path state to a kernel costs, paid once a stage a segment."""
+    from numba import cuda
+
+    from renderer.wavefront import gpu
+
+    S = gpu._scene_on_device(compiled)
+    P, live, _, _ = gpu._paths_on_device(1 << 10)
+    cuda.synchronize()
+    start = time.perf_counter()
+    for _ in range(launches):
+        gpu.shade_kernel[1, gpu.THREADS](S, P, live, 0, compiled.max_depth)
+    cuda.synchronize()
+    return (time.perf_counter() - start) / launches
 
 
 def cpu_model() -> str:
@@ -103,6 +131,8 @@ def main() -> int:
                         help="paths a batch, as powers of two")
     parser.add_argument("--tails", type=float, nargs="+", default=[0.0, 0.25, 1.0],
                         help="shares of a batch live at which one launch finishes the rest")
+    parser.add_argument("--grid", action="store_true",
+                        help="time every batch size at every tail too (by_pair)")
     parser.add_argument("--tile", type=int, default=64)
     parser.add_argument("--tile-spp", type=int, default=16)
     parser.add_argument("--ref-spp", type=int, default=4096)
@@ -148,14 +178,16 @@ def main() -> int:
         row: dict = {"size": [w, h]}
         results["scenes"][name] = row
         g = time_gpu(compiled, args.spp, args.repeats, args.batches, args.tails, args.tile,
-                     args.tile_spp)
+                     args.tile_spp, args.grid)
         gpu_image = g.pop("image")
         row["gpu"] = g
-        print(f"  gpu: compile {g['compile_seconds']:.1f} s; " + ", ".join(
+        print(f"  gpu: compile {g['compile_seconds']:.1f} s; a launch "
+              f"{g['launch_seconds'] * 1e3:.2f} ms; " + ", ".join(
             f"2^{b} paths a batch {r['paths_per_second'] / 1e6:.1f} Mpaths/s"
             for b, r in g["by_batch"].items()) + "; " + ", ".join(
             f"tail {t:g} {r['paths_per_second'] / 1e6:.1f} Mpaths/s"
             for t, r in g["by_tail"].items())
+            + "".join(f"; {k} {r['paths_per_second'] / 1e6:.1f}" for k, r in g["by_pair"].items())
             + f"; a {g['tile']['size'][0]}x{g['tile']['size'][1]} tile × {args.tile_spp} spp "
               f"{g['tile']['paths_per_second'] / 1e6:.2f} Mpaths/s")
         save()

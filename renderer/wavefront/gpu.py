@@ -10,12 +10,12 @@ counter. The queue's order then varies from run to run, but a path's result depe
 slot only, and accumulation adds each pixel's samples in sample order, so the image does not.
 
 Launches are dear from Python: numba passes every field of the scene and path state as
-kernel arguments, so a launch costs far more than a short stage's work, and a queue that runs one
-launch a stage a segment spends most of its time launching once few paths are left (measured on
-an H200: docs/performance.md, "On a GPU"). So a batch runs stage by stage only while at least
-``tail`` of its paths are live; ``finish_kernel`` then traces each remaining path to its end in
-one thread, in one launch. The scene's arrays stay on the device between the tiles of a scene,
-and so does the path state between batches of one size.
+kernel arguments (0.30–0.35 ms an empty launch on an H200), and running the stages costs five
+launches a segment. ``finish_kernel`` instead traces each path to its end in one thread, in one
+launch; a batch runs stage by stage only while more than ``tail`` of its paths are live. On an
+H200 the default, ``tail`` 1 (one thread a path from the start), was 2.1–5.1× faster than any
+smaller share (docs/performance.md, "On a GPU"). The scene's arrays stay on the device between
+the tiles of a scene, and so does the path state between batches (the largest so far).
 
 The CUDA simulator runs these kernels on the CPU in Python (``NUMBA_ENABLE_CUDASIM=1``, with
 ``NUMBA_DISABLE_JIT=1`` so the shared functions are plain Python too): that is how the tests
@@ -47,10 +47,14 @@ from renderer.wavefront.state import path_state
 STACK = 256
 THREADS = 128  # a block
 # Paths a batch on a GPU: an H200 holds 132 × 2048 threads in flight, so the CPU's 64 Ki paths
-# would leave most of it idle; 1 Mi paths' state is ~320 MiB (bench.gpu_speed sweeps this)
-GPU_BATCH_PATHS = 1 << 20
-# With at most this share of a batch's paths live, finish_kernel traces the rest in one launch
-TAIL = 0.25
+# would leave most of it idle. 4 Mi paths' state is ~1.3 GiB; on an H200 2^22 paths a batch beat
+# 2^20 by 6–7 % and 2^24 gained ≤ 1.3 % more (bench.gpu_speed --grid, docs/performance.md)
+GPU_BATCH_PATHS = 1 << 22
+# With at most this share of a batch's paths live, finish_kernel traces the rest in one launch.
+# 1: every path in one thread from the start. On an H200 that was 2.1–5.1× faster than any
+# share below it at every batch size: the stages' launches and compactions cost more than the
+# threads' divergence does (bench.gpu_speed --grid)
+TAIL = 1.0
 
 
 @cuda.jit
@@ -143,8 +147,10 @@ def _scene_on_device(scene):
 
 
 def _paths_on_device(n_max: int):
+    """Path state for at least ``n_max`` paths: a smaller batch (an edge tile, fewer samples a
+    pass) reuses the larger state already there."""
     held = _resident.get("paths")
-    if held is None or held[0] != n_max:
+    if held is None or held[0] < n_max:
         _resident.pop("paths", None)  # free the old state before allocating the new
         held = (n_max, to_device(path_state(n_max)), cuda.device_array(n_max, np.int64),
                 cuda.device_array(n_max, np.int64), cuda.device_array(1, np.int64))
