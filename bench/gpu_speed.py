@@ -7,23 +7,28 @@
 Run it on a host with a CUDA GPU (numba.cuda sees it); it is how docs/performance.md's GPU table
 was measured. For each scene (``examples/<name>.json`` at its own resolution):
 
-- **gpu**: ``render_tile_gpu`` over the whole frame at ``--spp``. The first call, at 1 spp,
-  includes compiling the CUDA kernels (``compile_seconds``); an empty launch of a stage is timed
-  (``launch_seconds``: what passing the scene and path state costs); then each batch size of
-  ``--batches`` (paths a batch, as powers of two) at the default ``tail``, and each ``tail`` of
-  ``--tails`` at the default batch size, is timed, best of ``--repeats`` (with ``--grid``, every
-  pair of the two too: ``by_pair``). A farm pass is timed too: one ``--tile`` × ``--tile`` tile
-  at ``--tile-spp``.
-- **cpu scalar**, **cpu wavefront**: ``render_buffer`` on every core of the host, at ``--spp``,
-  best of ``--repeats`` after a 1-spp warm-up (``bench.cornell_speed.time_lucent``).
+- **gpu**: ``render_tile_gpu`` over the whole frame at ``--spp``. The first calls, at 1 spp,
+  include compiling the CUDA kernels (``compile_seconds``); an empty launch of a stage is timed
+  (``launch_seconds``: what passing the scene and path state costs). A scene the wavefront stages
+  cover (``kernel``: ``stages``) is then timed at each batch size of ``--batches`` (paths a
+  batch, as powers of two) at the default ``tail``, at each ``tail`` of ``--tails`` at the
+  default batch size (with ``--grid``, every pair of the two too: ``by_pair``), and by
+  ``path_kernel`` at the default batch size (``megakernel``); any other scene (``kernel``:
+  ``path_kernel``) by ``path_kernel`` at each batch size. Best of ``--repeats``. A farm pass is
+  timed too: one ``--tile`` × ``--tile`` tile at ``--tile-spp``.
+- **cpu scalar**, **cpu wavefront** (the latter for the scenes it covers): ``render_buffer`` on
+  every core of the host, at ``--spp``, best of ``--repeats`` after a 1-spp warm-up
+  (``bench.cornell_speed.time_lucent``).
 - **mitsuba cuda_ad_rgb** and **llvm_ad_rgb** (the optional extra; a variant that does not load is
   reported as unavailable): ``bench.mitsuba_side.time_mitsuba`` at ``--spp``.
 
-Correctness on the device: the GPU image and the CPU wavefront image are the same paths, so they
-are compared pixel by pixel (``gpu_vs_cpu``: the share of pixels equal to 10⁻⁶ relative, and the
-relative difference of the two frame means); and each is scored against a Mitsuba 3 reference of
-``--ref-spp`` (cuda_ad_rgb, else llvm_ad_rgb; relMSE as bench.accuracy's ``rel_mse``), so a GPU
-that computed something else would show a larger error than the CPU kernel's at equal spp.
+Correctness on the device: each GPU kernel traces a CPU kernel's paths (the stages the wavefront
+kernel's, ``path_kernel`` the scalar kernel's), so their images are compared pixel by pixel
+(``gpu stages vs cpu wavefront``, ``gpu path_kernel vs cpu scalar``: the share of pixels equal
+to 10⁻⁶ relative, and the relative difference of the two frame means); and each is scored
+against a Mitsuba 3 reference of ``--ref-spp`` (cuda_ad_rgb, else llvm_ad_rgb; relMSE as
+bench.accuracy's ``rel_mse``), so a GPU that computed something else would show a larger error
+than the CPU kernel's at equal spp.
 """
 
 from __future__ import annotations
@@ -42,35 +47,44 @@ ROOT = Path(__file__).resolve().parents[1]
 
 def time_gpu(compiled, spp: int, repeats: int, batches: list[int], tails: list[float],
              tile: int, tile_spp: int, grid: bool = False) -> dict:
+    """The GPU's timings of one scene. A scene the stages cover is timed by batch size and by
+    tail (and their grid), and by ``path_kernel`` too (``megakernel``); any other scene runs
+    ``path_kernel`` only, by batch size."""
+    from renderer.wavefront.cpu import unsupported
     from renderer.wavefront.gpu import GPU_BATCH_PATHS, TAIL, render_tile_gpu
 
     w, h = compiled.width, compiled.height
+    staged = unsupported(compiled) is None
     start = time.perf_counter()
-    render_tile_gpu(compiled, 0, 0, w, h, 0, 1, tail=0.5)  # compiles the stages and the tail
+    if staged:
+        render_tile_gpu(compiled, 0, 0, w, h, 0, 1, tail=0.5)  # the stages and the tail
+    render_tile_gpu(compiled, 0, 0, w, h, 0, 1, megakernel=True)
     compile_seconds = time.perf_counter() - start
     launch_seconds = time_launch(compiled)
-    image = None
-    timed: dict[tuple[int, float], dict] = {}
+    images: dict[bool, object] = {}
+    timed: dict[tuple[int, float, bool], dict] = {}
 
-    def best_of(batch_paths: int, tail: float) -> dict:
-        nonlocal image
-        if (batch_paths, tail) in timed:
-            return timed[batch_paths, tail]
+    def best_of(batch_paths: int, tail: float, megakernel: bool = not staged) -> dict:
+        if (batch_paths, tail, megakernel) in timed:
+            return timed[batch_paths, tail, megakernel]
         best = float("inf")
         for _ in range(repeats):
             start = time.perf_counter()
             buf = render_tile_gpu(compiled, 0, 0, w, h, 0, spp, batch_paths=batch_paths,
-                                  tail=tail)
+                                  tail=tail, megakernel=megakernel)
             best = min(best, time.perf_counter() - start)
-        if image is None or (batch_paths == GPU_BATCH_PATHS and tail == TAIL):
-            image = buf
-        timed[batch_paths, tail] = {"seconds": best, "paths_per_second": w * h * spp / best}
-        return timed[batch_paths, tail]
+        if megakernel not in images or (batch_paths == GPU_BATCH_PATHS and tail == TAIL):
+            images[megakernel] = buf
+        timed[batch_paths, tail, megakernel] = {"seconds": best,
+                                                "paths_per_second": w * h * spp / best}
+        return timed[batch_paths, tail, megakernel]
 
     by_batch = {b: best_of(1 << b, TAIL) for b in batches}
-    by_tail = {t: best_of(GPU_BATCH_PATHS, t) for t in tails}
+    by_tail = {t: best_of(GPU_BATCH_PATHS, t) for t in tails} if staged else {}
     # every batch size at every tail, where asked: the best pair need not lie on the two lines
-    by_pair = {f"2^{b} {t:g}": best_of(1 << b, t) for b in batches for t in tails} if grid else {}
+    by_pair = ({f"2^{b} {t:g}": best_of(1 << b, t) for b in batches for t in tails}
+               if grid and staged else {})
+    megakernel = best_of(GPU_BATCH_PATHS, TAIL, True)
     tw, th = min(tile, w), min(tile, h)
     render_tile_gpu(compiled, 0, 0, tw, th, 0, tile_spp)
     best_tile = float("inf")
@@ -78,10 +92,10 @@ def time_gpu(compiled, spp: int, repeats: int, batches: list[int], tails: list[f
         start = time.perf_counter()
         render_tile_gpu(compiled, 0, 0, tw, th, tile_spp * (k + 1), tile_spp)
         best_tile = min(best_tile, time.perf_counter() - start)
-    return {"compile_seconds": compile_seconds, "launch_seconds": launch_seconds,
-            "by_batch": by_batch, "by_tail": by_tail,
-            "by_pair": by_pair,
-            "batch_paths": GPU_BATCH_PATHS, "tail": TAIL, "image": image,
+    return {"kernel": "stages" if staged else "path_kernel", "compile_seconds": compile_seconds,
+            "launch_seconds": launch_seconds, "by_batch": by_batch, "by_tail": by_tail,
+            "by_pair": by_pair, "megakernel": megakernel,
+            "batch_paths": GPU_BATCH_PATHS, "tail": TAIL, "images": images,
             "tile": {"size": [tw, th], "spp": tile_spp, "seconds": best_tile,
                      "paths_per_second": tw * th * tile_spp / best_tile}}
 
@@ -179,15 +193,16 @@ def main() -> int:
         results["scenes"][name] = row
         g = time_gpu(compiled, args.spp, args.repeats, args.batches, args.tails, args.tile,
                      args.tile_spp, args.grid)
-        gpu_image = g.pop("image")
+        images = g.pop("images")
         row["gpu"] = g
-        print(f"  gpu: compile {g['compile_seconds']:.1f} s; a launch "
+        print(f"  gpu ({g['kernel']}): compile {g['compile_seconds']:.1f} s; a launch "
               f"{g['launch_seconds'] * 1e3:.2f} ms; " + ", ".join(
             f"2^{b} paths a batch {r['paths_per_second'] / 1e6:.1f} Mpaths/s"
-            for b, r in g["by_batch"].items()) + "; " + ", ".join(
-            f"tail {t:g} {r['paths_per_second'] / 1e6:.1f} Mpaths/s"
-            for t, r in g["by_tail"].items())
+            for b, r in g["by_batch"].items())
+            + "".join(f"; tail {t:g} {r['paths_per_second'] / 1e6:.1f} Mpaths/s"
+                      for t, r in g["by_tail"].items())
             + "".join(f"; {k} {r['paths_per_second'] / 1e6:.1f}" for k, r in g["by_pair"].items())
+            + f"; path_kernel {g['megakernel']['paths_per_second'] / 1e6:.1f} Mpaths/s"
             + f"; a {g['tile']['size'][0]}x{g['tile']['size'][1]} tile × {args.tile_spp} spp "
               f"{g['tile']['paths_per_second'] / 1e6:.2f} Mpaths/s")
         save()
@@ -208,21 +223,28 @@ def main() -> int:
                 row[f"mitsuba {variant}"] = {"unavailable": f"{type(err).__name__}: {err}"[:300]}
                 print(f"  mitsuba {variant}: unavailable ({type(err).__name__}: {err})")
             save()
-        for kernel in ("wavefront", "scalar"):
+        # the CPU kernel whose paths each GPU kernel traces: the stages are the wavefront
+        # kernel's, path_kernel is the scalar kernel's (which the wavefront kernel falls back to)
+        staged = g["kernel"] == "stages"
+        for kernel in ("wavefront", "scalar") if staged else ("scalar",):
             r = time_lucent(scene, args.spp, args.repeats, kernel)
             row[f"cpu {kernel}"] = r
             print(f"  cpu {kernel}: {r['paths_per_second'] / 1e6:.2f} Mpaths/s "
                   f"(warm-up {r['warmup_seconds']:.1f} s)")
             save()
-        cpu_buf = render_buffer(compiled, args.spp, kernel="wavefront")
-        row["gpu_vs_cpu"] = compare(gpu_image, cpu_buf)
-        print(f"  gpu vs cpu wavefront: {row['gpu_vs_cpu']}")
-        save()
+        row["rel_mse"] = {}
+        for megakernel, image in images.items():
+            kernel = "scalar" if megakernel else "wavefront"
+            cpu_buf = render_buffer(compiled, args.spp, kernel=kernel)
+            label = "path_kernel" if megakernel else "stages"
+            row[f"gpu {label} vs cpu {kernel}"] = compare(image, cpu_buf)
+            print(f"  gpu {label} vs cpu {kernel}: {row[f'gpu {label} vs cpu {kernel}']}")
+            if ref is not None:
+                row["rel_mse"][f"gpu {label}"] = rel_mse(image.mean(), ref)
+                row["rel_mse"][f"cpu {kernel}"] = rel_mse(cpu_buf.mean(), ref)
+            save()
         if ref is not None:
-            row["rel_mse"] = {"gpu": rel_mse(gpu_image.mean(), ref),
-                              "cpu wavefront": rel_mse(cpu_buf.mean(), ref)}
             print(f"  relMSE against the reference at {args.spp} spp: {row['rel_mse']}")
-        save()
     print("\n" + json.dumps(results, indent=1))
     return 0
 

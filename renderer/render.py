@@ -35,9 +35,10 @@ def render_tile(
     limits the pass to the pixels where it is true (a bool or uint8 mask), or gives each pixel
     its number of samples, the first ones of the range (integers; adaptive sampling). ``kernel`` is
     ``"scalar"`` (one path at a time, every method), ``"wavefront"`` (batches of paths stage by
-    stage, ``renderer.wavefront``) or ``"gpu"`` (the same stages as CUDA kernels on this
-    process's GPU, ``renderer.wavefront.gpu``). The last two render the scenes they cover
-    (surface materials, the independent sampler) and leave the others to the scalar kernel.
+    stage, ``renderer.wavefront``; it renders the scenes it covers, surface materials and the
+    independent sampler, and leaves the others to the scalar kernel) or ``"gpu"`` (this process's
+    CUDA GPU, every scene: the wavefront stages where they cover it, else the scalar kernel's
+    path function one thread a path; ``renderer.wavefront.gpu``).
     """
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {KERNELS}, not {kernel!r}")
@@ -56,7 +57,7 @@ def render_tile(
         counts = np.where(active.astype(bool), sample_count, 0).astype(np.int32)
     else:
         counts = np.clip(active, 0, sample_count).astype(np.int32)
-    if kernel != "scalar" and unsupported(scene) is None:
+    if kernel == "gpu" or (kernel == "wavefront" and unsupported(scene) is None):
         if kernel == "gpu":
             # numba.cuda is imported only by a process that renders on a GPU
             from renderer.wavefront.gpu import render_tile_gpu as batched

@@ -48,10 +48,11 @@ WARM_UP_SCENE = {
 def warm_up_kernels(kernel: str = "scalar") -> float:
     """Render the warm-up scene once and run the adaptive rule's kernels (loads or compiles
     them) and mark the cache folder warm; returns seconds. With another ``kernel`` (the node's
-    ``worker_kernel``) the scene is rendered with it too: the scalar kernel stays the one for
-    scenes the batched kernels do not cover. The CUDA kernels are not cached on disk (their
-    ``cuda.jit`` has no ``cache=True``), so with ``gpu`` each pool process compiles them here
-    (21.6 s on an H200's host, docs/performance.md)."""
+    ``worker_kernel``) the scene is rendered with it too: with ``wavefront`` the scalar kernel
+    stays the one for scenes it does not cover; with ``gpu`` the path kernel, which renders those
+    on the GPU, is compiled as well. The CUDA kernels are not cached on disk (their ``cuda.jit``
+    has no ``cache=True``), so each pool process of a GPU node compiles them here
+    (docs/performance.md, "On a GPU")."""
     from renderer.film import adaptive
     from renderer.render import render_tile
     from renderer.scene import load_scene
@@ -62,6 +63,10 @@ def warm_up_kernels(kernel: str = "scalar") -> float:
     render_tile(compiled, 0, 0, 4, 4, 0, 1)
     if kernel != "scalar":
         render_tile(compiled, 0, 0, 4, 4, 0, 1, kernel=kernel)
+    if kernel == "gpu":
+        from renderer.wavefront.gpu import render_tile_gpu
+
+        render_tile_gpu(compiled, 0, 0, 4, 4, 0, 1, megakernel=True)
     adaptive.warm_up()
     seconds = time.perf_counter() - t0
     try:

@@ -271,6 +271,20 @@ def camera_ray(cam, width, height, x, y, jx, jy):
     return (cam[0], cam[1], cam[2]), (dx * inv, dy * inv, dz * inv)
 
 
+@inline_kernel
+def camera_sample(S, width, height, x, y, s, key, sob):
+    """The camera ray of sample s of pixel (x, y), its jitter dimensions 0 and 1: the
+    independent sampler's from the sample's ``key``, the sobol sampler's from its pixel's
+    sequence seeds ``sob`` (``sobol_block_seeds``)."""
+    if S.sampler[0] == 1:
+        jx = sobol_value(s, sob[0, 0], sob[0, 1], 0)
+        jy = sobol_value(s, sob[0, 0], sob[0, 2], 1)
+    else:
+        jx = uniform(key, 0)
+        jy = uniform(key, 1)
+    return camera_ray(S.camera, width, height, x, y, jx, jy)
+
+
 @kernel
 def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_start,
                sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, out_segments,
@@ -294,13 +308,7 @@ def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_sta
         segments = 0
         for s in range(sample_start, sample_start + n_samples):
             key = sample_key(seed, pixel, s)
-            if S.sampler[0] == 1:
-                jx = sobol_value(s, sob[0, 0], sob[0, 1], 0)
-                jy = sobol_value(s, sob[0, 0], sob[0, 2], 1)
-            else:
-                jx = uniform(key, 0)
-                jy = uniform(key, 1)
-            o, d = camera_ray(S.camera, width, height, x, y, jx, jy)
+            o, d = camera_sample(S, width, height, x, y, s, key, sob)
             r, g, b, n_seg = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
             segments += n_seg
             # Dropped also when the square overflows, so the variance sums stay finite

@@ -26,11 +26,14 @@ CPU wavefront kernel's (``python -m bench.gpu_speed``).
 from __future__ import annotations
 
 import numpy as np
-from numba import cuda, float64, int64
+from numba import cuda, float64, int64, uint64
 
 from renderer.film.buffer import SampleBuffer
 from renderer.geometry.flat import FLAT_MAX
-from renderer.integrators.path import MAX_SEGMENTS
+from renderer.integrators.path import MAX_SEGMENTS, camera_sample, trace_path
+from renderer.integrators.sampler import PIXEL_SEED_SALT, SOBOL_BLOCKS
+from renderer.materials.bsdf import N_PARAMS
+from renderer.rng import mix64, sample_key, sobol_block_seeds
 from renderer.wavefront import gpu_missing
 from renderer.wavefront.cpu import batching, unsupported
 from renderer.wavefront.stages import (
@@ -106,6 +109,37 @@ def finish_kernel(S, P, live, n_live, max_depth, segments_left):
 
 
 @cuda.jit
+def path_kernel(S, P, width, height, seed, max_depth, x0, y0, tile_w, work, sample_start,
+                sample_count, g0, n):
+    """Sample g0 + i of the batch's work, one thread each, by the scalar kernel's own
+    ``trace_path``: every material and method it renders (the translucent ones, textures, shading
+    normals, the sobol sampler), which the stages do not cover. The radiance goes to ``P.L[i]``
+    for ``accumulate_kernel``."""
+    i = cuda.grid(1)
+    if i < n:
+        g = g0 + i
+        w = g // sample_count
+        s = sample_start + g - w * sample_count
+        slot = work[w]
+        row = slot // tile_w
+        x = x0 + slot - row * tile_w
+        y = y0 + row
+        pixel = y * width + x
+        sob = cuda.local.array((SOBOL_BLOCKS, 3), uint64)
+        if S.sampler[0] == 1:
+            sobol_block_seeds(mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT), sob)
+        key = sample_key(seed, pixel, s)
+        o, d = camera_sample(S, width, height, x, y, s, key, sob)
+        stack = (cuda.local.array(STACK, int64), cuda.local.array(STACK, float64),
+                 cuda.local.array((3, FLAT_MAX), float64))
+        scratch = cuda.local.array(N_PARAMS, float64)
+        r, gr, b, _ = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
+        P.L[i, 0] = r
+        P.L[i, 1] = gr
+        P.L[i, 2] = b
+
+
+@cuda.jit
 def compact_kernel(P, live, n_live, out, count):
     """Append the live paths of the queue to ``out`` (``count[0]`` of them so far)."""
     j = cuda.grid(1)
@@ -126,6 +160,13 @@ def accumulate_kernel(P, g0, g1, sample_count, work, out_sum, out_sum_sq, out_co
 
 def _blocks(n: int) -> int:
     return max(1, -(-n // THREADS))
+
+
+def _accumulate(P, g0, n, sample_count, work, out, tile_w):
+    """Add paths g0 … g0 + n − 1 of the batch (radiance in ``P.L``) to the buffers ``out``."""
+    pixels_in = (g0 + n + sample_count - 1) // sample_count - g0 // sample_count
+    accumulate_kernel[_blocks(pixels_in), THREADS](P, g0, g0 + n, sample_count, work, *out,
+                                                   tile_w)
 
 
 def to_device(arrays):
@@ -159,17 +200,25 @@ def _paths_on_device(n_max: int):
 
 
 def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, active=None,
-                    batch_paths: int = GPU_BATCH_PATHS, tail: float = TAIL) -> SampleBuffer:
-    """``renderer.render.render_tile`` on the GPU: the same sample buffer as the wavefront kernel
-    on the CPU, up to rounding. Scenes the wavefront kernel does not cover are refused, and so is
-    a process that sees no CUDA GPU. ``tail``: at most this share of a batch's paths live,
-    ``finish_kernel`` ends them (0: stage by stage to the end; 1: all in one thread a path)."""
+                    batch_paths: int = GPU_BATCH_PATHS, tail: float = TAIL,
+                    megakernel: bool | None = None) -> SampleBuffer:
+    """``renderer.render.render_tile`` on the GPU; a process that sees no CUDA GPU is refused.
+
+    The scenes the wavefront stages cover (``renderer.wavefront.cpu.unsupported``) run them and
+    give the CPU wavefront kernel's sample buffer, up to rounding: ``tail``, at most this share
+    of a batch's paths live, ``finish_kernel`` ends them (0: stage by stage to the end; 1: all in
+    one thread a path). Every other scene (translucent materials, textures, the sobol sampler…)
+    runs ``path_kernel``, the scalar kernel's ``trace_path`` one thread a path, and gives the
+    scalar kernel's buffer, up to rounding. ``megakernel``: True runs ``path_kernel`` on any
+    scene (to compare the two), False refuses the scenes the stages do not cover."""
     missing = gpu_missing()
     if missing is not None:
         raise RuntimeError(f"the gpu kernel: {missing}")
     reason = unsupported(scene)
-    if reason is not None:
-        raise ValueError(f"the GPU kernel does not cover {reason}")
+    if megakernel is None:
+        megakernel = reason is not None
+    elif not megakernel and reason is not None:
+        raise ValueError(f"the GPU's stage kernels do not cover {reason}")
     if scene.stack_size > STACK:
         raise ValueError(f"the scene's tree needs a stack of {scene.stack_size} > {STACK}")
     if active is None:
@@ -185,6 +234,12 @@ def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, ac
     out = [cuda.to_device(a) for a in (buf.sum, buf.sum_sq, buf.count, buf.dropped)]
     for g0 in range(0, total, n_max):
         n = min(n_max, total - g0)
+        if megakernel:
+            path_kernel[_blocks(n), THREADS](S, P, scene.width, scene.height, scene.seed,
+                                             scene.max_depth, x0, y0, width, d_work,
+                                             sample_start, sample_count, g0, n)
+            _accumulate(P, g0, n, sample_count, d_work, out, width)
+            continue
         generate_kernel[_blocks(n), THREADS](S, P, scene.width, scene.height, scene.seed, x0, y0,
                                              width, d_work, sample_start, sample_count, g0, n,
                                              live)
@@ -203,9 +258,7 @@ def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, ac
             compact_kernel[grid](P, live, n_live, spare, count)
             n_live = int(count.copy_to_host()[0])
             live, spare = spare, live
-        pixels_in = (g0 + n + sample_count - 1) // sample_count - g0 // sample_count
-        accumulate_kernel[_blocks(pixels_in), THREADS](P, g0, g0 + n, sample_count, d_work,
-                                                       *out, width)
+        _accumulate(P, g0, n, sample_count, d_work, out, width)
     for host, dev in zip((buf.sum, buf.sum_sq, buf.count, buf.dropped), out, strict=True):
         dev.copy_to_host(host)
     return buf

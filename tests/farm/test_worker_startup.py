@@ -68,6 +68,40 @@ def test_the_warm_up_loads_the_nodes_kernel():
     assert out.stdout.split()[-1] == "True", out.stdout
 
 
+GPU_WARM_UP = """
+import renderer.wavefront.gpu as gpu
+launched = []
+
+
+class Counted:
+    def __init__(self, kernel):
+        self.kernel = kernel
+
+    def __getitem__(self, config):
+        launched.append(config)
+        return self.kernel[config]
+
+
+gpu.path_kernel = Counted(gpu.path_kernel)
+from worker import runtime
+runtime.WorkerState().warm_up()
+print(len(launched))
+"""
+
+
+@pytest.mark.slow
+def test_a_gpu_nodes_warm_up_compiles_the_path_kernel_too():
+    """A GPU node renders the scenes the stages do not cover (translucent ones) with the path
+    kernel: its warm-up launches that too, so a first translucent pass does not compile it. On
+    numba's CUDA simulator, with the shared functions as Python."""
+    env = dict(os.environ, LUCENT_WORKER_KERNEL="gpu", NUMBA_ENABLE_CUDASIM="1",
+               NUMBA_DISABLE_JIT="1")
+    out = subprocess.run([sys.executable, "-W", "ignore", "-c", GPU_WARM_UP], cwd=ROOT,
+                         capture_output=True, text=True, timeout=600, env=env)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[-1] == "1", out.stdout
+
+
 @pytest.mark.slow
 def test_a_cold_node_compiles_once_and_its_pool_processes_only_load(redis_base_url, tmp_path):
     # An empty kernel cache: the node's main process compiles (in a child) before the pool

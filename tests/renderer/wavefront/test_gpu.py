@@ -91,3 +91,103 @@ def test_cuda_kernels_on_the_simulator_match_the_cpu_kernel():
             np.testing.assert_allclose(np.array(gpu["sum"]), want.sum, rtol=1e-12, atol=1e-300)
             np.testing.assert_allclose(np.array(gpu["sum_sq"]), want.sum_sq, rtol=1e-12,
                                        atol=1e-300)
+
+
+# The path kernel: the scalar kernel's trace_path one CUDA thread a path, for the scenes the
+# stages do not cover (and, asked, for one they do)
+SIMULATED_PATHS = r"""
+import json, sys, warnings
+import numpy as np
+warnings.simplefilter("ignore")
+from renderer.scene import load_scene
+from renderer.scene.compile import compile_scene
+from renderer.render import render_tile
+import renderer.wavefront.gpu as gpu
+from renderer.wavefront.gpu import render_tile_gpu
+launches = []
+
+
+class Counted:  # path_kernel, its launches counted: the scene ran on the (simulated) GPU
+    def __init__(self, kernel):
+        self.kernel = kernel
+
+    def __getitem__(self, config):
+        launches.append(config)
+        return self.kernel[config]
+
+
+gpu.path_kernel = Counted(gpu.path_kernel)
+out = {}
+for name, data in json.loads(sys.argv[1]).items():
+    launches.clear()
+    cs = compile_scene(load_scene(data))
+    counts = np.full((cs.height, cs.width), 3, np.int32)
+    counts[0, :3] = 0
+    counts[2:4, :] = 1
+    if name == "cornell_box":
+        b = render_tile_gpu(cs, 0, 0, cs.width, cs.height, 1, 3, counts > 0, batch_paths=20,
+                            megakernel=True)
+        try:
+            render_tile_gpu(cs, 0, 0, 2, 2, 0, 1, megakernel=False)
+        except ValueError as err:
+            out["refused"] = str(err)
+    else:
+        b = render_tile(cs, 0, 0, cs.width, cs.height, 1, 3, counts, kernel="gpu")
+        try:
+            render_tile_gpu(cs, 0, 0, 2, 2, 0, 1, megakernel=False)
+        except ValueError as err:
+            out[f"{name} refused"] = str(err)
+    out[name] = {"sum": b.sum.tolist(), "sum_sq": b.sum_sq.tolist(), "count": b.count.tolist(),
+                 "dropped": b.dropped.tolist(), "launches": len(launches)}
+print(json.dumps(out))
+"""
+
+
+def path_scenes() -> dict:
+    out = {}
+    for name, file, render in (("cornell_box", "cornell_box", {}),
+                               ("cornell_sobol", "cornell_box", {"sampler": "sobol"}),
+                               ("translucent_sphere", "translucent_sphere", {})):
+        data = json.loads((ROOT / "examples" / f"{file}.json").read_text())
+        data["film"] = {"width": 6, "height": 5}
+        data["render"].update(render)
+        out[name] = data
+    return out
+
+
+@pytest.mark.slow
+def test_the_path_kernel_on_the_simulator_matches_the_scalar_kernel():
+    """``path_kernel`` runs the scalar kernel's ``trace_path``, one thread a path: on the
+    simulator it gives the scalar kernel's sample buffers to rounding, for a translucent sphere
+    (volumetric random walks, which the stages do not cover) and the sobol sampler (its pixel's
+    sequence seeds made in each thread), through ``render_tile(kernel="gpu")`` with a count a
+    pixel (1, 3 and 0 samples from sample 1), and for the Cornell box when asked for, in several
+    batches. Asked not to use it, a scene the stages do not
+    cover is refused, naming why."""
+    scenes = path_scenes()
+    env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", NUMBA_DISABLE_JIT="1", PYTHONPATH=str(ROOT))
+    run = subprocess.run([sys.executable, "-c", SIMULATED_PATHS, json.dumps(scenes)], env=env,
+                         cwd=ROOT, capture_output=True, text=True, timeout=600)
+    assert run.returncode == 0, run.stderr[-3000:]
+    simulated = json.loads(run.stdout)
+    assert "refused" not in simulated  # the stages cover the Cornell box
+    assert "material kinds translucent" in simulated["translucent_sphere refused"]
+    assert simulated["cornell_sobol refused"].endswith("the sobol sampler")
+    for name, data in scenes.items():
+        cs = compile_scene(load_scene(data))
+        counts = np.full((cs.height, cs.width), 3, np.int32)
+        counts[0, :3] = 0
+        counts[2:4, :] = 1
+        want = render_tile(cs, 0, 0, cs.width, cs.height, 1, 3, counts, kernel="scalar")
+        if name == "cornell_box":
+            want = render_tile(cs, 0, 0, cs.width, cs.height, 1, 3, counts > 0, kernel="scalar")
+        assert want.sum.mean() > 0.05  # lit pixels
+        got = simulated[name]
+        # by path_kernel: one launch a batch (the Cornell box's 27 pixels × 3 samples in batches
+        # of 6 whole pixels), one a distinct count (3 and 1) through render_tile
+        assert got["launches"] == (5 if name == "cornell_box" else 2), got["launches"]
+        np.testing.assert_array_equal(np.array(got["count"]), want.count)
+        np.testing.assert_array_equal(np.array(got["dropped"]), want.dropped)
+        np.testing.assert_allclose(np.array(got["sum"]), want.sum, rtol=1e-12, atol=1e-300)
+        np.testing.assert_allclose(np.array(got["sum_sq"]), want.sum_sq, rtol=1e-12,
+                                   atol=1e-300)
