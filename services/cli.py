@@ -125,11 +125,11 @@ def cmd_render(args: argparse.Namespace) -> int:
         f"{threads} threads (scene compiled in {t_compile:.2f} s)",
         file=sys.stderr,
     )
-    if args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
-        print(f"the {args.kernel} kernel does not cover {reason}: the scalar kernel renders it",
-              file=sys.stderr)
-    elif not _kernel_usable(args.kernel):
+    if not _kernel_usable(args.kernel):
         return 1
+    if args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
+        by = "the scalar kernel" if args.kernel == "wavefront" else "the GPU's path kernel"
+        print(f"the wavefront stages do not cover {reason}: {by} renders it", file=sys.stderr)
     total = compiled.width * compiled.height * spp
     with tqdm(total=total, unit="samples", unit_scale=True, disable=args.quiet,
               file=sys.stderr, smoothing=0.3) as bar:
@@ -351,7 +351,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kernel", choices=KERNELS, default="scalar",
                    help="scalar: one path at a time, every method (default); wavefront: batches "
                         "of paths stage by stage, surface materials only (others fall back to "
-                        "scalar); gpu: the wavefront stages on this machine's CUDA GPU")
+                        "scalar); gpu: on this machine's CUDA GPU, every scene (the stages "
+                        "where they cover it)")
     p.add_argument("--exposure", type=float, default=0.0,
                    help="PNG only: exposure in stops, the image is scaled by 2^EV (default 0)")
     p.add_argument("--tonemap", choices=["clamp", "reinhard", "aces"], default="clamp",
@@ -397,7 +398,7 @@ def build_parser() -> argparse.ArgumentParser:
                         "tags it has all of")
     p.add_argument("--kernel", choices=KERNELS, default=None,
                    help="the kernel the node renders with (default: LUCENT_WORKER_KERNEL, else "
-                        "scalar); gpu: the wavefront stages on this host's CUDA GPU, refused "
+                        "scalar); gpu: on this host's CUDA GPU (every scene), refused "
                         "where none is seen; tag such a node gpu")
     p.set_defaults(func=cmd_worker)
 

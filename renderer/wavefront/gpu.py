@@ -42,6 +42,7 @@ from renderer.wavefront.stages import (
     intersect_one,
     shade_one,
     shadow_one,
+    work_sample,
 )
 from renderer.wavefront.state import path_state
 
@@ -117,13 +118,7 @@ def path_kernel(S, P, width, height, seed, max_depth, x0, y0, tile_w, work, samp
     for ``accumulate_kernel``."""
     i = cuda.grid(1)
     if i < n:
-        g = g0 + i
-        w = g // sample_count
-        s = sample_start + g - w * sample_count
-        slot = work[w]
-        row = slot // tile_w
-        x = x0 + slot - row * tile_w
-        y = y0 + row
+        _, s, x, y = work_sample(g0 + i, x0, y0, tile_w, work, sample_start, sample_count)
         pixel = y * width + x
         sob = cuda.local.array((SOBOL_BLOCKS, 3), uint64)
         if S.sampler[0] == 1:

@@ -39,17 +39,23 @@ from renderer.sampling import power_heuristic
 
 
 @inline_kernel
-def generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, sample_start,
-                 sample_count, g):
-    """Start path i as sample g of the batch's work: the camera ray of sample
+def work_sample(g, x0, y0, tile_w, work, sample_start, sample_count):
+    """Sample g of a batch's work: (work item w, sample index s, pixel x, y) — sample
     ``sample_start + g % sample_count`` of the pixel ``work[g // sample_count]`` (its index in
-    the tile, row-major), jittered by dimensions 0 and 1."""
+    the tile, row-major)."""
     w = g // sample_count
     s = sample_start + g - w * sample_count
     slot = work[w]
     row = slot // tile_w
-    x = x0 + slot - row * tile_w
-    y = y0 + row
+    return w, s, x0 + slot - row * tile_w, y0 + row
+
+
+@inline_kernel
+def generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, sample_start,
+                 sample_count, g):
+    """Start path i as sample g of the batch's work (``work_sample``): its camera ray,
+    jittered by dimensions 0 and 1."""
+    w, s, x, y = work_sample(g, x0, y0, tile_w, work, sample_start, sample_count)
     key = sample_key(seed, y * width + x, s)
     o, d = camera_ray(S.camera, width, height, x, y, uniform(key, 0), uniform(key, 1))
     P.work[i] = w

@@ -228,6 +228,14 @@ def test_the_gpu_kernel_where_no_gpu_is_seen_is_refused_with_the_reason(tmp_path
                  "-q"]) == 1
     assert "--kernel gpu: this process sees no CUDA GPU" in capsys.readouterr().err
     assert not (tmp_path / "x.npy").exists()
+    # a translucent scene too, which the GPU renders with its path kernel, not the CPU unasked
+    wax = json.loads((ROOT / "examples" / "translucent_sphere.json").read_text())
+    wax["film"] = {"width": 4, "height": 3}
+    (tmp_path / "wax.json").write_text(json.dumps(wax))
+    assert main(["render", str(tmp_path / "wax.json"), "-o", str(tmp_path / "x.npy"),
+                 "--kernel", "gpu", "-q"]) == 1
+    assert "--kernel gpu: this process sees no CUDA GPU" in capsys.readouterr().err
+    assert not (tmp_path / "x.npy").exists()
     monkeypatch.setattr(os, "execvpe", lambda *a: pytest.fail("the worker was started"))
     assert main(["worker", "--redis", "redis://127.0.0.1:1", "--kernel", "gpu"]) == 1
     assert "--kernel gpu: this process sees no CUDA GPU" in capsys.readouterr().err
