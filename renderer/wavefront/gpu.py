@@ -4,8 +4,8 @@ Each kernel calls the per-path function its CPU stage calls (``renderer.wavefron
 numba's CUDA target compiles a CPU-jitted function called from a kernel as a device function of
 the same source, so the two kernels share every line of the path tracer (the scene's
 intersection, BSDFs, lights and random numbers included). What differs is the host side: the
-scene and path state are copied to the device once a tile, each thread has its own traversal
-stack (``cuda.local.array``), and compaction appends the live paths to a new queue with an atomic
+scene and path state live on the device, each thread has its own traversal stack
+(``cuda.local.array``), and compaction appends the live paths to a new queue with an atomic
 counter. The queue's order then varies from run to run, but a path's result depends on its own
 slot only, and accumulation adds each pixel's samples in sample order, so the image does not.
 
@@ -16,6 +16,11 @@ launch; a batch runs stage by stage only while more than ``tail`` of its paths a
 H200 the default, ``tail`` 1 (one thread a path from the start), was 2.1–5.1× faster than any
 smaller share (docs/performance.md, "On a GPU"). The scene's arrays stay on the device between
 the tiles of a scene, and so does the path state between batches (the largest so far).
+
+The stages cover what the CPU wavefront kernel covers (surface materials, the independent
+sampler). Every other scene runs ``path_kernel``: the scalar kernel's own ``trace_path``, one
+thread a path, whose buffers are the scalar kernel's (its 120 s compile is the price of every
+method's code in one kernel).
 
 The CUDA simulator runs these kernels on the CPU in Python (``NUMBA_ENABLE_CUDASIM=1``, with
 ``NUMBA_DISABLE_JIT=1`` so the shared functions are plain Python too): that is how the tests
@@ -115,7 +120,7 @@ def path_kernel(S, P, width, height, seed, max_depth, x0, y0, tile_w, work, samp
     """Sample g0 + i of the batch's work, one thread each, by the scalar kernel's own
     ``trace_path``: every material and method it renders (the translucent ones, textures, shading
     normals, the sobol sampler), which the stages do not cover. The radiance goes to ``P.L[i]``
-    for ``accumulate_kernel``."""
+    and the path's segments to ``P.segments[i]``, for ``accumulate_kernel``."""
     i = cuda.grid(1)
     if i < n:
         _, s, x, y = work_sample(g0 + i, x0, y0, tile_w, work, sample_start, sample_count)
@@ -128,10 +133,11 @@ def path_kernel(S, P, width, height, seed, max_depth, x0, y0, tile_w, work, samp
         stack = (cuda.local.array(STACK, int64), cuda.local.array(STACK, float64),
                  cuda.local.array((3, FLAT_MAX), float64))
         scratch = cuda.local.array(N_PARAMS, float64)
-        r, gr, b, _ = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
+        r, gr, b, segments = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
         P.L[i, 0] = r
         P.L[i, 1] = gr
         P.L[i, 2] = b
+        P.segments[i] = segments
 
 
 @cuda.jit
@@ -146,22 +152,30 @@ def compact_kernel(P, live, n_live, out, count):
 
 @cuda.jit
 def accumulate_kernel(P, g0, g1, sample_count, work, out_sum, out_sum_sq, out_count, out_dropped,
-                      tile_w):
+                      out_segments, tile_w, segments):
+    """A thread a pixel: its samples of the batch, in sample order; with ``segments`` (the path
+    kernel's batches) their path segments too."""
     w = g0 // sample_count + cuda.grid(1)
     if w < (g1 + sample_count - 1) // sample_count:
         accumulate_one(P, w, g0, g1, sample_count, work, out_sum, out_sum_sq, out_count,
                        out_dropped, tile_w)
+        if segments:
+            slot = work[w]
+            row = slot // tile_w
+            for g in range(max(g0, w * sample_count), min(g1, (w + 1) * sample_count)):
+                out_segments[row, slot - row * tile_w] += P.segments[g - g0]
 
 
 def _blocks(n: int) -> int:
     return max(1, -(-n // THREADS))
 
 
-def _accumulate(P, g0, n, sample_count, work, out, tile_w):
-    """Add paths g0 … g0 + n − 1 of the batch (radiance in ``P.L``) to the buffers ``out``."""
+def _accumulate(P, g0, n, sample_count, work, out, tile_w, segments):
+    """Add paths g0 … g0 + n − 1 of the batch (radiance in ``P.L``, with ``segments`` their
+    segments in ``P.segments``) to the buffers ``out``."""
     pixels_in = (g0 + n + sample_count - 1) // sample_count - g0 // sample_count
     accumulate_kernel[_blocks(pixels_in), THREADS](P, g0, g0 + n, sample_count, work, *out,
-                                                   tile_w)
+                                                   tile_w, segments)
 
 
 def to_device(arrays):
@@ -226,14 +240,15 @@ def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, ac
     P, live, spare, count = _paths_on_device(n_max)
     zero = np.zeros(1, np.int64)
     d_work = cuda.to_device(work)
-    out = [cuda.to_device(a) for a in (buf.sum, buf.sum_sq, buf.count, buf.dropped)]
+    fields = (buf.sum, buf.sum_sq, buf.count, buf.dropped, buf.segments)
+    out = [cuda.to_device(a) for a in fields]
     for g0 in range(0, total, n_max):
         n = min(n_max, total - g0)
         if megakernel:
             path_kernel[_blocks(n), THREADS](S, P, scene.width, scene.height, scene.seed,
                                              scene.max_depth, x0, y0, width, d_work,
                                              sample_start, sample_count, g0, n)
-            _accumulate(P, g0, n, sample_count, d_work, out, width)
+            _accumulate(P, g0, n, sample_count, d_work, out, width, True)
             continue
         generate_kernel[_blocks(n), THREADS](S, P, scene.width, scene.height, scene.seed, x0, y0,
                                              width, d_work, sample_start, sample_count, g0, n,
@@ -253,7 +268,7 @@ def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, ac
             compact_kernel[grid](P, live, n_live, spare, count)
             n_live = int(count.copy_to_host()[0])
             live, spare = spare, live
-        _accumulate(P, g0, n, sample_count, d_work, out, width)
-    for host, dev in zip((buf.sum, buf.sum_sq, buf.count, buf.dropped), out, strict=True):
+        _accumulate(P, g0, n, sample_count, d_work, out, width, False)
+    for host, dev in zip(fields, out, strict=True):
         dev.copy_to_host(host)
     return buf

@@ -35,6 +35,9 @@ PathState = namedtuple(
         # the light sample's shadow ray from the last vertex: point, normal, direction, distance
         # to the light (< 0: none), the primitive's scale, and β·f·Li·w/pdf if unoccluded
         "shadow_p", "shadow_n", "shadow_wi", "shadow_t", "shadow_scale", "shadow_c",
+        # path segments traced, where a whole path ran in one call (the GPU's path_kernel): the
+        # cost adaptive sampling weighs, as the scalar kernel reports it
+        "segments",
     ],
 )
 
@@ -50,5 +53,5 @@ def path_state(n: int) -> PathState:
         alive=np.zeros(n, np.uint8),
         hit_t=np.zeros(n), hit_prim=np.zeros(n, np.int64), hit_u=np.zeros(n), hit_v=np.zeros(n),
         shadow_p=v3(), shadow_n=v3(), shadow_wi=v3(), shadow_t=np.zeros(n),
-        shadow_scale=np.zeros(n), shadow_c=v3(),
+        shadow_scale=np.zeros(n), shadow_c=v3(), segments=np.zeros(n, np.int64),
     )

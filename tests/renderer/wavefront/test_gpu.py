@@ -138,7 +138,8 @@ for name, data in json.loads(sys.argv[1]).items():
         except ValueError as err:
             out[f"{name} refused"] = str(err)
     out[name] = {"sum": b.sum.tolist(), "sum_sq": b.sum_sq.tolist(), "count": b.count.tolist(),
-                 "dropped": b.dropped.tolist(), "launches": len(launches)}
+                 "dropped": b.dropped.tolist(), "segments": b.segments.tolist(),
+                 "launches": len(launches)}
 print(json.dumps(out))
 """
 
@@ -162,8 +163,8 @@ def test_the_path_kernel_on_the_simulator_matches_the_scalar_kernel():
     (volumetric random walks, which the stages do not cover) and the sobol sampler (its pixel's
     sequence seeds made in each thread), through ``render_tile(kernel="gpu")`` with a count a
     pixel (1, 3 and 0 samples from sample 1), and for the Cornell box when asked for, in several
-    batches. Asked not to use it, a scene the stages do not
-    cover is refused, naming why."""
+    batches; each pixel's path segments (a sample's cost to adaptive sampling) as well. Asked
+    not to use it, a scene the stages do not cover is refused, naming why."""
     scenes = path_scenes()
     env = dict(os.environ, NUMBA_ENABLE_CUDASIM="1", NUMBA_DISABLE_JIT="1", PYTHONPATH=str(ROOT))
     run = subprocess.run([sys.executable, "-c", SIMULATED_PATHS, json.dumps(scenes)], env=env,
@@ -188,6 +189,9 @@ def test_the_path_kernel_on_the_simulator_matches_the_scalar_kernel():
         assert got["launches"] == (5 if name == "cornell_box" else 2), got["launches"]
         np.testing.assert_array_equal(np.array(got["count"]), want.count)
         np.testing.assert_array_equal(np.array(got["dropped"]), want.dropped)
+        # the paths' segments too, which adaptive sampling weighs as a sample's cost
+        assert want.segments.sum() > want.count.sum()
+        np.testing.assert_array_equal(np.array(got["segments"]), want.segments)
         np.testing.assert_allclose(np.array(got["sum"]), want.sum, rtol=1e-12, atol=1e-300)
         np.testing.assert_allclose(np.array(got["sum_sq"]), want.sum_sq, rtol=1e-12,
                                    atol=1e-300)
