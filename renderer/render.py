@@ -12,7 +12,7 @@ from renderer.film.adaptive import sample_to_target
 from renderer.film.buffer import SampleBuffer
 from renderer.integrators.path import render_tile_kernel
 from renderer.scene.compile import CompiledScene, compile_scene
-from renderer.wavefront.cpu import render_tile_wavefront, unsupported
+from renderer.wavefront.cpu import pixel_counts, render_tile_wavefront, unsupported
 
 KERNELS = ("scalar", "wavefront", "gpu")  # render_tile's kernels (the CLI's --kernel)
 
@@ -48,26 +48,18 @@ def render_tile(
         raise ValueError(
             f"tile ({x0}, {y0}, {width}x{height}) outside the {scene.width}x{scene.height} frame"
         )
-    buf = SampleBuffer.empty(x0, y0, width, height)
-    if active is None:
-        counts = np.full((height, width), sample_count, np.int32)
-    elif active.shape != (height, width):
+    if active is not None and active.shape != (height, width):
         raise ValueError(f"active mask of shape {active.shape} for a {width}x{height} tile")
-    elif active.dtype in (np.bool_, np.uint8):
-        counts = np.where(active.astype(bool), sample_count, 0).astype(np.int32)
-    else:
-        counts = np.clip(active, 0, sample_count).astype(np.int32)
-    if kernel == "gpu" or (kernel == "wavefront" and unsupported(scene) is None):
-        if kernel == "gpu":
-            # numba.cuda is imported only by a process that renders on a GPU
-            from renderer.wavefront.gpu import render_tile_gpu as batched
-        else:
-            batched = render_tile_wavefront
-        # The batched kernels take a mask: one call per distinct count
-        for c in np.unique(counts[counts > 0]):
-            buf.add(batched(scene, x0, y0, width, height, sample_start, int(c),
-                            np.ascontiguousarray(counts == c, dtype=np.uint8)))
-        return buf
+    counts = pixel_counts(active, sample_count, height, width)
+    if kernel == "gpu":
+        # numba.cuda is imported only by a process that renders on a GPU
+        from renderer.wavefront.gpu import render_tile_gpu
+
+        return render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, counts)
+    if kernel == "wavefront" and unsupported(scene) is None:
+        return render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_count,
+                                     counts)
+    buf = SampleBuffer.empty(x0, y0, width, height)
     if width and height and sample_count:
         render_tile_kernel(
             scene.arrays, scene.width, scene.height, scene.seed, scene.max_depth,

@@ -1,9 +1,10 @@
 """The wavefront kernel's host loop on the CPU, and the scenes it renders.
 
 ``render_tile_wavefront`` takes the arguments of ``renderer.render.render_tile`` and returns the
-same sample buffer: the tile's active pixels × samples are cut into batches of whole pixels
-(``BATCH_PATHS`` paths or a little more), and each batch runs generate, then intersect → shade →
-shadow → compact until no path is live, then accumulate (``renderer.wavefront.stages``).
+same sample buffer: the tile's pixels × their samples are cut into batches of whole pixels (at
+most ``BATCH_PATHS`` paths, unless one pixel has more), and each batch runs generate, then
+intersect → shade → shadow → compact until no path is live, then accumulate
+(``renderer.wavefront.stages``).
 
 The kernel covers the untextured, flat-shaded surface materials (``SURFACE_KINDS``) under the
 independent sampler. ``unsupported`` names what a scene has beyond that — a translucent method,
@@ -63,29 +64,58 @@ def work_list(active: np.ndarray) -> np.ndarray:
     return np.flatnonzero(np.ascontiguousarray(active).ravel()).astype(np.int64)
 
 
-def batching(active: np.ndarray, sample_count: int, batch_paths: int):
-    """(work list, paths in all, paths a batch): batches of whole pixels, so that a pixel's
-    samples are summed in order, as the scalar kernel sums them."""
-    work = work_list(active)
-    total = len(work) * sample_count
-    return work, total, min(total, max(1, batch_paths // sample_count) * sample_count)
+def pixel_counts(active: np.ndarray | None, sample_count: int, height: int,
+                 width: int) -> np.ndarray:
+    """(height, width) int32: how many of the samples [sample_start, sample_start +
+    sample_count) each pixel takes, from ``render_tile``'s ``active``: None (all), a mask (bool
+    or uint8: all where true) or a count a pixel (integers, clipped to [0, sample_count])."""
+    if active is None:
+        return np.full((height, width), sample_count, np.int32)
+    if active.dtype in (np.bool_, np.uint8):
+        return np.where(active.astype(bool), sample_count, 0).astype(np.int32)
+    return np.clip(active, 0, sample_count).astype(np.int32)
+
+
+def batching(counts: np.ndarray, batch_paths: int):
+    """(work, first, batches) for a tile whose pixels take ``counts`` samples each: ``work`` the
+    pixels with any (row-major indices into the tile); ``first[w]`` … ``first[w + 1] − 1`` the
+    paths of work item w, so ``first[-1]`` paths in all; ``batches`` (w0, w1) runs of whole
+    work items of at most ``batch_paths`` paths (a pixel with more is a batch alone), so that a
+    pixel's samples are summed in order, as the scalar kernel sums them. A tile of unequal
+    counts (adaptive sampling) is one call, not one a distinct count."""
+    flat = np.ascontiguousarray(counts).ravel()
+    work = work_list(flat > 0)
+    first = np.zeros(len(work) + 1, np.int64)
+    np.cumsum(flat[work], out=first[1:])
+    batches = []
+    w0 = 0
+    while w0 < len(work):
+        w1 = int(np.searchsorted(first, first[w0] + batch_paths, side="right")) - 1
+        w1 = max(w1, w0 + 1)
+        batches.append((w0, w1))
+        w0 = w1
+    return work, first, batches
 
 
 def render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_count, active,
                           batch_paths: int = BATCH_PATHS) -> SampleBuffer:
-    """``render_tile`` (arguments checked there) by the wavefront kernel."""
+    """``render_tile`` (arguments checked there) by the wavefront kernel; ``active`` as there (a
+    mask or a count a pixel)."""
     S = scene.arrays
     buf = SampleBuffer.empty(x0, y0, width, height)
-    work, total, n_max = batching(active, sample_count, batch_paths)
-    if total == 0:
+    work, first, batches = batching(pixel_counts(active, sample_count, height, width),
+                                    batch_paths)
+    if not batches:
         return buf
+    n_max = max(int(first[w1] - first[w0]) for w0, w1 in batches)
     P = path_state(n_max)
     live = np.empty(n_max, np.int64)
     threads = numba.get_num_threads()
-    for g0 in range(0, total, n_max):
-        n = min(n_max, total - g0)
-        generate(S, P, scene.width, scene.height, scene.seed, x0, y0, width, work, sample_start,
-                 sample_count, g0, n, live, threads)
+    for w0, w1 in batches:
+        g0 = int(first[w0])
+        n = int(first[w1]) - g0
+        generate(S, P, scene.width, scene.height, scene.seed, x0, y0, width, work, first,
+                 sample_start, g0, n, live, threads)
         n_live = n
         for _ in range(MAX_SEGMENTS):
             if n_live == 0:
@@ -94,6 +124,5 @@ def render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_cou
             shade(S, P, live, n_live, scene.max_depth, threads)
             shadow(S, P, live, n_live, scene.stack_size, threads)
             n_live = compact(P, live, n_live)
-        accumulate(P, g0, g0 + n, sample_count, work, buf.sum, buf.sum_sq, buf.count,
-                   buf.dropped, width)
+        accumulate(P, w0, w1, first, work, buf.sum, buf.sum_sq, buf.count, buf.dropped, width)
     return buf

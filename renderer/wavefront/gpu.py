@@ -40,7 +40,7 @@ from renderer.integrators.sampler import PIXEL_SEED_SALT, SOBOL_BLOCKS
 from renderer.materials.bsdf import N_PARAMS
 from renderer.rng import mix64, sample_key, sobol_block_seeds
 from renderer.wavefront import gpu_missing
-from renderer.wavefront.cpu import batching, unsupported
+from renderer.wavefront.cpu import batching, pixel_counts, unsupported
 from renderer.wavefront.stages import (
     accumulate_one,
     generate_one,
@@ -67,12 +67,12 @@ TAIL = 1.0
 
 
 @cuda.jit
-def generate_kernel(S, P, width, height, seed, x0, y0, tile_w, work, sample_start, sample_count,
-                    g0, n, live):
+def generate_kernel(S, P, width, height, seed, x0, y0, tile_w, work, first, sample_start, g0, n,
+                    live):
     i = cuda.grid(1)
     if i < n:
-        generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, sample_start,
-                     sample_count, g0 + i)
+        generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, first, sample_start,
+                     g0 + i)
         live[i] = i
 
 
@@ -115,15 +115,15 @@ def finish_kernel(S, P, live, n_live, max_depth, segments_left):
 
 
 @cuda.jit
-def path_kernel(S, P, width, height, seed, max_depth, x0, y0, tile_w, work, sample_start,
-                sample_count, g0, n):
-    """Sample g0 + i of the batch's work, one thread each, by the scalar kernel's own
+def path_kernel(S, P, width, height, seed, max_depth, x0, y0, tile_w, work, first, sample_start,
+                g0, n):
+    """Path g0 + i of the tile's work in slot i, one thread each, by the scalar kernel's own
     ``trace_path``: every material and method it renders (the translucent ones, textures, shading
     normals, the sobol sampler), which the stages do not cover. The radiance goes to ``P.L[i]``
     and the path's segments to ``P.segments[i]``, for ``accumulate_kernel``."""
     i = cuda.grid(1)
     if i < n:
-        _, s, x, y = work_sample(g0 + i, x0, y0, tile_w, work, sample_start, sample_count)
+        _, s, x, y = work_sample(g0 + i, x0, y0, tile_w, work, first, sample_start)
         pixel = y * width + x
         sob = cuda.local.array((SOBOL_BLOCKS, 3), uint64)
         if S.sampler[0] == 1:
@@ -151,18 +151,19 @@ def compact_kernel(P, live, n_live, out, count):
 
 
 @cuda.jit
-def accumulate_kernel(P, g0, g1, sample_count, work, out_sum, out_sum_sq, out_count, out_dropped,
+def accumulate_kernel(P, w0, w1, first, work, out_sum, out_sum_sq, out_count, out_dropped,
                       out_segments, tile_w, segments):
-    """A thread a pixel: its samples of the batch, in sample order; with ``segments`` (the path
-    kernel's batches) their path segments too."""
-    w = g0 // sample_count + cuda.grid(1)
-    if w < (g1 + sample_count - 1) // sample_count:
-        accumulate_one(P, w, g0, g1, sample_count, work, out_sum, out_sum_sq, out_count,
-                       out_dropped, tile_w)
+    """A thread a pixel of the batch w0 … w1 − 1: its samples, in sample order; with
+    ``segments`` (the path kernel's batches) their path segments too."""
+    w = w0 + cuda.grid(1)
+    if w < w1:
+        g0 = first[w0]
+        accumulate_one(P, w, g0, first, work, out_sum, out_sum_sq, out_count, out_dropped,
+                       tile_w)
         if segments:
             slot = work[w]
             row = slot // tile_w
-            for g in range(max(g0, w * sample_count), min(g1, (w + 1) * sample_count)):
+            for g in range(first[w], first[w + 1]):
                 out_segments[row, slot - row * tile_w] += P.segments[g - g0]
 
 
@@ -170,12 +171,10 @@ def _blocks(n: int) -> int:
     return max(1, -(-n // THREADS))
 
 
-def _accumulate(P, g0, n, sample_count, work, out, tile_w, segments):
-    """Add paths g0 … g0 + n − 1 of the batch (radiance in ``P.L``, with ``segments`` their
-    segments in ``P.segments``) to the buffers ``out``."""
-    pixels_in = (g0 + n + sample_count - 1) // sample_count - g0 // sample_count
-    accumulate_kernel[_blocks(pixels_in), THREADS](P, g0, g0 + n, sample_count, work, *out,
-                                                   tile_w, segments)
+def _accumulate(P, w0, w1, first, work, out, tile_w, segments):
+    """Add the batch of work items w0 … w1 − 1 (radiance in ``P.L``, with ``segments`` the
+    paths' segments in ``P.segments``) to the buffers ``out``."""
+    accumulate_kernel[_blocks(w1 - w0), THREADS](P, w0, w1, first, work, *out, tile_w, segments)
 
 
 def to_device(arrays):
@@ -230,29 +229,29 @@ def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, ac
         raise ValueError(f"the GPU's stage kernels do not cover {reason}")
     if scene.stack_size > STACK:
         raise ValueError(f"the scene's tree needs a stack of {scene.stack_size} > {STACK}")
-    if active is None:
-        active = np.ones((height, width), np.uint8)
     buf = SampleBuffer.empty(x0, y0, width, height)
-    work, total, n_max = batching(active, sample_count, batch_paths)
-    if total == 0:
+    work, first, batches = batching(pixel_counts(active, sample_count, height, width),
+                                    batch_paths)
+    if not batches:
         return buf
+    n_max = max(int(first[w1] - first[w0]) for w0, w1 in batches)
     S = _scene_on_device(scene)
     P, live, spare, count = _paths_on_device(n_max)
     zero = np.zeros(1, np.int64)
-    d_work = cuda.to_device(work)
+    d_work, d_first = cuda.to_device(work), cuda.to_device(first)
     fields = (buf.sum, buf.sum_sq, buf.count, buf.dropped, buf.segments)
     out = [cuda.to_device(a) for a in fields]
-    for g0 in range(0, total, n_max):
-        n = min(n_max, total - g0)
+    for w0, w1 in batches:
+        g0 = int(first[w0])
+        n = int(first[w1]) - g0
         if megakernel:
             path_kernel[_blocks(n), THREADS](S, P, scene.width, scene.height, scene.seed,
-                                             scene.max_depth, x0, y0, width, d_work,
-                                             sample_start, sample_count, g0, n)
-            _accumulate(P, g0, n, sample_count, d_work, out, width, True)
+                                             scene.max_depth, x0, y0, width, d_work, d_first,
+                                             sample_start, g0, n)
+            _accumulate(P, w0, w1, d_first, d_work, out, width, True)
             continue
         generate_kernel[_blocks(n), THREADS](S, P, scene.width, scene.height, scene.seed, x0, y0,
-                                             width, d_work, sample_start, sample_count, g0, n,
-                                             live)
+                                             width, d_work, d_first, sample_start, g0, n, live)
         n_live = n
         for segment in range(MAX_SEGMENTS):
             if n_live == 0:
@@ -268,7 +267,7 @@ def render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, ac
             compact_kernel[grid](P, live, n_live, spare, count)
             n_live = int(count.copy_to_host()[0])
             live, spare = spare, live
-        _accumulate(P, g0, n, sample_count, d_work, out, width, False)
+        _accumulate(P, w0, w1, d_first, d_work, out, width, False)
     for host, dev in zip(fields, out, strict=True):
         dev.copy_to_host(host)
     return buf

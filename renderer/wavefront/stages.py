@@ -39,23 +39,36 @@ from renderer.sampling import power_heuristic
 
 
 @inline_kernel
-def work_sample(g, x0, y0, tile_w, work, sample_start, sample_count):
-    """Sample g of a batch's work: (work item w, sample index s, pixel x, y) — sample
-    ``sample_start + g % sample_count`` of the pixel ``work[g // sample_count]`` (its index in
-    the tile, row-major)."""
-    w = g // sample_count
-    s = sample_start + g - w * sample_count
-    slot = work[w]
-    row = slot // tile_w
-    return w, s, x0 + slot - row * tile_w, y0 + row
+def work_item(first, g):
+    """The work item (pixel) whose samples hold path g of the work: the w with
+    ``first[w] ≤ g < first[w + 1]``, by bisection (``first`` increases strictly)."""
+    lo = 0
+    hi = first.shape[0] - 1
+    while hi - lo > 1:
+        mid = (lo + hi) // 2
+        if first[mid] <= g:
+            lo = mid
+        else:
+            hi = mid
+    return lo
 
 
 @inline_kernel
-def generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, sample_start,
-                 sample_count, g):
-    """Start path i as sample g of the batch's work (``work_sample``): its camera ray,
-    jittered by dimensions 0 and 1."""
-    w, s, x, y = work_sample(g, x0, y0, tile_w, work, sample_start, sample_count)
+def work_sample(g, x0, y0, tile_w, work, first, sample_start):
+    """Path g of a tile's work: (work item w, sample index s, pixel x, y). Work item w is the
+    pixel ``work[w]`` (its index in the tile, row-major); its paths are ``first[w]`` …
+    ``first[w + 1] − 1``, samples ``sample_start`` onwards (``renderer.wavefront.cpu.batching``)."""
+    w = work_item(first, g)
+    slot = work[w]
+    row = slot // tile_w
+    return w, sample_start + g - first[w], x0 + slot - row * tile_w, y0 + row
+
+
+@inline_kernel
+def generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, first, sample_start, g):
+    """Start path i as path g of the tile's work (``work_sample``): its camera ray, jittered by
+    dimensions 0 and 1."""
+    w, s, x, y = work_sample(g, x0, y0, tile_w, work, first, sample_start)
     key = sample_key(seed, y * width + x, s)
     o, d = camera_ray(S.camera, width, height, x, y, uniform(key, 0), uniform(key, 1))
     P.work[i] = w
@@ -236,15 +249,15 @@ def shadow_one(S, P, i, stack):
 
 
 @inline_kernel
-def accumulate_one(P, w, g0, g1, sample_count, work, out_sum, out_sum_sq, out_count,
-                   out_dropped, tile_w):
-    """Add the samples of work item w (a pixel), paths g0 … g1 − 1 of the batch, to its pixel of
-    the sample buffer in sample order; a sample that is not finite (or whose square overflows) is
-    dropped and counted, as in the scalar kernel."""
+def accumulate_one(P, w, g0, first, work, out_sum, out_sum_sq, out_count, out_dropped, tile_w):
+    """Add the samples of work item w (a pixel), paths ``first[w]`` … ``first[w + 1] − 1`` of the
+    tile's work, in slots from ``g0`` (its batch's first path), to its pixel of the sample buffer
+    in sample order; a sample that is not finite (or whose square overflows) is dropped and
+    counted, as in the scalar kernel."""
     slot = work[w]
     row = slot // tile_w
     col = slot - row * tile_w
-    for g in range(max(g0, w * sample_count), min(g1, (w + 1) * sample_count)):
+    for g in range(first[w], first[w + 1]):
         i = g - g0
         r, gr, b = P.L[i, 0], P.L[i, 1], P.L[i, 2]
         if math.isfinite(r * r) and math.isfinite(gr * gr) and math.isfinite(b * b):
@@ -268,22 +281,22 @@ def accumulate_one(P, w, g0, g1, sample_count, work, out_sum, out_sum_sq, out_co
 
 
 @kernel
-def generate_run(S, P, width, height, seed, x0, y0, tile_w, work, sample_start, sample_count,
-                 g0, lo, hi, live):
+def generate_run(S, P, width, height, seed, x0, y0, tile_w, work, first, sample_start, g0, lo,
+                 hi, live):
     for i in range(lo, hi):
-        generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, sample_start,
-                     sample_count, g0 + i)
+        generate_one(S, P, i, width, height, seed, x0, y0, tile_w, work, first, sample_start,
+                     g0 + i)
         live[i] = i
 
 
 @parallel_kernel
-def generate(S, P, width, height, seed, x0, y0, tile_w, work, sample_start, sample_count, g0,
-             n, live, n_threads):
-    """Start paths 0 … n − 1 as samples g0 … g0 + n − 1 of the work; all of them are live."""
+def generate(S, P, width, height, seed, x0, y0, tile_w, work, first, sample_start, g0, n, live,
+             n_threads):
+    """Start paths 0 … n − 1 as paths g0 … g0 + n − 1 of the work; all of them are live."""
     n_chunks = max(1, min(n, n_threads))
     for c in prange(n_chunks):
-        generate_run(S, P, width, height, seed, x0, y0, tile_w, work, sample_start,
-                     sample_count, g0, c * n // n_chunks, (c + 1) * n // n_chunks, live)
+        generate_run(S, P, width, height, seed, x0, y0, tile_w, work, first, sample_start, g0,
+                     c * n // n_chunks, (c + 1) * n // n_chunks, live)
 
 
 @kernel
@@ -342,9 +355,9 @@ def compact(P, live, n_live):
 
 
 @parallel_kernel
-def accumulate(P, g0, g1, sample_count, work, out_sum, out_sum_sq, out_count, out_dropped,
-               tile_w):
-    """Add the batch's paths g0 … g1 − 1 (whole pixels) to the sample buffer, a pixel a task."""
-    for w in prange(g0 // sample_count, (g1 + sample_count - 1) // sample_count):
-        accumulate_one(P, w, g0, g1, sample_count, work, out_sum, out_sum_sq, out_count,
+def accumulate(P, w0, w1, first, work, out_sum, out_sum_sq, out_count, out_dropped, tile_w):
+    """Add the batch of work items w0 … w1 − 1 (whole pixels: its paths are ``first[w0]`` …
+    ``first[w1] − 1``, in slots from 0) to the sample buffer, a pixel a task."""
+    for w in prange(w0, w1):
+        accumulate_one(P, w, first[w0], first, work, out_sum, out_sum_sq, out_count,
                        out_dropped, tile_w)

@@ -1058,8 +1058,8 @@ def test_a_lost_nodes_pass_is_requeued_once_its_heartbeat_expires(own_redis, pre
 def test_a_worker_renders_its_passes_with_its_configured_kernel(in_process_worker, prefix,
                                                                  cornell, monkeypatch):
     """A node's ``worker_kernel`` (``lucent worker --kernel``) is the kernel its passes render
-    with: with ``wavefront`` the pass goes through the batched kernel (a GPU node's ``gpu`` takes
-    the same branch of render_tile), and the merged tile is that kernel's buffer."""
+    with: with ``wavefront`` the pass goes through the batched kernel (a GPU node's ``gpu``
+    through ``render_tile_gpu`` beside it), and the merged tile is that kernel's buffer."""
     import renderer.render as rr
     from worker import tasks
 

@@ -17,7 +17,7 @@ from renderer.rng import sample_key, uniform
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
 from renderer.wavefront import gpu_missing
-from renderer.wavefront.cpu import render_tile_wavefront, unsupported, work_list
+from renderer.wavefront.cpu import batching, render_tile_wavefront, unsupported
 from renderer.wavefront.stages import accumulate, compact, generate, intersect
 from renderer.wavefront.state import path_state
 
@@ -226,17 +226,21 @@ def test_white_furnace(material, inside):
 def test_generate_stage_against_numpy():
     cs = compile_scene(load_scene(example("cornell_box", width=10, height=7)))
     S = cs.arrays
-    active = np.ones((4, 5), np.uint8)
-    active[1, 2] = 0
-    work = work_list(active)
-    n = len(work) * 3
+    # a count a pixel (adaptive sampling): 3, 1 or 2 samples, none for one pixel
+    counts = np.resize(np.array([3, 1, 2], np.int32), 20).reshape(4, 5)
+    counts[1, 2] = 0
+    work, first, batches = batching(counts, 1 << 16)
+    np.testing.assert_array_equal(work, np.flatnonzero(counts.ravel()))
+    assert batches == [(0, len(work))] and first[-1] == counts.sum()
+    n = int(first[-1])
     P = path_state(n)
     live = np.empty(n, np.int64)
-    generate(S, P, cs.width, cs.height, cs.seed, 2, 3, 5, work, 11, 3, 0, n, live, 2)
+    generate(S, P, cs.width, cs.height, cs.seed, 2, 3, 5, work, first, 11, 0, n, live, 2)
     np.testing.assert_array_equal(live, np.arange(n))
-    slot = np.repeat(work, 3)
+    per = counts.ravel()[work]
+    slot = np.repeat(work, per)
     x, y = 2 + slot % 5, 3 + slot // 5
-    s = 11 + np.tile(np.arange(3), len(work))
+    s = 11 + np.concatenate([np.arange(k) for k in per])
     np.testing.assert_array_equal(P.sample, s)
     keys = np.array([sample_key(cs.seed, int(py) * cs.width + int(px), int(k))
                      for px, py, k in zip(x, y, s, strict=True)], np.uint64)
@@ -319,7 +323,7 @@ def test_intersect_stage_against_numpy(scene):
 
 def test_compact_and_accumulate_stages_against_numpy():
     rng = np.random.default_rng(3)
-    n, spp, tile_w = 48, 4, 5
+    n, tile_w = 48, 5
     P = path_state(n)
     P.alive[:] = rng.random(n) < 0.4
     live = rng.permutation(n)
@@ -331,18 +335,23 @@ def test_compact_and_accumulate_stages_against_numpy():
     np.testing.assert_array_equal(out[:k], kept)
 
     work = np.array([0, 2, 3, 5, 6, 7, 9, 11, 12, 14, 15, 16, 17, 18, 19], np.int64)
+    per = np.array([4, 4, 5, 3, 4, 4, 6, 2, 4, 4, 4, 4, 4, 4, 4])  # a count a pixel
+    first = np.concatenate([[0], np.cumsum(per)])
     P.L[:] = rng.exponential(size=(n, 3))
     P.L[13, 1] = np.inf
     P.L[14, 0] = 1e200  # its square overflows: dropped as the scalar kernel drops it
     buf = SampleBuffer.empty(0, 0, tile_w, 4)
-    g0 = 8  # the batch: samples 8 … 55 of the work's 60, pixels 2 … 13 of its 15
-    accumulate(P, g0, g0 + n, spp, work, buf.sum, buf.sum_sq, buf.count, buf.dropped, tile_w)
+    # the batch: pixels 2 … 13 of the work's 15, its paths 8 … 55 of 60 in slots 0 … 47
+    w0, w1 = 2, 14
+    g0 = int(first[w0])
+    assert (g0, int(first[w1]) - g0) == (8, n)
+    accumulate(P, w0, w1, first, work, buf.sum, buf.sum_sq, buf.count, buf.dropped, tile_w)
     want = np.zeros((4, tile_w, 3))
     want_sq = np.zeros((4, tile_w, 3))
     count = np.zeros((4, tile_w), np.int64)
     dropped = np.zeros((4, tile_w), np.int64)
     for i in range(n):
-        slot = work[(g0 + i) // spp]
+        slot = work[np.searchsorted(first, g0 + i, side="right") - 1]
         r, c = divmod(slot, tile_w)
         with np.errstate(over="ignore"):
             finite = np.isfinite(P.L[i] ** 2).all()
