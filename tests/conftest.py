@@ -348,3 +348,24 @@ def at_angle(theta_deg: float) -> tuple[float, float, float]:
     """The unit direction θ degrees from +z in the xz-plane (a BSDF test's wo about n = +z)."""
     t = math.radians(theta_deg)
     return (math.sin(t), 0.0, math.cos(t))
+
+
+# Python source that a test's subprocess on numba's CUDA simulator starts with: it wraps
+# renderer.wavefront.gpu's path_kernel so that ``launches`` lists the launches made after it
+# (each a launch configuration), showing that a scene ran on the (simulated) GPU
+COUNTED_PATH_KERNEL = """
+import renderer.wavefront.gpu as gpu
+launches = []
+
+
+class Counted:
+    def __init__(self, kernel):
+        self.kernel = kernel
+
+    def __getitem__(self, config):
+        launches.append(config)
+        return self.kernel[config]
+
+
+gpu.path_kernel = Counted(gpu.path_kernel)
+"""

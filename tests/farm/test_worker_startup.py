@@ -20,7 +20,7 @@ import redis
 
 from services.farm.store import JobStore
 from services.launcher import terminate, worker_command, worker_env
-from tests.conftest import wait_until
+from tests.conftest import COUNTED_PATH_KERNEL, wait_until
 from worker import runtime
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -68,24 +68,10 @@ def test_the_warm_up_loads_the_nodes_kernel():
     assert out.stdout.split()[-1] == "True", out.stdout
 
 
-GPU_WARM_UP = """
-import renderer.wavefront.gpu as gpu
-launched = []
-
-
-class Counted:
-    def __init__(self, kernel):
-        self.kernel = kernel
-
-    def __getitem__(self, config):
-        launched.append(config)
-        return self.kernel[config]
-
-
-gpu.path_kernel = Counted(gpu.path_kernel)
+GPU_WARM_UP = COUNTED_PATH_KERNEL + """
 from worker import runtime
 runtime.WorkerState().warm_up()
-print(len(launched))
+print(len(launches))
 """
 
 

@@ -15,6 +15,7 @@ from renderer.render import render_tile
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
 from renderer.wavefront.cpu import render_tile_wavefront
+from tests.conftest import COUNTED_PATH_KERNEL
 
 ROOT = Path(__file__).resolve().parents[3]
 
@@ -95,28 +96,14 @@ def test_cuda_kernels_on_the_simulator_match_the_cpu_kernel():
 
 # The path kernel: the scalar kernel's trace_path one CUDA thread a path, for the scenes the
 # stages do not cover (and, asked, for one they do)
-SIMULATED_PATHS = r"""
+SIMULATED_PATHS = COUNTED_PATH_KERNEL + r"""
 import json, sys, warnings
 import numpy as np
 warnings.simplefilter("ignore")
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
 from renderer.render import render_tile
-import renderer.wavefront.gpu as gpu
 from renderer.wavefront.gpu import render_tile_gpu
-launches = []
-
-
-class Counted:  # path_kernel, its launches counted: the scene ran on the (simulated) GPU
-    def __init__(self, kernel):
-        self.kernel = kernel
-
-    def __getitem__(self, config):
-        launches.append(config)
-        return self.kernel[config]
-
-
-gpu.path_kernel = Counted(gpu.path_kernel)
 out = {}
 for name, data in json.loads(sys.argv[1]).items():
     launches.clear()
