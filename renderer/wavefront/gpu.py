@@ -57,7 +57,7 @@ STACK = 256
 THREADS = 128  # a block
 # Paths a batch on a GPU: an H200 holds 132 × 2048 threads in flight, so the CPU's 64 Ki paths
 # would leave most of it idle. 4 Mi paths' state is ~1.3 GiB; on an H200 2^22 paths a batch beat
-# 2^20 by 6–7 % and 2^24 gained ≤ 1.3 % more (bench.gpu_speed --grid, docs/performance.md)
+# 2^20 by 6–7 % and 2^24 at most 3 % more (bench.gpu_speed --grid, docs/performance.md)
 GPU_BATCH_PATHS = 1 << 22
 # With at most this share of a batch's paths live, finish_kernel traces the rest in one launch.
 # 1: every path in one thread from the start. On an H200 that was 2.1–5.1× faster than any
