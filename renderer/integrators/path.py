@@ -272,6 +272,14 @@ def camera_ray(cam, width, height, x, y, jx, jy):
 
 
 @inline_kernel
+def pixel_sequence_seeds(S, seed, pixel, sob):
+    """Under the sobol sampler, fill ``sob`` with the pixel's sequence scrambles (a hash apart
+    from every sample's key); the independent sampler needs none."""
+    if S.sampler[0] == 1:
+        sobol_block_seeds(mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT), sob)
+
+
+@inline_kernel
 def camera_sample(S, width, height, x, y, s, key, sob):
     """The camera ray of sample s of pixel (x, y), its jitter dimensions 0 and 1: the
     independent sampler's from the sample's ``key``, the sobol sampler's from its pixel's
@@ -298,9 +306,7 @@ def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_sta
             continue
         x = x0 + col
         pixel = y * width + x
-        if S.sampler[0] == 1:
-            # The sobol sampler's scrambles of this pixel (a hash apart from every sample's key)
-            sobol_block_seeds(mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT), sob)
+        pixel_sequence_seeds(S, seed, pixel, sob)
         sr = sg = sb = 0.0
         qr = qg = qb = 0.0
         good = 0

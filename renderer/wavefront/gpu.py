@@ -35,10 +35,15 @@ from numba import cuda, float64, int64, uint64
 
 from renderer.film.buffer import SampleBuffer
 from renderer.geometry.flat import FLAT_MAX
-from renderer.integrators.path import MAX_SEGMENTS, camera_sample, trace_path
-from renderer.integrators.sampler import PIXEL_SEED_SALT, SOBOL_BLOCKS
+from renderer.integrators.path import (
+    MAX_SEGMENTS,
+    camera_sample,
+    pixel_sequence_seeds,
+    trace_path,
+)
+from renderer.integrators.sampler import SOBOL_BLOCKS
 from renderer.materials.bsdf import N_PARAMS
-from renderer.rng import mix64, sample_key, sobol_block_seeds
+from renderer.rng import sample_key
 from renderer.wavefront import gpu_missing
 from renderer.wavefront.cpu import batching, pixel_counts, unsupported
 from renderer.wavefront.stages import (
@@ -126,8 +131,7 @@ def path_kernel(S, P, width, height, seed, max_depth, x0, y0, tile_w, work, firs
         _, s, x, y = work_sample(g0 + i, x0, y0, tile_w, work, first, sample_start)
         pixel = y * width + x
         sob = cuda.local.array((SOBOL_BLOCKS, 3), uint64)
-        if S.sampler[0] == 1:
-            sobol_block_seeds(mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT), sob)
+        pixel_sequence_seeds(S, seed, pixel, sob)
         key = sample_key(seed, pixel, s)
         o, d = camera_sample(S, width, height, x, y, s, key, sob)
         stack = (cuda.local.array(STACK, int64), cuda.local.array(STACK, float64),
@@ -182,8 +186,9 @@ def to_device(arrays):
     return type(arrays)(*(cuda.to_device(np.ascontiguousarray(a)) for a in arrays))
 
 
-# The last scene's arrays on the device, and the last batch size's path state: a worker renders
-# many tiles × passes of one scene in a row (the host arrays are held, so an id is not reused)
+# The last scene's arrays on the device, and path state for the largest batch so far: a worker
+# renders many tiles × passes of one scene in a row (the host arrays are held, so an id is not
+# reused)
 _resident: dict[str, tuple] = {}
 
 
