@@ -5,7 +5,7 @@
 Renders ``examples/cornell_box.json`` at 1 spp with ``lucent render`` in this process, with an empty
 cache (give it a fresh ``LUCENT_CACHE_DIR``, or it only loads the kernels), under numba's
 ``numba:run_pass`` event recorder, and prints the longest passes (pass, function): a pass's time
-includes the compiles it starts (typing ``render_row`` compiles the kernels it calls). Then the
+includes the compiles it starts (typing ``render_rows`` compiles the kernels it calls). Then the
 same by self time (a pass's own, the passes it started taken off), per function and summed per
 pass. Record results in docs/performance.md ("Start-up").
 """

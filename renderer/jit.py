@@ -13,21 +13,23 @@
   (docs/performance.md, "Where the time goes"). Such a kernel cannot allocate an array (numba
   refuses to compile it) and must not return one (its caller would release a reference it never
   took: tests/renderer/test_jit.py checks every compiled signature). A serial kernel that
-  allocates is an ``alloc_kernel``; the parallel kernel keeps the runtime for its per-thread stacks.
-- inlining (``inline_kernel``) for the device functions a call would pass the whole
-  ``SceneArrays`` tuple or seven of its arrays to: numba passes an array as ~7 scalars, so a call
-  to ``surface_shadow`` took 186 arguments, one to ``intersect_closest`` 71. Inlining
-  ``trace_path`` into ``render_row``, ``transmittance`` and ``surface_shadow`` into it, and the
-  BVH's ``intersect_closest`` and ``occluded`` made the Cornell box 1.875 s -> 1.54 s (2.62 ->
-  3.19 M paths/s), images bit-identical; the price is compile time (cold cache 16 s -> 31 s).
+  allocates is an ``alloc_kernel``; the parallel kernels (the AOV pass, the wavefront stages)
+  keep the runtime. The scalar kernel's rows run on threads of the host (``run_chunks``), whose
+  stacks and scratch the host allocates.
+- inlining (``inline_kernel``) for the device functions a call would pass the whole ``SceneArrays``
+  tuple or seven of its arrays to: numba passes an array as ~7 scalars, so a call to
+  ``surface_shadow`` took 186 arguments, one to ``intersect_closest`` 71. Inlining ``trace_path``
+  into the row kernel (``render_rows``), ``transmittance`` and ``surface_shadow`` into it, and the
+  BVH's ``intersect_closest`` and ``occluded`` made the Cornell box 1.875 s -> 1.54 s (2.62 -> 3.19
+  M paths/s), images bit-identical; the price is compile time (cold cache 16 s -> 31 s).
   ``sample_light`` (55 scalar arguments, 3 call sites) and ``intersect_prim`` (9 sites in the
-  traversal) followed once the slab test had lost its branches: +14 % and +7 % on the Cornell box
-  in alternating A/B runs (an earlier, single-run try had seen nothing through the noise); cold
-  compile 40 s -> 52 s on that machine. The calls left: ``objdump -dr`` on the objects
-  ``python -m bench.profile_kernel --keep DIR`` writes. Sites off the hot path call instead of
-  inlining (``transmittance_by_crossing``, which only tree scenes use, and diffuse_entry's
-  separate shadow ray, ``surface_shadow_call``): each inlined copy of a ray query adds compile
-  time, and these two took the cold compile from 113 s to 67 s (docs/performance.md, "Start-up").
+  traversal) followed once the slab test had lost its branches: +14 % and +7 % on the Cornell box in
+  alternating A/B runs (an earlier, single-run try had seen nothing through the noise); cold compile
+  40 s -> 52 s on that machine. The calls left: ``objdump -dr`` on the objects ``python -m
+  bench.profile_kernel --keep DIR`` writes. Sites off the hot path call instead of inlining
+  (``transmittance_by_crossing``, which only tree scenes use, and diffuse_entry's separate shadow
+  ray, ``surface_shadow_call``): each inlined copy of a ray query adds compile time, and these two
+  took the cold compile from 113 s to 67 s (docs/performance.md, "Start-up").
 - ``inline_kernel`` inlines in LLVM, not in numba's IR: numba's ``forceinline`` marks the compiled
   function ``alwaysinline``, so it is typed and compiled once, for the plain types of its
   arguments (``_unliteral_calls``), and LLVM inlines its machine-level body at every call site,
@@ -48,6 +50,11 @@
 """
 
 from __future__ import annotations
+
+import os
+import threading
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor, wait
 
 from numba import njit
 from numba.core import types
@@ -82,6 +89,39 @@ def kernel(fn):
 def parallel_kernel(fn):
     """Compile ``fn`` as a numba kernel whose ``prange`` loops run on numba's thread pool."""
     return njit(parallel=True, **JIT_OPTIONS)(fn)
+
+
+# This process's threads for run_chunks: (pid, pool); a forked child makes its own
+_pool: tuple[int, ThreadPoolExecutor] | None = None
+_pool_lock = threading.Lock()
+
+
+def _threads(n: int) -> ThreadPoolExecutor:
+    global _pool
+    with _pool_lock:
+        if _pool is None or _pool[0] != os.getpid() or _pool[1]._max_workers < n:
+            if _pool is not None and _pool[0] == os.getpid():
+                _pool[1].shutdown(wait=False)
+            _pool = (os.getpid(), ThreadPoolExecutor(n, thread_name_prefix="lucent-render"))
+        return _pool[1]
+
+
+def run_chunks(fn: Callable[[int], None], n: int) -> None:
+    """Run ``fn(0)``, …, ``fn(n - 1)`` at once: ``fn(0)`` in the calling thread, the others on a
+    pool of this process's threads, for a serial kernel that releases the GIL (``nogil``) run
+    on n cores. Returns when all have ended; raises the first error. The pool is made again in a
+    forked child (a prefork worker), whose copy of the parent's has no threads."""
+    if n <= 1:
+        if n == 1:
+            fn(0)
+        return
+    futures = [_threads(n - 1).submit(fn, c) for c in range(1, n)]
+    try:
+        fn(0)
+    finally:
+        wait(futures)  # the others write into the caller's arrays: never return before them
+    for future in futures:
+        future.result()
 
 
 def alloc_kernel(fn):

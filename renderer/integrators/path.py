@@ -22,7 +22,6 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import prange
 
 from renderer.environment import direction_to_uv, environment_pdf, environment_radiance
 from renderer.geometry.bvh import intersect_closest, traversal_stack
@@ -39,7 +38,7 @@ from renderer.integrators.subsurface.diffuse_entry import entry_direct, entry_sc
 from renderer.integrators.subsurface.diffusion import diffusion_exit
 from renderer.integrators.subsurface.single_scatter import after_the_event, passes_straight
 from renderer.integrators.subsurface.volumetric import ENDED, SCATTERED, medium_segment
-from renderer.jit import block, inline_kernel, kernel, parallel_kernel
+from renderer.jit import block, inline_kernel, kernel, run_chunks
 from renderer.lights import ENVIRONMENT, area_light_pdf
 from renderer.materials.bsdf import (
     DIELECTRIC,
@@ -294,73 +293,78 @@ def camera_sample(S, width, height, x, y, s, key, sob):
 
 
 @kernel
-def render_row(S, width, height, seed, max_depth, x0, y, row, tile_w, sample_start,
-               sample_count, active, out_sum, out_sum_sq, out_count, out_dropped, out_segments,
-               stack, sob, scratch):
-    """Add the samples of one row of a tile (``render_tile_kernel``'s unit of work). ``sob`` is
-    (SOBOL_BLOCKS, 3) scratch for the sobol sampler's seeds of a pixel, ``scratch`` (N_PARAMS)
-    for a textured material's row."""
-    for col in range(tile_w):
-        n_samples = min(sample_count, active[row, col])
-        if n_samples <= 0:
-            continue
-        x = x0 + col
-        pixel = y * width + x
-        pixel_sequence_seeds(S, seed, pixel, sob)
-        sr = sg = sb = 0.0
-        qr = qg = qb = 0.0
-        good = 0
-        bad = 0
-        segments = 0
-        for s in range(sample_start, sample_start + n_samples):
-            key = sample_key(seed, pixel, s)
-            o, d = camera_sample(S, width, height, x, y, s, key, sob)
-            r, g, b, n_seg = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
-            segments += n_seg
-            # Dropped also when the square overflows, so the variance sums stay finite
-            if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
-                sr += r
-                sg += g
-                sb += b
-                qr += r * r
-                qg += g * g
-                qb += b * b
-                good += 1
-            else:
-                bad += 1
-        out_sum[row, col, 0] += sr
-        out_sum[row, col, 1] += sg
-        out_sum[row, col, 2] += sb
-        out_sum_sq[row, col, 0] += qr
-        out_sum_sq[row, col, 1] += qg
-        out_sum_sq[row, col, 2] += qb
-        out_count[row, col] += good
-        out_dropped[row, col] += bad
-        out_segments[row, col] += segments
+def render_rows(S, width, height, seed, max_depth, x0, y0, tile_w, tile_h, first_row, row_step,
+                sample_start, sample_count, active, out_sum, out_sum_sq, out_count, out_dropped,
+                out_segments, stack, sob, scratch):
+    """Add the samples of rows ``first_row``, ``first_row + row_step``, … of a tile: one thread's
+    share of ``render_tile_kernel``. ``stack`` is a ``traversal_stack``, ``sob`` (SOBOL_BLOCKS,
+    3) scratch for the sobol sampler's seeds of a pixel, ``scratch`` (N_PARAMS) for a textured
+    material's row; the caller owns them (this kernel runs without numba's runtime)."""
+    for row in range(first_row, tile_h, row_step):
+        y = y0 + row
+        for col in range(tile_w):
+            n_samples = min(sample_count, active[row, col])
+            if n_samples <= 0:
+                continue
+            x = x0 + col
+            pixel = y * width + x
+            pixel_sequence_seeds(S, seed, pixel, sob)
+            sr = sg = sb = 0.0
+            qr = qg = qb = 0.0
+            good = 0
+            bad = 0
+            segments = 0
+            for s in range(sample_start, sample_start + n_samples):
+                key = sample_key(seed, pixel, s)
+                o, d = camera_sample(S, width, height, x, y, s, key, sob)
+                r, g, b, n_seg = trace_path(S, o, d, key, stack, max_depth, s, sob, scratch)
+                segments += n_seg
+                # Dropped also when the square overflows, so the variance sums stay finite
+                if math.isfinite(r * r) and math.isfinite(g * g) and math.isfinite(b * b):
+                    sr += r
+                    sg += g
+                    sb += b
+                    qr += r * r
+                    qg += g * g
+                    qb += b * b
+                    good += 1
+                else:
+                    bad += 1
+            out_sum[row, col, 0] += sr
+            out_sum[row, col, 1] += sg
+            out_sum[row, col, 2] += sb
+            out_sum_sq[row, col, 0] += qr
+            out_sum_sq[row, col, 1] += qg
+            out_sum_sq[row, col, 2] += qb
+            out_count[row, col] += good
+            out_dropped[row, col] += bad
+            out_segments[row, col] += segments
 
 
-@parallel_kernel
 def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, tile_w, tile_h,
                        sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
                        out_dropped, out_segments, n_threads):
     """Add samples [sample_start, sample_start + sample_count) of every pixel of a tile.
 
-    Rows are shared among ``n_threads`` of numba's threads; a sample whose radiance is not finite
-    (or whose square overflows, |L| > 1e154) is not added but counted in ``out_dropped``, so a bad
-    path can never turn a pixel into NaN or inf unnoticed. ``active`` (tile_h, tile_w) int32 is
-    how many of the samples each pixel takes (the first min(sample_count, active) of the range;
-    adaptive sampling: 0 for a pixel that takes none).
+    Rows are shared among ``n_threads`` threads, each running ``render_rows`` (which releases
+    the GIL) with a traversal stack and scratch of its own; a sample whose radiance is not
+    finite (or whose square overflows, |L| > 1e154) is not added but counted in
+    ``out_dropped``, so a bad path can never turn a pixel into NaN or inf unnoticed. ``active``
+    (tile_h, tile_w) int32 is how many of the samples each pixel takes (the first
+    min(sample_count, active) of the range; adaptive sampling: 0 for a pixel that takes none).
     """
     # Rows are dealt out in turn (thread c takes rows c, c + n, c + 2n, …) rather than in n
     # contiguous blocks, so a thread whose block holds the costly part of the frame (a translucent
-    # object filling the lower half) does not leave the others idle at the end.
-    # (numba.get_num_threads() inside the kernel would make it uncacheable: the host passes it.)
+    # object filling the lower half) does not leave the others idle at the end. Threads of this
+    # process (renderer.jit.run_chunks), not a prange on numba's pool: a parallel kernel is one
+    # more module that links in and optimizes trace_path's code again, a quarter of a cold
+    # compile (docs/performance.md, "Start-up: JIT compile and cache")
     n_chunks = max(1, min(tile_h, n_threads))
-    for chunk in prange(n_chunks):
-        stack = traversal_stack(stack_size)
-        sob = np.zeros((SOBOL_BLOCKS, 3), np.uint64)
-        scratch = np.zeros(N_PARAMS)
-        for row in range(chunk, tile_h, n_chunks):
-            render_row(S, width, height, seed, max_depth, x0, y0 + row, row, tile_w,
-                       sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
-                       out_dropped, out_segments, stack, sob, scratch)
+
+    def chunk(c: int) -> None:
+        render_rows(S, width, height, seed, max_depth, x0, y0, tile_w, tile_h, c, n_chunks,
+                    sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
+                    out_dropped, out_segments, traversal_stack(stack_size),
+                    np.zeros((SOBOL_BLOCKS, 3), np.uint64), np.zeros(N_PARAMS))
+
+    run_chunks(chunk, n_chunks)

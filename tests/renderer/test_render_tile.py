@@ -4,6 +4,10 @@ from __future__ import annotations
 
 import io
 import json
+import os
+import subprocess
+import sys
+import time
 from pathlib import Path
 
 import numpy as np
@@ -11,11 +15,13 @@ import pytest
 
 from renderer.film.buffer import MAGIC, SampleBuffer
 from renderer.integrators.path import render_tile_kernel
+from renderer.jit import run_chunks
 from renderer.render import render, render_buffer, render_tile
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
 
-EXAMPLES = Path(__file__).resolve().parents[2] / "examples"
+ROOT = Path(__file__).resolve().parents[2]
+EXAMPLES = ROOT / "examples"
 
 
 def small(name: str, width=42, height=30, **render_settings) -> dict:
@@ -65,6 +71,66 @@ def test_the_split_among_threads_does_not_change_the_image(glass, n_threads):
     np.testing.assert_array_equal(many.sum, one.sum)
     np.testing.assert_array_equal(many.sum_sq, one.sum_sq)
     np.testing.assert_array_equal(many.count, np.full((glass.height, glass.width), 4))
+
+
+def test_run_chunks_waits_for_every_chunk_and_raises_the_first_error():
+    """The row threads write into the caller's arrays: run_chunks returns (or raises) only once
+    every chunk has ended, whichever one failed."""
+    ended = []
+
+    def chunk(c):
+        if c == 1:
+            raise ValueError("chunk 1")
+        time.sleep(0.05 * c)
+        ended.append(c)
+
+    with pytest.raises(ValueError, match="chunk 1"):
+        run_chunks(chunk, 4)
+    assert sorted(ended) == [0, 2, 3]
+
+
+FORKED = """
+import os, signal, sys
+import numpy as np
+from renderer.render import render_tile
+from renderer.scene import load_scene
+from renderer.scene.compile import compile_scene
+import numba
+numba.set_num_threads(2) if numba.config.NUMBA_NUM_THREADS >= 2 else None
+cs = compile_scene(load_scene({
+    "camera": {"position": [0, 0, 3], "look_at": [0, 0, 0], "fov": 40},
+    "film": {"width": 8, "height": 8}, "render": {"spp": 2, "max_depth": 2, "seed": 1},
+    "materials": {"m": {"type": "diffuse", "albedo": [0.5, 0.5, 0.5]}},
+    "objects": [{"type": "sphere", "center": [0, 0, 0], "radius": 0.5, "material": "m"}],
+    "lights": [{"type": "point", "position": [0, 2, 2], "intensity": [5, 5, 5]}]}))
+from renderer.integrators.path import render_tile_kernel
+from renderer.film.buffer import SampleBuffer
+
+def run():
+    buf = SampleBuffer.empty(0, 0, 8, 8)
+    render_tile_kernel(cs.arrays, 8, 8, cs.seed, cs.max_depth, cs.stack_size, 0, 0, 8, 8, 0, 2,
+                       np.full((8, 8), 2, np.int32), buf.sum, buf.sum_sq, buf.count,
+                       buf.dropped, buf.segments, 2)
+    return int(buf.count.sum())
+
+assert run() == 128  # the parent's pool of threads exists now
+pid = os.fork()
+if pid == 0:
+    signal.alarm(60)  # a child left with its parent's pool would wait for ever
+    os._exit(0 if run() == 128 else 3)
+_, status = os.waitpid(pid, 0)
+print(os.waitstatus_to_exitcode(status))
+"""
+
+
+def test_a_forked_child_renders_on_threads_of_its_own(tmp_path):
+    """A prefork worker forks after its parent may have rendered: the child's copy of the
+    parent's thread pool has no threads, so run_chunks makes the child a pool of its own (with
+    the parent's, the child's rows would wait for ever: here, until the alarm kills it)."""
+    out = subprocess.run([sys.executable, "-c", FORKED], cwd=ROOT, capture_output=True,
+                         text=True, timeout=300, env={**os.environ, "PYTHONPATH": str(ROOT)})
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.split()[-1] == "0", out.stdout
 
 
 def test_buffers_merge_by_addition_in_any_order(glass):
