@@ -13,9 +13,9 @@
   (docs/performance.md, "Where the time goes"). Such a kernel cannot allocate an array (numba
   refuses to compile it) and must not return one (its caller would release a reference it never
   took: tests/renderer/test_jit.py checks every compiled signature). A serial kernel that
-  allocates is an ``alloc_kernel``; the parallel kernels (the AOV pass, the wavefront stages)
-  keep the runtime. The scalar kernel's rows run on threads of the host (``run_chunks``), whose
-  stacks and scratch the host allocates.
+  allocates is an ``alloc_kernel``; the parallel kernels (the CPU wavefront stages) keep the
+  runtime. The scalar kernel's rows, and the AOV pass's, run on threads of the host
+  (``run_chunks``), whose stacks and scratch the host allocates.
 - inlining (``inline_kernel``) for the device functions a call would pass the whole ``SceneArrays``
   tuple or seven of its arrays to: numba passes an array as ~7 scalars, so a call to
   ``surface_shadow`` took 186 arguments, one to ``intersect_closest`` 71. Inlining ``trace_path``

@@ -37,12 +37,11 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import prange
 
 from renderer.geometry.bvh import intersect_closest, traversal_stack
 from renderer.geometry.shapes import spawn_offset
 from renderer.integrators.path import camera_ray, surface_vertex
-from renderer.jit import inline_kernel, kernel, parallel_kernel
+from renderer.jit import inline_kernel, kernel, run_chunks
 from renderer.materials.bsdf import (
     CONDUCTOR,
     DIELECTRIC,
@@ -153,25 +152,36 @@ def _aov_pixel(S, width, height, seed, x, y, spp, stack, scratch):
     return ar, ag, ab, nx, ny, nz, depth_sum, hits
 
 
-@parallel_kernel
+@kernel
+def aov_rows(S, width, height, seed, spp, first_row, row_step, out_albedo, out_normal, out_depth,
+             stack, scratch):
+    """Fill the albedo (h, w, 3), normal (h, w, 3) and depth (h, w) of rows ``first_row``,
+    ``first_row + row_step``, … of the frame (one thread's share; ``stack`` a
+    ``traversal_stack``, ``scratch`` N_PARAMS, owned by the caller)."""
+    for y in range(first_row, height, row_step):
+        for x in range(width):
+            ar, ag, ab, nx, ny, nz, dsum, hits = _aov_pixel(S, width, height, seed, x, y, spp,
+                                                            stack, scratch)
+            out_albedo[y, x, 0] = ar / spp
+            out_albedo[y, x, 1] = ag / spp
+            out_albedo[y, x, 2] = ab / spp
+            out_normal[y, x, 0] = nx / spp
+            out_normal[y, x, 1] = ny / spp
+            out_normal[y, x, 2] = nz / spp
+            out_depth[y, x] = dsum / hits if hits > 0 else math.inf
+
+
 def aov_kernel(S, width, height, seed, spp, stack_size, out_albedo, out_normal, out_depth,
-                n_threads):
-    """Fill the albedo (h, w, 3), normal (h, w, 3) and depth (h, w) of the whole frame."""
+               n_threads):
+    """Fill the albedo (h, w, 3), normal (h, w, 3) and depth (h, w) of the whole frame, its rows
+    dealt out in turn to ``n_threads`` threads (as ``render_tile_kernel`` does)."""
     n_chunks = max(1, min(height, n_threads))
-    for chunk in prange(n_chunks):
-        stack = traversal_stack(stack_size)
-        scratch = np.zeros(N_PARAMS)
-        for y in range(chunk, height, n_chunks):
-            for x in range(width):
-                ar, ag, ab, nx, ny, nz, dsum, hits = _aov_pixel(S, width, height, seed, x, y,
-                                                                spp, stack, scratch)
-                out_albedo[y, x, 0] = ar / spp
-                out_albedo[y, x, 1] = ag / spp
-                out_albedo[y, x, 2] = ab / spp
-                out_normal[y, x, 0] = nx / spp
-                out_normal[y, x, 1] = ny / spp
-                out_normal[y, x, 2] = nz / spp
-                out_depth[y, x] = dsum / hits if hits > 0 else math.inf
+
+    def chunk(c: int) -> None:
+        aov_rows(S, width, height, seed, spp, c, n_chunks, out_albedo, out_normal, out_depth,
+                 traversal_stack(stack_size), np.zeros(N_PARAMS))
+
+    run_chunks(chunk, n_chunks)
 
 
 def render_aovs(compiled, names, spp: int = 4, threads: int | None = None) -> dict:

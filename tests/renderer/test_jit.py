@@ -23,7 +23,6 @@ WITH_RUNTIME = {
     "renderer.geometry.bvh.widen_bvh",
     "renderer.geometry.bvh.traversal_stack",
     "renderer.geometry.shapes.prim_bounds",
-    "renderer.film.aov.aov_kernel",
     # the wavefront kernel's stages on the CPU: parallel loops (numba's thread pool runs on it)
     *(f"renderer.wavefront.stages.{stage}"
       for stage in ("generate", "trace_rays", "shade", "accumulate")),

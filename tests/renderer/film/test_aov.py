@@ -47,6 +47,19 @@ def test_diffuse_plane_albedo_normal_depth():
     np.testing.assert_allclose(aov["depth"], 2.5, rtol=1e-6)
 
 
+def test_the_rows_threads_do_not_change_the_layers():
+    """The AOV pass deals rows out to threads (renderer.jit.run_chunks): any number of them,
+    more than the rows included, gives the layers bit for bit."""
+    glass = {"glass": {"type": "dielectric", "ior": 1.5}}
+    sphere = {"type": "sphere", "center": [0, 0, -2], "radius": 0.6, "material": "glass"}
+    compiled = compile_scene(load_scene(plane_scene(3.0, [sphere], glass)))
+    one = render_aovs(compiled, ["albedo", "normal", "depth"], spp=2, threads=1)
+    for threads in (2, 5, 40):
+        many = render_aovs(compiled, ["albedo", "normal", "depth"], spp=2, threads=threads)
+        for name in one:
+            np.testing.assert_array_equal(many[name], one[name])
+
+
 def test_normal_faces_the_viewer_from_behind():
     # the same plane with its edges swapped: outward normal −z, away from the camera
     scene = plane_scene(1.0)
