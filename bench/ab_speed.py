@@ -1,6 +1,7 @@
 """A/B: the renderer's speed in the working tree against a commit, and whether images changed.
 
-    .venv/bin/python -m bench.ab_speed [--base HEAD] [--rounds 3] [--scenes cornell_box ...]
+    .venv/bin/python -m bench.ab_speed [--base HEAD] [--rounds 3] [--kernel scalar|wavefront]
+        [--scenes cornell_box ...]
 
 On a shared 2-core VM one render's time moves by ±5 % from run to run, more than most single
 optimizations gain, so one before and one after prove little. This script checks the base commit
@@ -40,7 +41,7 @@ def scene_path(name: str) -> Path:
     return Path(name) if name.endswith(".json") else ROOT / "examples" / f"{name}.json"
 
 
-def measure(scenes: list[str], out: Path) -> None:
+def measure(scenes: list[str], out: Path, kernel: str = "scalar") -> None:
     """One run in this process: paths/s per scene, buffers saved for the comparison."""
     from renderer.render import _as_compiled, render_tile
     from renderer.scene.load import load_scene_file
@@ -49,11 +50,11 @@ def measure(scenes: list[str], out: Path) -> None:
     for name in scenes:
         cs = _as_compiled(load_scene_file(scene_path(name)))
         spp = SCENES.get(name, 16)
-        render_tile(cs, 0, 0, cs.width, cs.height, 0, 1)
+        render_tile(cs, 0, 0, cs.width, cs.height, 0, 1, kernel=kernel)
         best = float("inf")
         for _ in range(3):
             start = time.perf_counter()
-            buf = render_tile(cs, 0, 0, cs.width, cs.height, 0, spp)
+            buf = render_tile(cs, 0, 0, cs.width, cs.height, 0, spp, kernel=kernel)
             best = min(best, time.perf_counter() - start)
         result[name] = cs.width * cs.height * spp / best
         np.savez(out / f"{Path(name).stem}.npz", sum=buf.sum, sum_sq=buf.sum_sq,
@@ -61,14 +62,14 @@ def measure(scenes: list[str], out: Path) -> None:
     (out / "speed.json").write_text(json.dumps(result))
 
 
-def run(tree: Path, scenes: list[str], out: Path) -> dict[str, float]:
+def run(tree: Path, scenes: list[str], out: Path, kernel: str) -> dict[str, float]:
     out.mkdir(parents=True, exist_ok=True)
     env = dict(os.environ, PYTHONPATH=str(tree))
     env.pop("NUMBA_CACHE_DIR", None)  # each checkout keys its own cache folder by its sources
     # This file runs as a script (the base commit may not have it); the renderer it imports is
     # the checkout's, through PYTHONPATH
     subprocess.run([sys.executable, str(Path(__file__).resolve()), "--measure", str(out),
-                    "--scenes", *scenes], check=True, cwd=tree, env=env)
+                    "--kernel", kernel, "--scenes", *scenes], check=True, cwd=tree, env=env)
     return json.loads((out / "speed.json").read_text())
 
 
@@ -88,10 +89,12 @@ def main() -> int:
     parser.add_argument("--base", default="HEAD", help="commit to compare the working tree with")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--scenes", nargs="+", default=list(SCENES))
+    parser.add_argument("--kernel", default="scalar", choices=("scalar", "wavefront", "gpu"),
+                        help="render_tile's kernel on both sides")
     parser.add_argument("--measure", metavar="OUT", help=argparse.SUPPRESS)
     args = parser.parse_args()
     if args.measure:
-        measure(args.scenes, Path(args.measure))
+        measure(args.scenes, Path(args.measure), args.kernel)
         return 0
     speeds: dict[str, dict[str, list[float]]] = {"base": {}, "new": {}}
     same = {name: "identical" for name in args.scenes}
@@ -103,7 +106,7 @@ def main() -> int:
             for r in range(args.rounds):
                 for side, tree in (("base", base_tree), ("new", ROOT)):
                     out = Path(tmp) / f"{side}{r}"
-                    for name, v in run(tree, args.scenes, out).items():
+                    for name, v in run(tree, args.scenes, out, args.kernel).items():
                         speeds[side].setdefault(name, []).append(v)
                     if side == "new":
                         for name in args.scenes:
@@ -114,7 +117,8 @@ def main() -> int:
                                 same[name] = verdict
         finally:
             subprocess.run(["git", "worktree", "remove", "--force", str(base_tree)], cwd=ROOT)
-    print(f"working tree against {args.base}, {args.rounds} alternating rounds, M paths/s "
+    print(f"working tree against {args.base}, {args.kernel} kernel, {args.rounds} alternating "
+          "rounds, M paths/s "
           "(full frame, best of 3 renders a run); median, then every run")
     for name in args.scenes:
         b = statistics.median(speeds["base"][name]) / 1e6
