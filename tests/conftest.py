@@ -22,10 +22,14 @@ from __future__ import annotations
 
 import math
 import os
+import shutil
+import subprocess
 import tempfile
 import time
 import zlib
 from collections.abc import Callable, Iterator
+from dataclasses import dataclass
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -275,6 +279,64 @@ def phong_param(kd, ks, exponent) -> np.ndarray:
     _, row = _material_row("test", SimpleNamespace(type="phong", diffuse=kd, specular=ks,
                                                    exponent=exponent))
     return row
+
+
+# --- subprocesses started with the session -------------------------------------------------------
+
+
+@dataclass
+class Early:
+    """A test's long subprocess that shares nothing with the rest of the suite (a compile in an
+    empty kernel cache): started when the session starts, if the test was collected, so it runs
+    on the core the suite's own single-threaded compile and tests leave idle; the test collects
+    its result (``Early.result``). Run alone, the test starts it then."""
+    args: list[str]
+    env: dict[str, str]
+    cwd: str
+    proc: subprocess.Popen | None = None
+    folder: Path | None = None
+
+    def start(self) -> None:
+        self.folder = Path(tempfile.mkdtemp(prefix="lucent-early-"))
+        env = {k: v.replace("{folder}", str(self.folder)) for k, v in self.env.items()}
+        with open(self.folder / "out", "w") as out, open(self.folder / "err", "w") as err:
+            self.proc = subprocess.Popen(self.args, cwd=self.cwd, env=env, stdout=out,
+                                         stderr=err)
+
+    def result(self, timeout: float) -> subprocess.CompletedProcess:
+        """Wait for it (starting it first if the session did not) and return what it printed;
+        its folder (``{folder}`` in its environment) is removed."""
+        if self.proc is None:
+            self.start()
+        assert self.proc is not None and self.folder is not None
+        try:
+            code = self.proc.wait(timeout)
+            return subprocess.CompletedProcess(self.args, code, (self.folder / "out").read_text(),
+                                               (self.folder / "err").read_text())
+        finally:
+            self.stop()
+
+    def stop(self) -> None:
+        if self.proc is not None and self.proc.poll() is None:
+            self.proc.kill()
+            self.proc.wait()
+        if self.folder is not None:
+            shutil.rmtree(self.folder, ignore_errors=True)
+
+
+EARLY: dict[str, Early] = {}  # by test node id (``tests/…/test_x.py::test_y``)
+
+
+def pytest_collection_finish(session: pytest.Session) -> None:
+    for item in session.items:
+        early = EARLY.get(item.nodeid)
+        if early is not None and early.proc is None:
+            early.start()
+
+
+def pytest_sessionfinish(session: pytest.Session) -> None:
+    for early in EARLY.values():
+        early.stop()
 
 
 # --- the service tests' helpers (tests/farm, tests/dashboard) ------------------------------------

@@ -14,6 +14,7 @@ import pytest
 from numba.core.registry import CPUDispatcher
 
 import renderer
+from tests.conftest import EARLY, Early
 
 ROOT = Path(__file__).resolve().parents[2]
 # The kernels that need the runtime: those that allocate arrays (alloc_kernel) and the parallel
@@ -75,16 +76,22 @@ print(json.dumps(report))
 """
 
 
+# Compiled from an empty cache: a process of its own, started with the session (tests.conftest.
+# Early) beside the suite's own compile
+_AUDIT = Early(
+    [sys.executable, "-c", AUDIT, str(Path(__file__).parent),
+     json.dumps(sorted(str(p) for p in (ROOT / "examples").glob("*.json")))],
+    {**os.environ, "NUMBA_CACHE_DIR": "{folder}"}, str(ROOT))
+EARLY["tests/renderer/test_jit.py::test_no_runtime_free_kernel_returns_an_array"] = _AUDIT
+
+
 @pytest.mark.slow
-def test_no_runtime_free_kernel_returns_an_array(tmp_path):
+def test_no_runtime_free_kernel_returns_an_array():
     """Compiled from an empty cache (so every device function is compiled and typed in this
     process, not loaded), no kernel without the runtime returns an array or a tuple holding one:
     the NRT-enabled caller would release a reference the callee never took."""
-    examples = sorted(str(p) for p in (ROOT / "examples").glob("*.json"))
-    env = {**os.environ, "NUMBA_CACHE_DIR": str(tmp_path)}
-    out = subprocess.run(
-        [sys.executable, "-c", AUDIT, str(Path(__file__).parent), json.dumps(examples)],
-        cwd=ROOT, env=env, capture_output=True, text=True, timeout=600, check=True)
+    out = _AUDIT.result(timeout=900)
+    assert out.returncode == 0, out.stderr[-3000:]
     report = json.loads(out.stdout.strip().splitlines()[-1])
     assert report["signatures"] > 50  # the device functions were compiled here, not loaded
     assert report["bad"] == []
