@@ -288,38 +288,67 @@ def phong_param(kd, ks, exponent) -> np.ndarray:
 class Early:
     """A test's long subprocess that shares nothing with the rest of the suite (a compile in an
     empty kernel cache): started when the session starts, if the test was collected, so it runs
-    on the core the suite's own single-threaded compile and tests leave idle; the test collects
-    its result (``Early.result``). Run alone, the test starts it then."""
+    on the core the suite's own single-threaded compile and tests leave idle; the test then
+    collects it. Run alone, the test starts it then. ``{folder}`` in its environment is a
+    folder of its own; with ``redis``, ``{redis}`` is the URL of an embedded Redis of its own
+    (never the suite's: a worker node there would take other tests' tasks)."""
     args: list[str]
     env: dict[str, str]
     cwd: str
+    redis: bool = False
     proc: subprocess.Popen | None = None
     folder: Path | None = None
+    redis_url: str = ""
+    _server: object = None
 
     def start(self) -> None:
         self.folder = Path(tempfile.mkdtemp(prefix="lucent-early-"))
-        env = {k: v.replace("{folder}", str(self.folder)) for k, v in self.env.items()}
+        if self.redis:
+            from services.launcher import EmbeddedRedis
+
+            self._server = server = EmbeddedRedis().start()
+            self.redis_url = server.url
+        env = {k: v.replace("{folder}", str(self.folder)).replace("{redis}", self.redis_url)
+               for k, v in self.env.items()}
         with open(self.folder / "out", "w") as out, open(self.folder / "err", "w") as err:
             self.proc = subprocess.Popen(self.args, cwd=self.cwd, env=env, stdout=out,
                                          stderr=err)
 
-    def result(self, timeout: float) -> subprocess.CompletedProcess:
-        """Wait for it (starting it first if the session did not) and return what it printed;
-        its folder (``{folder}`` in its environment) is removed."""
+    def running(self) -> subprocess.Popen:
+        """The process, started now if the session did not start it."""
         if self.proc is None:
             self.start()
-        assert self.proc is not None and self.folder is not None
+        assert self.proc is not None
+        return self.proc
+
+    def output(self) -> str:
+        """What it has printed so far, stdout then stderr."""
+        assert self.folder is not None
+        return (self.folder / "out").read_text() + (self.folder / "err").read_text()
+
+    def result(self, timeout: float) -> subprocess.CompletedProcess:
+        """Wait for it to end and return what it printed; then ``stop``."""
+        proc = self.running()
+        assert self.folder is not None
         try:
-            code = self.proc.wait(timeout)
+            code = proc.wait(timeout)
             return subprocess.CompletedProcess(self.args, code, (self.folder / "out").read_text(),
                                                (self.folder / "err").read_text())
         finally:
             self.stop()
 
     def stop(self) -> None:
+        """SIGTERM (a worker node's warm shutdown), SIGKILL after 30 s; its Redis and folder go."""
         if self.proc is not None and self.proc.poll() is None:
-            self.proc.kill()
-            self.proc.wait()
+            self.proc.terminate()
+            try:
+                self.proc.wait(30.0)
+            except subprocess.TimeoutExpired:
+                self.proc.kill()
+                self.proc.wait()
+        if self._server is not None:
+            self._server.stop()  # type: ignore[attr-defined]
+            self._server = None
         if self.folder is not None:
             shutil.rmtree(self.folder, ignore_errors=True)
 

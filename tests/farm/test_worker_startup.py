@@ -12,15 +12,14 @@ import os
 import re
 import subprocess
 import sys
-import uuid
 from pathlib import Path
 
 import pytest
 import redis
 
 from services.farm.store import JobStore
-from services.launcher import terminate, worker_command, worker_env
-from tests.conftest import COUNTED_PATH_KERNEL, wait_until
+from services.launcher import worker_command, worker_env
+from tests.conftest import COUNTED_PATH_KERNEL, EARLY, Early, wait_until
 from worker import runtime
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -88,31 +87,36 @@ def test_a_gpu_nodes_warm_up_compiles_the_path_kernel_too():
     assert out.stdout.split()[-1] == "1", out.stdout
 
 
+# A node on an empty kernel cache, started with the session (tests.conftest.Early) on a Redis of
+# its own, so that its compile runs beside the suite's
+_COLD_NODE = Early(
+    worker_command(2, "startup-cold@%h", loglevel="INFO"),
+    worker_env("{redis}", 1, {"LUCENT_KEY_PREFIX": "startup-cold",
+                              "LUCENT_HEARTBEAT_INTERVAL": "0.5", "LUCENT_API_TOKEN": "",
+                              "NUMBA_CACHE_DIR": "{folder}/numba"}),
+    str(ROOT), redis=True)
+EARLY["tests/farm/test_worker_startup.py::"
+      "test_a_cold_node_compiles_once_and_its_pool_processes_only_load"] = _COLD_NODE
+
+
 @pytest.mark.slow
-def test_a_cold_node_compiles_once_and_its_pool_processes_only_load(redis_base_url, tmp_path):
+def test_a_cold_node_compiles_once_and_its_pool_processes_only_load():
     # An empty kernel cache: the node's main process compiles (in a child) before the pool
     # forks, and both pool processes then come up warm in the time a load takes, far less than
     # the compile (without the prewarm, each would compile: "warm in" ~ the compile)
-    prefix = f"startup-{uuid.uuid4().hex[:8]}"
-    log_path = tmp_path / "worker.log"
-    store = JobStore(redis.Redis.from_url(redis_base_url), prefix)
-    env = worker_env(redis_base_url, 1, {
-        "LUCENT_KEY_PREFIX": prefix, "LUCENT_HEARTBEAT_INTERVAL": "0.5", "LUCENT_API_TOKEN": "",
-        "NUMBA_CACHE_DIR": str(tmp_path / "numba")})
-    with open(log_path, "w") as log:
-        proc = subprocess.Popen(worker_command(2, f"{prefix}@%h", loglevel="INFO"), cwd=ROOT,
-                                env=env, stdout=log, stderr=subprocess.STDOUT)
-        try:
-            wait_until(lambda: sum(w.get("state") == "idle" for w in store.workers()) >= 2
-                       or proc.poll() is not None, 600.0, "two warm pool processes",
-                       interval=0.5)
-            text = log_path.read_text()
-            assert proc.poll() is None, text[-3000:]
-            compiled = re.findall(r"kernel cache was cold: compiled in ([0-9.]+) s", text)
-            warm = [float(x) for x in re.findall(r"warm in ([0-9.]+) s", text)]
-            assert len(compiled) == 1 and len(warm) == 2, text[-3000:]
-            assert max(warm) < 0.25 * float(compiled[0]), (warm, compiled)
-            assert runtime.warm_marker().name in os.listdir(tmp_path / "numba")
-        finally:
-            terminate(proc, 30.0)
-            store.r.close()
+    proc = _COLD_NODE.running()
+    store = JobStore(redis.Redis.from_url(_COLD_NODE.redis_url), "startup-cold")
+    try:
+        wait_until(lambda: sum(w.get("state") == "idle" for w in store.workers()) >= 2
+                   or proc.poll() is not None, 600.0, "two warm pool processes", interval=0.5)
+        text = _COLD_NODE.output()
+        assert proc.poll() is None, text[-3000:]
+        compiled = re.findall(r"kernel cache was cold: compiled in ([0-9.]+) s", text)
+        warm = [float(x) for x in re.findall(r"warm in ([0-9.]+) s", text)]
+        assert len(compiled) == 1 and len(warm) == 2, text[-3000:]
+        assert max(warm) < 0.25 * float(compiled[0]), (warm, compiled)
+        assert _COLD_NODE.folder is not None
+        assert runtime.warm_marker().name in os.listdir(_COLD_NODE.folder / "numba")
+    finally:
+        store.r.close()
+        _COLD_NODE.stop()
