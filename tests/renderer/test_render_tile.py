@@ -90,13 +90,10 @@ def test_run_chunks_waits_for_every_chunk_and_raises_the_first_error():
 
 
 FORKED = """
-import os, signal, sys
+import os, signal
 import numpy as np
-from renderer.render import render_tile
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
-import numba
-numba.set_num_threads(2) if numba.config.NUMBA_NUM_THREADS >= 2 else None
 cs = compile_scene(load_scene({
     "camera": {"position": [0, 0, 3], "look_at": [0, 0, 0], "fov": 40},
     "film": {"width": 8, "height": 8}, "render": {"spp": 2, "max_depth": 2, "seed": 1},
