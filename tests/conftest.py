@@ -339,13 +339,10 @@ class Early:
 
     def stop(self) -> None:
         """SIGTERM (a worker node's warm shutdown), SIGKILL after 30 s; its Redis and folder go."""
-        if self.proc is not None and self.proc.poll() is None:
-            self.proc.terminate()
-            try:
-                self.proc.wait(30.0)
-            except subprocess.TimeoutExpired:
-                self.proc.kill()
-                self.proc.wait()
+        from services.launcher import terminate
+
+        if self.proc is not None:
+            terminate(self.proc, 30.0)
         if self._server is not None:
             self._server.stop()  # type: ignore[attr-defined]
             self._server = None
