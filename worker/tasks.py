@@ -127,6 +127,7 @@ def _wait_for_redis(store, deadline: float) -> bool:
 
 def _render_pass(job_id: str, tile: int, pass_index: int, begun: dict[str, bool]) -> str:
     t_task = time.perf_counter()
+    tally: dict[str, float] = {}  # the farm's counters, filled once the pass is merged
     state = runtime.STATE
     store = state.store
     settings = state.settings
@@ -148,7 +149,7 @@ def _render_pass(job_id: str, tile: int, pass_index: int, begun: dict[str, bool]
             time.sleep(HAND_BACK_PAUSE)
             return "handed back (blocklisted)"
         state.set_task(f"{job_id}/{tile}/{pass_index}")
-        return _render_and_merge(state, delivery.meta, tile, pass_index, t_task)
+        return _render_and_merge(state, delivery.meta, tile, pass_index, t_task, tally)
     except REDIS_DOWN:
         raise  # not the pass's fault: not recorded as a failure (render_pass runs it again)
     except Exception as err:  # every other failure is recorded on the tile
@@ -165,7 +166,7 @@ def _render_pass(job_id: str, tile: int, pass_index: int, begun: dict[str, bool]
         state.set_task("")
         # Redis down: the holding stays, and the next pass this process begins replaces it
         with contextlib.suppress(*REDIS_DOWN):
-            end_pass(store, state.worker_id)
+            end_pass(store, state.worker_id, **tally)
 
 
 def _send_passes(todo: list[tuple[int, int]], meta) -> None:
@@ -177,7 +178,7 @@ def _send_passes(todo: list[tuple[int, int]], meta) -> None:
 
 
 def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: int,
-                      t_task: float) -> str:
+                      t_task: float, tally: dict[str, float]) -> str:
     from renderer.render import render_tile
     from renderer.scene import SceneError
     from renderer.scene.compile import CompileError
@@ -242,7 +243,8 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
     elif merged and meta.target_error is not None:
         # The tile's last pass: with no tile left rendering, the converged ones are asked again
         settle_converged(store, _send_passes, job_id)
-    # task_seconds - render_seconds: the per-task overhead (Redis, buffers, merge, bookkeeping).
-    store.count(tasks_done=1, render_seconds=seconds, paths=paths,
-                task_seconds=time.perf_counter() - t_task)
+    # task_seconds - render_seconds: the per-task overhead (Redis, buffers, merge, bookkeeping);
+    # counted with the pass's end (end_pass, one round trip for both)
+    tally.update(tasks_done=1, render_seconds=seconds, paths=paths,
+                 task_seconds=time.perf_counter() - t_task)
     return "merged" if merged else "duplicate"

@@ -50,11 +50,12 @@ log = logging.getLogger(__name__)
 
 
 def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int,
-               data: bytes | None = None) -> bool:
+               data: bytes | None = None, ttl: float | None = None) -> bool:
     """Merge one pass buffer into its tile's accumulation if not merged yet (``data``: its bytes
-    as stored, when the caller has them). True if this call merged it; False if it was merged
-    already or there is no buffer to merge."""
-    merged = store.merge_pass_buffer(job_id, tile, pass_index, data)
+    as stored, when the caller has them; with ``ttl``, not stored yet: the merge stores them
+    first, for ``ttl`` seconds). True if this call merged it; False if it was merged already or
+    there is no buffer to merge."""
+    merged = store.merge_pass_buffer(job_id, tile, pass_index, data, ttl)
     if not merged:
         return False
     if merged == MERGED_LAST:

@@ -10,7 +10,8 @@ the rules are here, beside the store they read and write.
   fails the tile.
 - a delivery to a node blocklisted for the job is handed back (``services.farm.blocklist``), and a
   failed try counts against its node as well as its pass.
-- ``deliver``: the buffer is stored under the pass's deterministic key and merged exactly once.
+- ``deliver``: the buffer is stored under the pass's deterministic key and merged exactly once
+  (both in the merge's round trips).
 - ``settle_converged``: a job with a target error whose tiles have all converged or ended asks
   its converged tiles again under the frame's final scale.
 """
@@ -55,7 +56,10 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
     expires meanwhile has its pass sent again: ``services.farm.lost_workers``). ``node``: its
     worker node, the blocklist's unit. ``count=False``: a delivery already counted, begun again
     after a Redis outage (not a try of its own)."""
-    meta, blocked, merged = store.pass_view(job_id, tile, pass_index, node)
+    # The checks below and the count of the delivery in one round trip: the store counts it
+    # only when the same checks pass there (None: not counted)
+    meta, blocked, merged, attempt = store.begin_view(job_id, tile, pass_index, node, holder,
+                                                      count)
     if meta is None or meta.status in FINAL:
         return f"skipped: {meta.status if meta else 'no such job'}"
     if blocked:
@@ -75,7 +79,8 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
     # deliveries that run are counted (one lost by the broker, then re-queued by the sweeper, is
     # not), and counting one marks the job alive for the sweeper's stall rule.
     # (and the tile becomes running if it is queued, in the same step)
-    attempt = store.add_attempt(job_id, tile, pass_index, holder, running=True, count=count)
+    if attempt is None:  # a check passed here but not in the store (a plan without tile states)
+        attempt = store.add_attempt(job_id, tile, pass_index, holder, running=True, count=count)
     if attempt > settings.max_attempts:
         store.fail_tile(job_id, tile, f"pass {pass_index} gave up after {attempt - 1} tries "
                         "(its worker was lost or timed out each time)")
@@ -85,9 +90,10 @@ def begin_pass(store: JobStore, settings: Settings, job_id: str, tile: int,
     return Delivery(meta, attempt)
 
 
-def end_pass(store: JobStore, holder: str) -> None:
-    """The holder's pass ended (merged, failed, retried or skipped): it holds nothing."""
-    store.release_pass(holder)
+def end_pass(store: JobStore, holder: str, **increments: float) -> None:
+    """The holder's pass ended (merged, failed, retried or skipped): it holds nothing;
+    ``increments``: the farm's counters to add (``JobStore.count``), in the same round trip."""
+    store.release_pass(holder, **increments)
 
 
 def pass_failed(store: JobStore, settings: Settings, delivery: Delivery, tile: int,
@@ -176,7 +182,7 @@ def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], Job
 def deliver(store: JobStore, settings: Settings, job_id: str, tile: int, pass_index: int,
             buf: SampleBuffer) -> bool:
     """Store the pass's buffer under its deterministic key and merge it; True if this call
-    merged it (False: a duplicate)."""
-    data = buf.to_bytes()
-    store.put_pass(job_id, tile, pass_index, data, ttl=settings.pass_ttl)
-    return merge_pass(store, job_id, tile, pass_index, data)
+    merged it (False: a duplicate). The merge's first read stores it (``put_pass``'s keys, one
+    round trip fewer), so that the sweeper merges it should this process die before the
+    merge's EXEC."""
+    return merge_pass(store, job_id, tile, pass_index, buf.to_bytes(), ttl=settings.pass_ttl)

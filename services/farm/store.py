@@ -144,6 +144,38 @@ end
 return n
 """
 
+# What a worker reads before it renders a pass, and the delivery counted when it will render, in
+# one step: ``_ADD_ATTEMPT`` with ``running`` behind the checks of ``passes.begin_pass``
+# (KEYS[1] the job hash, KEYS[2] its blocklist, KEYS[3] its merged set, KEYS[4] its attempts,
+# KEYS[5] the holding hash, KEYS[6] its tile states; ARGV[1] the node, ARGV[2] the pass's
+# member, ARGV[3] now, ARGV[4] the holder, ARGV[5] the holding's value, ARGV[6] the tile,
+# ARGV[7] the pass, ARGV[8] 1 to count the delivery, 0 if counted before). Counted only for a
+# queued or running job, a node not blocklisted, a pass not merged and in the plan: its tile has
+# a state and its index is below tasks_total / tiles. Returns the job's hash (empty: no such
+# job), blocked, merged, and the tries so far (-1: not counted).
+_BEGIN_PASS = """
+local h = redis.call('HGETALL', KEYS[1])
+if #h == 0 then return {h, 0, 0, -1} end
+local blocked = 0
+if ARGV[1] ~= '' then blocked = redis.call('SISMEMBER', KEYS[2], ARGV[1]) end
+local merged = redis.call('SISMEMBER', KEYS[3], ARGV[2])
+local f = redis.call('HMGET', KEYS[1], 'status', 'tasks_total')
+local tiles = redis.call('HLEN', KEYS[6])
+if blocked == 1 or merged == 1 or (f[1] ~= 'queued' and f[1] ~= 'running') or tiles == 0
+   or redis.call('HEXISTS', KEYS[6], ARGV[6]) == 0
+   or tonumber(ARGV[7]) >= tonumber(f[2]) / tiles then
+  return {h, blocked, merged, -1}
+end
+local n = redis.call('HINCRBY', KEYS[4], ARGV[2], tonumber(ARGV[8]))
+redis.call('HSET', KEYS[1], 'active_at', ARGV[3])
+if ARGV[4] ~= '' then redis.call('HSET', KEYS[5], ARGV[4], ARGV[5] .. ' ' .. n) end
+local state = redis.call('HGET', KEYS[6], ARGV[6])
+if state == 'queued' or state == 'converged' then
+  redis.call('HSET', KEYS[6], ARGV[6], 'running')
+end
+return {h, blocked, merged, n}
+"""
+
 # A converged tile of a job with a target error (KEYS[1] the merged set, KEYS[2] the job hash,
 # KEYS[3] the tile states; ARGV[1] the tile, ARGV[2] its first pass to skip, ARGV[3] the passes
 # of a tile): its passes from ARGV[2] on count as merged, empty, and the tile is done. Only for
@@ -164,20 +196,27 @@ return n
 """
 
 # What a merge reads, under its WATCH, in one round trip (KEYS: the merged set, the pass buffer,
-# the job hash, the tile's accumulation, tile_samples, tile_state, tile_err; ARGV: the pass's
-# member of the merged set, the tile, '1' when the caller has the pass's bytes): whether the pass
-# is merged, the pass buffer (or only whether it exists: 1 or 0), the job's status, spp,
-# target_error and tasks_total, the accumulation, and the tile's samples, state and error summary.
+# the job hash, the tile's accumulation, tile_samples, tile_state, tile_err, the pending set;
+# ARGV: the pass's member of the merged set, the tile, '1' when the caller has the pass's bytes,
+# and to store them first as ``put_pass`` does, their time to live in ms and the bytes, else
+# ''): whether the pass is merged, the pass buffer (or only whether it exists: 1 or 0), the
+# job's status, spp, target_error and tasks_total, the accumulation, and the tile's samples,
+# state and error summary. The buffer is stored only for a pass not merged of a job not done:
+# for the sweeper, should this process die before its EXEC.
 _MERGE_READ = """
+local merged = redis.call('SISMEMBER', KEYS[1], ARGV[1])
+local job = redis.call('HMGET', KEYS[3], 'status', 'spp', 'target_error', 'tasks_total')
+if ARGV[4] ~= '' and merged == 0 and job[1] and job[1] ~= 'done' then
+  redis.call('SET', KEYS[2], ARGV[5], 'PX', ARGV[4])
+  redis.call('SADD', KEYS[8], KEYS[2])
+end
 local pass
 if ARGV[3] == '1' then
   pass = redis.call('EXISTS', KEYS[2])
 else
   pass = redis.call('GET', KEYS[2])
 end
-return {redis.call('SISMEMBER', KEYS[1], ARGV[1]), pass,
-        redis.call('HMGET', KEYS[3], 'status', 'spp', 'target_error', 'tasks_total'),
-        redis.call('GET', KEYS[4]), redis.call('HGET', KEYS[5], ARGV[2]),
+return {merged, pass, job, redis.call('GET', KEYS[4]), redis.call('HGET', KEYS[5], ARGV[2]),
         redis.call('HGET', KEYS[6], ARGV[2]), redis.call('HGET', KEYS[7], ARGV[2])}
 """
 
@@ -398,6 +437,7 @@ class JobStore:
         self._transition = client.register_script(_TRANSITION)
         self._claim_stall = client.register_script(_CLAIM_STALL)
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
+        self._begin_pass = client.register_script(_BEGIN_PASS)
         self._skip_passes = client.register_script(_SKIP_PASSES)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
         self._delete = client.register_script(_DELETE)
@@ -806,16 +846,24 @@ class JobStore:
                   self.k("job", job_id, "tile_state")],
             args=[str(tile), first, n_passes]))
 
-    def pass_view(self, job_id: str, tile: int, pass_index: int, node: str = ""
-                  ) -> tuple[JobMeta | None, bool, bool]:
-        """What a worker checks before it renders a pass, in one round trip: the job (None if
-        unknown), whether ``node`` is blocklisted for it, whether the pass is merged."""
-        pipe = self.r.pipeline(transaction=False)
-        pipe.hgetall(self.job_key(job_id))
-        pipe.sismember(self.k("job", job_id, "blocklist"), node)
-        pipe.sismember(self.k("job", job_id, "merged"), pass_member(tile, pass_index))
-        h, blocked, merged = pipe.execute()
-        return (JobMeta.from_hash(h) if h else None), bool(node) and bool(blocked), bool(merged)
+    def begin_view(self, job_id: str, tile: int, pass_index: int, node: str = "",
+                   holder: str = "", count: bool = True
+                   ) -> tuple[JobMeta | None, bool, bool, int | None]:
+        """What a worker checks before it renders a pass, and ``add_attempt`` (with ``running``),
+        in one round trip: the job (None if unknown), whether ``node`` is blocklisted for it,
+        whether the pass is merged, and the tries so far with this delivery counted, or None
+        when it was not counted (no such job, not queued or running, blocklisted, merged, or a
+        pass its tile states and ``tasks_total`` do not have)."""
+        member = pass_member(tile, pass_index)
+        h, blocked, merged, n = self._begin_pass(
+            keys=[self.job_key(job_id), self.k("job", job_id, "blocklist"),
+                  self.k("job", job_id, "merged"), self.k("job", job_id, "attempts"),
+                  self.k("holding"), self.k("job", job_id, "tile_state")],
+            args=[node, member, time.time(), holder, f"{job_id} {tile} {pass_index}",
+                  str(tile), pass_index, 1 if count else 0])
+        meta = JobMeta.from_hash(dict(zip(h[::2], h[1::2], strict=True))) if h else None
+        return (meta, bool(node) and bool(blocked), bool(merged),
+                None if int(n) < 0 else int(n))
 
     def attempts(self, job_id: str, tile: int, pass_index: int) -> int:
         return int(self.r.hget(self.k("job", job_id, "attempts"),
@@ -837,14 +885,16 @@ class JobStore:
         return key
 
     def merge_pass_buffer(self, job_id: str, tile: int, pass_index: int,
-                          data: bytes | None = None) -> int:
+                          data: bytes | None = None, ttl: float | None = None) -> int:
         """Add the pass buffer of (tile, pass_index) into its tile's merged buffer, mark it
         merged, update the tile's samples and state and the job's counters, in one transaction
         (WATCH on the tile's buffer and the merged set, retried on a conflict). 0 (false) if it
         was merged already, there is no buffer, or the job is gone (the pass buffer is then
         dropped); else 1, or ``MERGED_LAST`` when this merge counted the job's last task.
         ``data``: the pass buffer's bytes as stored (``put_pass``), when the caller has them,
-        so that the merge does not read them back (it still requires the stored buffer)."""
+        so that the merge does not read them back (it still requires the stored buffer).
+        ``ttl`` with ``data``: the caller has not stored them; the merge stores them first as
+        ``put_pass`` would (in its first read: one round trip for both)."""
         r = self.r
         pass_key = self.pass_key(job_id, tile, pass_index)
         acc_key = self.acc_key(job_id, tile)
@@ -861,10 +911,13 @@ class JobStore:
                     # archived between the status read below and EXEC aborts the merge, which
                     # would otherwise write its keys (its hash too) back
                     pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
+                    put = ("", b"") if data is None or ttl is None else (int(ttl * 1000), data)
+                    ttl = None  # stored by the first read; a retry after a conflict need not
                     (is_merged, stored, (status, spp, target, total), acc_bytes, tile_samples,
                      tile_state, old_summary) = pipe.eval(
-                        _MERGE_READ, 7, merged_key, pass_key, job_key, acc_key, samples_key,
-                        state_key, err_key, member, str(tile), "1" if data is not None else "")
+                        _MERGE_READ, 8, merged_key, pass_key, job_key, acc_key, samples_key,
+                        state_key, err_key, self.k("pending"), member, str(tile),
+                        "1" if data is not None else "", *put)
                     if data is None:
                         data = stored
                     elif not stored:
@@ -987,9 +1040,13 @@ class JobStore:
         self.r.zrem(self.k("workers"), worker_id)
         self.release_pass(worker_id)
 
-    def release_pass(self, worker_id: str) -> None:
-        """The worker process holds no pass any more (it ended, whichever way)."""
-        self.r.hdel(self.k("holding"), worker_id)
+    def release_pass(self, worker_id: str, **increments: float) -> None:
+        """The worker process holds no pass any more (it ended, whichever way); ``increments``:
+        ``count``'s, in the same round trip."""
+        pipe = self.r.pipeline(transaction=False)
+        pipe.hdel(self.k("holding"), worker_id)
+        self._add_counts(pipe, increments)
+        pipe.execute()
 
     def _holdings(self) -> list[tuple[str, str, bool]]:
         """(worker id, ``job tile pass attempt``, whether its heartbeat lives) of every pass held
@@ -1037,9 +1094,12 @@ class JobStore:
     # --- metrics --------------------------------------------------------------------------------
     def count(self, **increments: float) -> None:
         pipe = self.r.pipeline()
+        self._add_counts(pipe, increments)
+        pipe.execute()
+
+    def _add_counts(self, pipe, increments: dict[str, float]) -> None:
         for name, value in increments.items():
             pipe.hincrbyfloat(self.k("metrics"), name, value)
-        pipe.execute()
 
     def metrics(self) -> dict[str, float]:
         return {k.decode(): float(v) for k, v in self.r.hgetall(self.k("metrics")).items()}

@@ -30,7 +30,8 @@ __all__ = ["app"]
 _render_and_merge = tasks._render_and_merge
 
 
-def _faulty_render_and_merge(state, meta, tile: int, pass_index: int, t_task: float) -> str:
+def _faulty_render_and_merge(state, meta, tile: int, pass_index: int, t_task: float,
+                             tally: dict[str, float]) -> str:
     spec = os.environ.get("LUCENT_TEST_FAULT", "")
     if spec:
         fault_tile, fault_pass, mode = spec.split(":")
@@ -48,7 +49,7 @@ def _faulty_render_and_merge(state, meta, tile: int, pass_index: int, t_task: fl
                 raise RuntimeError("the tracer failed (test fault)")
             elif mode == "segv":
                 os.kill(os.getpid(), signal.SIGSEGV)
-    return _render_and_merge(state, meta, tile, pass_index, t_task)
+    return _render_and_merge(state, meta, tile, pass_index, t_task, tally)
 
 
 # Patched in the parent before Celery forks its pool: every pool process inherits it.

@@ -223,6 +223,104 @@ def test_a_merge_given_the_bytes_still_needs_the_stored_pass_and_finishes_the_jo
     assert np.allclose(frame.mean()[:, :8], 0.5) and np.allclose(frame.mean()[:, 8:], 0.25)
 
 
+def _round_trips(monkeypatch) -> list[bytes]:
+    """What every Redis client of this process sends from now on, one entry a round trip (a
+    command, or a pipeline's commands in one write)."""
+    import redis.connection
+
+    sent: list[bytes] = []
+    send = redis.connection.AbstractConnection.send_packed_command
+
+    def counting(self, command, check_health=True):
+        sent.append(b"".join(command) if isinstance(command, list) else command)
+        return send(self, command, check_health)
+
+    monkeypatch.setattr(redis.connection.AbstractConnection, "send_packed_command", counting)
+    return sent
+
+
+def test_a_pass_talks_to_redis_in_five_round_trips(settings, store, monkeypatch):
+    """A worker's pass, besides rendering: its checks with the delivery counted (one script),
+    the merge (WATCH, its read, which stores the buffer for the sweeper too, and MULTI/EXEC) and
+    its end with the farm's counters. It took 8: the checks, the count, the buffer stored and
+    the counters each in a round trip of their own (~0.15 ms each on one machine)."""
+    from services.farm.passes import Delivery, begin_pass, deliver, end_pass
+
+    _job(store, spp=24)  # 2 tiles x 3 passes
+    for p in (0, 1):  # the job started and the scripts loaded: not what a pass costs
+        begin_pass(store, settings, J1, 1, p, holder="w1", node="n1")
+    sent = _round_trips(monkeypatch)
+    delivery = begin_pass(store, settings, J1, 0, 1, holder="w1", node="n1")
+    assert isinstance(delivery, Delivery) and delivery.attempt == 1
+    assert deliver(store, settings, J1, 0, 1, _pass_buffer(0, 0, 8, 8, 8, 0.5))
+    end_pass(store, "w1", tasks_done=1, render_seconds=0.25)
+    assert len(sent) == 5, [c[:60] for c in sent]
+    assert store.is_merged(J1, 0, 1) and store.get_job(J1).tasks_merged == 1
+    assert store.metrics() == {"tasks_done": 1.0, "render_seconds": 0.25}
+    assert not store.r.hgetall(store.k("holding")) and not store.pending_passes()
+    assert not store.r.exists(store.pass_key(J1, 0, 1))
+
+
+def test_only_a_delivery_that_renders_is_counted(settings, store, monkeypatch):
+    """The checks and the count are one script: a delivery of a pass outside the plan, of a
+    pass merged, to a blocklisted node or of a job that ended does not count as a try, holds
+    nothing and leaves the tile's state alone."""
+    from services.farm import passes
+    from services.farm.passes import Delivery, HandBack, begin_pass
+
+    monkeypatch.setattr(passes, "no_eligible_reason", lambda *args: None)  # another node is
+
+    _job(store)  # 2 tiles x 2 passes
+
+    def begin(tile, p, node="n1"):
+        return begin_pass(store, settings, J1, tile, p, holder="w1", node=node)
+
+    assert begin(2, 0) == "skipped: no such pass" and begin(0, 2) == "skipped: no such pass"
+    store.put_pass(J1, 1, 0, _pass_buffer(8, 0, 8, 8, 8, 0.5).to_bytes(), ttl=60)
+    assert merge_pass(store, J1, 1, 0)
+    assert begin(1, 0) == "duplicate"
+    store.r.sadd(store.k("job", J1, "blocklist"), "bad")
+    assert isinstance(begin(0, 0, node="bad"), HandBack)
+    assert store.r.hgetall(store.k("job", J1, "attempts")) == {}
+    assert not store.r.hgetall(store.k("holding"))
+    assert store.tile_states(J1) == {0: "queued", 1: "queued"}
+    first = begin(0, 0)
+    assert isinstance(first, Delivery) and first.attempt == 1
+    assert store.tile_states(J1)[0] == "running" and store.get_status(J1) == "running"
+    assert store.r.hget(store.k("holding"), "w1") == f"{J1} 0 0 1".encode()
+    assert begin(0, 0).attempt == 2  # delivered again: a second try
+    store.cancel_job(J1)
+    assert begin(0, 1) == "skipped: cancelled"
+    assert store.attempts(J1, 0, 1) == 0
+
+
+def test_a_pass_whose_merge_did_not_end_is_merged_by_the_sweeper(settings, store, monkeypatch):
+    """The merge's first read stores the pass buffer (``put_pass``'s key, listed pending): a
+    worker that dies before the merge's EXEC leaves it for the sweeper, which merges it once."""
+    import redis
+    import redis.client
+
+    from services.farm.passes import deliver
+
+    _job(store, spp=8)  # 2 tiles x 1 pass
+    execute = redis.client.Pipeline.execute
+
+    def dies_at_exec(self, *args, **kwargs):
+        if self.explicit_transaction:  # the merge's MULTI/EXEC
+            raise redis.ConnectionError("the worker died")
+        return execute(self, *args, **kwargs)
+
+    monkeypatch.setattr(redis.client.Pipeline, "execute", dies_at_exec)
+    with pytest.raises(redis.ConnectionError):
+        deliver(store, settings, J1, 0, 0, _pass_buffer(0, 0, 8, 8, 8, 0.5))
+    monkeypatch.setattr(redis.client.Pipeline, "execute", execute)
+    assert not store.is_merged(J1, 0, 0)
+    assert store.pending_passes() == [store.pass_key(J1, 0, 0)]
+    assert sweep(store) == 1 and sweep(store) == 0
+    assert store.is_merged(J1, 0, 0) and store.get_job(J1).tasks_merged == 1
+    assert not store.pending_passes() and not store.r.exists(store.pass_key(J1, 0, 0))
+
+
 def test_a_jobs_tasks_are_sent_in_pipelines_in_order(settings, store, monkeypatch):
     """``enqueue`` sends a job's messages in kombu's publish batches (pipelines of up to 1000
     commands, one round trip each) rather than one round trip a message, and every message

@@ -656,9 +656,13 @@ class Partition:
                     s.shutdown(socket.SHUT_RDWR)
 
 
-# put_pass: SET the pass buffer and SADD its key to the pending set, in one write.
+# A rendered pass sent to Redis: the merge's first read (``_MERGE_READ``), an EVAL of 8 keys, the
+# merged set then the pass buffer's, then 6 more, with a time to live for the buffer (its 4th
+# argument), which the read stores. (A read again after a conflict stores nothing: ''.)
 PUT_PASS = re.compile(
-    rb"SADD\r\n\$\d+\r\n[^\r\n]*:pending\r\n\$\d+\r\n[^\r\n]*:pass:(\d+):(\d+)\r\n")
+    rb"\$4\r\nEVAL\r\n.*?\r\n\$1\r\n8\r\n\$\d+\r\n[^\r\n]*:merged\r\n"
+    rb"\$\d+\r\n[^\r\n]*:pass:(\d+):(\d+)\r\n(?:\$\d+\r\n[^\r\n]*\r\n){6}"
+    rb"\$\d+\r\n\d+:\d+\r\n\$\d+\r\n\d+\r\n\$1\r\n1\r\n\$[1-9]\d*\r\n\d+\r\n", re.S)
 
 
 @pytest.mark.slow
@@ -803,7 +807,7 @@ def in_process_worker(tmp_path, prefix, monkeypatch) -> Iterator[InProcessWorker
     w.close()
 
 
-@pytest.mark.parametrize("where", ["pass_view", "put_pass"])
+@pytest.mark.parametrize("where", ["begin_view", "merge_pass_buffer"])
 def test_a_pass_caught_by_a_redis_restart_waits_for_redis_and_merges(in_process_worker, prefix,
                                                                      cornell, monkeypatch,
                                                                      where):
