@@ -163,7 +163,7 @@ local f = redis.call('HMGET', KEYS[1], 'status', 'tasks_total')
 local tiles = redis.call('HLEN', KEYS[6])
 if blocked == 1 or merged == 1 or (f[1] ~= 'queued' and f[1] ~= 'running') or tiles == 0
    or redis.call('HEXISTS', KEYS[6], ARGV[6]) == 0
-   or tonumber(ARGV[7]) >= tonumber(f[2]) / tiles then
+   or tonumber(ARGV[7]) >= (tonumber(f[2]) or 0) / tiles then
   return {h, blocked, merged, -1}
 end
 local n = redis.call('HINCRBY', KEYS[4], ARGV[2], tonumber(ARGV[8]))
