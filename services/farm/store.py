@@ -124,56 +124,55 @@ return stalls
 
 
 # Count a delivery of a pass (KEYS[1] attempts hash, ARGV[1] tile:pass) and note the job alive
-# (KEYS[2] job hash, ARGV[2] now) unless its hash is gone: a deleted job is not brought back
-# (0: the pass renders, and its merge drops it). With a holder (ARGV[3], a worker id), record in
-# the same step that it holds the pass (KEYS[3] the holding hash, value ``ARGV[4] attempt``), so
-# that no worker can die holding a pass unseen. With a tile (ARGV[5]), the tile becomes running
-# if it is queued (KEYS[4] the tile states): a done tile stays done when a late duplicate runs.
-# ARGV[6]: 1 to count the delivery, 0 for the same delivery begun again (the tries so far).
-_ADD_ATTEMPT = """
-if redis.call('EXISTS', KEYS[2]) == 0 then return 0 end
-local n = redis.call('HINCRBY', KEYS[1], ARGV[1], tonumber(ARGV[6]))
-redis.call('HSET', KEYS[2], 'active_at', ARGV[2])
-if ARGV[3] ~= '' then redis.call('HSET', KEYS[3], ARGV[3], ARGV[4] .. ' ' .. n) end
-if ARGV[5] ~= '' then
-  local state = redis.call('HGET', KEYS[4], ARGV[5])
-  if state == 'queued' or state == 'converged' then
-    redis.call('HSET', KEYS[4], ARGV[5], 'running')
+# (KEYS[2] job hash, ARGV[2] now). With a holder (ARGV[3], a worker id), record in the same step
+# that it holds the pass (KEYS[3] the holding hash, value ``ARGV[4] attempt``), so that no worker
+# can die holding a pass unseen. With a tile (ARGV[5]), the tile becomes running if it is queued
+# (KEYS[4] the tile states): a done tile stays done when a late duplicate runs. ARGV[6]: 1 to
+# count the delivery, 0 for the same delivery begun again. Returns the tries so far. (A Lua
+# function the two scripts below begin with, on their KEYS and ARGV.)
+_COUNT_ATTEMPT = """
+local function count_attempt()
+  local n = redis.call('HINCRBY', KEYS[1], ARGV[1], tonumber(ARGV[6]))
+  redis.call('HSET', KEYS[2], 'active_at', ARGV[2])
+  if ARGV[3] ~= '' then redis.call('HSET', KEYS[3], ARGV[3], ARGV[4] .. ' ' .. n) end
+  if ARGV[5] ~= '' then
+    local state = redis.call('HGET', KEYS[4], ARGV[5])
+    if state == 'queued' or state == 'converged' then
+      redis.call('HSET', KEYS[4], ARGV[5], 'running')
+    end
   end
+  return n
 end
-return n
+"""
+
+# ``_COUNT_ATTEMPT`` unless the job's hash is gone: a deleted job is not brought back (0: the
+# pass renders, and its merge drops it).
+_ADD_ATTEMPT = _COUNT_ATTEMPT + """
+if redis.call('EXISTS', KEYS[2]) == 0 then return 0 end
+return count_attempt()
 """
 
 # What a worker reads before it renders a pass, and the delivery counted when it will render, in
-# one step: ``_ADD_ATTEMPT`` with ``running`` behind the checks of ``passes.begin_pass``
-# (KEYS[1] the job hash, KEYS[2] its blocklist, KEYS[3] its merged set, KEYS[4] its attempts,
-# KEYS[5] the holding hash, KEYS[6] its tile states; ARGV[1] the node, ARGV[2] the pass's
-# member, ARGV[3] now, ARGV[4] the holder, ARGV[5] the holding's value, ARGV[6] the tile,
-# ARGV[7] the pass, ARGV[8] 1 to count the delivery, 0 if counted before). Counted only for a
-# queued or running job, a node not blocklisted, a pass not merged and in the plan: its tile has
-# a state and its index is below tasks_total / tiles. Returns the job's hash (empty: no such
-# job), blocked, merged, and the tries so far (-1: not counted).
-_BEGIN_PASS = """
-local h = redis.call('HGETALL', KEYS[1])
+# one step: ``_COUNT_ATTEMPT`` (its KEYS and ARGV, with the tile) behind the checks of
+# ``passes.begin_pass`` (KEYS[5] the job's blocklist, KEYS[6] its merged set; ARGV[7] the node,
+# ARGV[8] the pass). Counted only for a queued or running job, a node not blocklisted, a pass
+# not merged and in the plan: its tile has a state and its index is below tasks_total / tiles.
+# Returns the job's hash (empty: no such job), blocked, merged, and the tries so far (-1: not
+# counted).
+_BEGIN_PASS = _COUNT_ATTEMPT + """
+local h = redis.call('HGETALL', KEYS[2])
 if #h == 0 then return {h, 0, 0, -1} end
 local blocked = 0
-if ARGV[1] ~= '' then blocked = redis.call('SISMEMBER', KEYS[2], ARGV[1]) end
-local merged = redis.call('SISMEMBER', KEYS[3], ARGV[2])
-local f = redis.call('HMGET', KEYS[1], 'status', 'tasks_total')
-local tiles = redis.call('HLEN', KEYS[6])
+if ARGV[7] ~= '' then blocked = redis.call('SISMEMBER', KEYS[5], ARGV[7]) end
+local merged = redis.call('SISMEMBER', KEYS[6], ARGV[1])
+local f = redis.call('HMGET', KEYS[2], 'status', 'tasks_total')
+local tiles = redis.call('HLEN', KEYS[4])
 if blocked == 1 or merged == 1 or (f[1] ~= 'queued' and f[1] ~= 'running') or tiles == 0
-   or redis.call('HEXISTS', KEYS[6], ARGV[6]) == 0
-   or tonumber(ARGV[7]) >= (tonumber(f[2]) or 0) / tiles then
+   or redis.call('HEXISTS', KEYS[4], ARGV[5]) == 0
+   or tonumber(ARGV[8]) >= (tonumber(f[2]) or 0) / tiles then
   return {h, blocked, merged, -1}
 end
-local n = redis.call('HINCRBY', KEYS[4], ARGV[2], tonumber(ARGV[8]))
-redis.call('HSET', KEYS[1], 'active_at', ARGV[3])
-if ARGV[4] ~= '' then redis.call('HSET', KEYS[5], ARGV[4], ARGV[5] .. ' ' .. n) end
-local state = redis.call('HGET', KEYS[6], ARGV[6])
-if state == 'queued' or state == 'converged' then
-  redis.call('HSET', KEYS[6], ARGV[6], 'running')
-end
-return {h, blocked, merged, n}
+return {h, blocked, merged, count_attempt()}
 """
 
 # A converged tile of a job with a target error (KEYS[1] the merged set, KEYS[2] the job hash,
@@ -856,11 +855,11 @@ class JobStore:
         pass its tile states and ``tasks_total`` do not have)."""
         member = pass_member(tile, pass_index)
         h, blocked, merged, n = self._begin_pass(
-            keys=[self.job_key(job_id), self.k("job", job_id, "blocklist"),
-                  self.k("job", job_id, "merged"), self.k("job", job_id, "attempts"),
-                  self.k("holding"), self.k("job", job_id, "tile_state")],
-            args=[node, member, time.time(), holder, f"{job_id} {tile} {pass_index}",
-                  str(tile), pass_index, 1 if count else 0])
+            keys=[self.k("job", job_id, "attempts"), self.job_key(job_id), self.k("holding"),
+                  self.k("job", job_id, "tile_state"), self.k("job", job_id, "blocklist"),
+                  self.k("job", job_id, "merged")],
+            args=[member, time.time(), holder, f"{job_id} {tile} {pass_index}", str(tile),
+                  1 if count else 0, node, pass_index])
         meta = JobMeta.from_hash(dict(zip(h[::2], h[1::2], strict=True))) if h else None
         return (meta, bool(node) and bool(blocked), bool(merged),
                 None if int(n) < 0 else int(n))
