@@ -14,8 +14,10 @@ a pass (writes to Redis, a pipeline one) counted on one pass that is not a job's
 from __future__ import annotations
 
 import argparse
+import contextlib
 import statistics
 import time
+from collections.abc import Iterator
 
 import numpy as np
 import redis.connection
@@ -52,22 +54,22 @@ def run_pass(store: JobStore, settings: Settings, plan: Plan, job_id: str, tile:
     return t1 - t0, t2 - t1, time.perf_counter() - t2
 
 
-def round_trips(store: JobStore, settings: Settings, plan: Plan, job_id: str, tile: int,
-                pass_index: int, buf: SampleBuffer) -> int:
-    """The writes to Redis of one pass (each a round trip: a command, or a pipeline)."""
-    sent = []
+@contextlib.contextmanager
+def counting_round_trips() -> Iterator[list[bytes]]:
+    """What every Redis client of this process writes inside the block, one entry a round trip
+    (a command, or a pipeline's commands in one write)."""
+    sent: list[bytes] = []
     send = redis.connection.AbstractConnection.send_packed_command
 
     def counting(self, command, check_health=True):
-        sent.append(1)
+        sent.append(b"".join(command) if isinstance(command, list) else command)
         return send(self, command, check_health)
 
     redis.connection.AbstractConnection.send_packed_command = counting  # type: ignore[method-assign]
     try:
-        run_pass(store, settings, plan, job_id, tile, pass_index, buf)
+        yield sent
     finally:
         redis.connection.AbstractConnection.send_packed_command = send  # type: ignore[method-assign]
-    return len(sent)
 
 
 def main() -> None:
@@ -90,7 +92,9 @@ def main() -> None:
             for tile, pass_index in plan.order():
                 buf = _buffer(plan, tile, rng)
                 if j == 0 and (tile, pass_index) == plan.order()[1]:
-                    trips = round_trips(store, settings, plan, job_id, tile, pass_index, buf)
+                    with counting_round_trips() as sent:
+                        run_pass(store, settings, plan, job_id, tile, pass_index, buf)
+                    trips = len(sent)
                     continue
                 steps = run_pass(store, settings, plan, job_id, tile, pass_index, buf)
                 if j == 0:

@@ -223,37 +223,22 @@ def test_a_merge_given_the_bytes_still_needs_the_stored_pass_and_finishes_the_jo
     assert np.allclose(frame.mean()[:, :8], 0.5) and np.allclose(frame.mean()[:, 8:], 0.25)
 
 
-def _round_trips(monkeypatch) -> list[bytes]:
-    """What every Redis client of this process sends from now on, one entry a round trip (a
-    command, or a pipeline's commands in one write)."""
-    import redis.connection
-
-    sent: list[bytes] = []
-    send = redis.connection.AbstractConnection.send_packed_command
-
-    def counting(self, command, check_health=True):
-        sent.append(b"".join(command) if isinstance(command, list) else command)
-        return send(self, command, check_health)
-
-    monkeypatch.setattr(redis.connection.AbstractConnection, "send_packed_command", counting)
-    return sent
-
-
-def test_a_pass_talks_to_redis_in_five_round_trips(settings, store, monkeypatch):
+def test_a_pass_talks_to_redis_in_five_round_trips(settings, store):
     """A worker's pass, besides rendering: its checks with the delivery counted (one script),
     the merge (WATCH, its read, which stores the buffer for the sweeper too, and MULTI/EXEC) and
     its end with the farm's counters. It took 8: the checks, the count, the buffer stored and
     the counters each in a round trip of their own (~0.15 ms each on one machine)."""
+    from bench.pass_redis import counting_round_trips
     from services.farm.passes import Delivery, begin_pass, deliver, end_pass
 
     _job(store, spp=24)  # 2 tiles x 3 passes
     for p in (0, 1):  # the job started and the scripts loaded: not what a pass costs
         begin_pass(store, settings, J1, 1, p, holder="w1", node="n1")
-    sent = _round_trips(monkeypatch)
-    delivery = begin_pass(store, settings, J1, 0, 1, holder="w1", node="n1")
-    assert isinstance(delivery, Delivery) and delivery.attempt == 1
-    assert deliver(store, settings, J1, 0, 1, _pass_buffer(0, 0, 8, 8, 8, 0.5))
-    end_pass(store, "w1", tasks_done=1, render_seconds=0.25)
+    with counting_round_trips() as sent:
+        delivery = begin_pass(store, settings, J1, 0, 1, holder="w1", node="n1")
+        assert isinstance(delivery, Delivery) and delivery.attempt == 1
+        assert deliver(store, settings, J1, 0, 1, _pass_buffer(0, 0, 8, 8, 8, 0.5))
+        end_pass(store, "w1", tasks_done=1, render_seconds=0.25)
     assert len(sent) == 5, [c[:60] for c in sent]
     assert store.is_merged(J1, 0, 1) and store.get_job(J1).tasks_merged == 1
     assert store.metrics() == {"tasks_done": 1.0, "render_seconds": 0.25}
