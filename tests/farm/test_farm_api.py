@@ -253,7 +253,7 @@ def test_only_a_delivery_that_renders_is_counted(settings, store, monkeypatch):
     from services.farm import passes
     from services.farm.passes import Delivery, HandBack, begin_pass
 
-    monkeypatch.setattr(passes, "no_eligible_reason", lambda *args: None)  # another node is
+    monkeypatch.setattr(passes, "no_eligible_reason", lambda *args: None)  # others are eligible
 
     _job(store)  # 2 tiles x 2 passes
 
