@@ -227,7 +227,8 @@ def test_a_pass_talks_to_redis_in_five_round_trips(settings, store):
     """A worker's pass, besides rendering: its checks with the delivery counted (one script),
     the merge (WATCH, its read, which stores the buffer for the sweeper too, and MULTI/EXEC) and
     its end with the farm's counters. It took 8: the checks, the count, the buffer stored and
-    the counters each in a round trip of their own (~0.15 ms each on one machine)."""
+    the counters each in a round trip of their own (a PING takes ~0.15 ms on an embedded Redis,
+    EPYC-512)."""
     from bench.pass_redis import counting_round_trips
     from services.farm.passes import Delivery, begin_pass, deliver, end_pass
 
