@@ -875,7 +875,9 @@ class JobStore:
     # --- sample buffers -------------------------------------------------------------------------
     def put_pass(self, job_id: str, tile: int, pass_index: int, data: bytes, ttl: float) -> str:
         """Store a rendered pass (deterministic key: a second delivery overwrites it with the same
-        bytes) and list it as pending for the sweeper."""
+        bytes) and list it as pending for the sweeper. A worker no longer calls this: its merge
+        writes the same two keys in its first read (``merge_pass_buffer`` with ``ttl``); the
+        tests use it to leave a pass behind for ``merge_pass`` and the sweeper."""
         key = self.pass_key(job_id, tile, pass_index)
         pipe = self.r.pipeline()
         pipe.set(key, data, px=int(ttl * 1000))
