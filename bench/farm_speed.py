@@ -7,9 +7,10 @@ with N numba threads.
 
 Each configuration starts an embedded Redis and one worker node, waits until its processes are
 warm (JIT loaded), renders the job once untimed (the scene compiled in every process), then
-times ``--repeats`` submissions of the same job. "First preview" is when pass 0 of every tile
-has merged (the whole frame at spp_per_pass samples). With several ``--pass-growth`` values,
-their jobs take turns on the same worker node.
+times ``--repeats`` submissions of the same job. "First pass begun" is when a worker began the
+job's first pass (the job's ``started_at``), "first preview" when pass 0 of every tile has
+merged (the whole frame at spp_per_pass samples). With several ``--pass-growth`` values, their
+jobs take turns on the same worker node.
 
 "Of local" is the local render's time over the job's (each job against the local render just
 before it); "rendering" is the share of the worker processes' wall clock spent rendering
@@ -75,8 +76,8 @@ def run_job(client: TestClient, body: dict, store: JobStore | None = None) -> di
     j = client.get(f"/api/jobs/{job['id']}").json()
     assert j["status"] == "done", j
     done = j["finished_at"] - wall0
-    return {"preview": min(preview or done, done), "done": done, "tasks": j["tasks_total"],
-            "samples": j["samples_planned"]}
+    return {"started": j["started_at"] - wall0, "preview": min(preview or done, done),
+            "done": done, "tasks": j["tasks_total"], "samples": j["samples_planned"]}
 
 
 def timed_runs(client: TestClient, store: JobStore, body: dict, repeats: int,
@@ -165,7 +166,8 @@ def measure(name: str, concurrency: int, threads: int, body: dict, repeats: int,
         med["of_local"] = statistics.median(t / r["done"]
                                             for t, r in zip(local[g], rs, strict=True))
         label = name if g is None else f"{name}, pass growth {g}"
-        print(f"{label:>34}: preview {med['preview']:.2f} s, done {med['done']:.2f} s "
+        print(f"{label:>34}: first pass begun {1e3 * med['started']:.0f} ms after the POST, "
+              f"preview {med['preview']:.2f} s, done {med['done']:.2f} s "
               f"({med['samples'] / med['done'] / 1e6:.2f} M samples/s; the local render "
               f"{med['local']:.2f} s, {100 * med['of_local']:.0f} % of it; rendering "
               f"{100 * med['rendering']:.0f} % of the processes' time), "
