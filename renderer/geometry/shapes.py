@@ -152,6 +152,55 @@ def spawn_offset(p, n, w, prim_scale):
     return (p[0] + eps * n[0], p[1] + eps * n[1], p[2] + eps * n[2])
 
 
+# Candidates near a sphere beyond which ``spheres_alone`` gives up on it (counts it not alone)
+ALONE_MAX_NEAR = 4096
+
+
+def _enters_ball(kind: int, geo: np.ndarray, c: np.ndarray, r: float) -> bool:
+    """Whether the surface of primitive (kind, geo) has a point closer than r to c."""
+    if kind == SPHERE:
+        return abs(float(np.linalg.norm(c - geo[0:3])) - geo[3]) < r
+    p0, e1, e2 = geo[0:3], geo[3:6], geo[6:9]
+    # The closest point of a planar region is the projection of c, when that lies inside it,
+    # or a point of its boundary
+    g11, g12, g22 = float(e1 @ e1), float(e1 @ e2), float(e2 @ e2)
+    det = g11 * g22 - g12 * g12
+    if det > 0.0:  # (a degenerate one has only its edges)
+        f1, f2 = float(e1 @ (c - p0)), float(e2 @ (c - p0))
+        a, b = (g22 * f1 - g12 * f2) / det, (g11 * f2 - g12 * f1) / det
+        inside = a >= 0.0 and b >= 0.0 and (a + b <= 1.0 if kind == TRIANGLE
+                                            else a <= 1.0 and b <= 1.0)
+        if inside and float(np.linalg.norm(c - (p0 + a * e1 + b * e2))) < r:
+            return True
+    corners = [p0, p0 + e1, p0 + e2] if kind == TRIANGLE else [p0, p0 + e1, p0 + e1 + e2, p0 + e2]
+    for s0, s1 in zip(corners, corners[1:] + corners[:1], strict=True):
+        e = s1 - s0
+        w = min(max(float((c - s0) @ e) / float(e @ e), 0.0), 1.0) if e @ e > 0.0 else 0.0
+        if float(np.linalg.norm(c - (s0 + w * e))) < r:
+            return True
+    return False
+
+
+def spheres_alone(kind: np.ndarray, geo: np.ndarray, lo: np.ndarray, hi: np.ndarray,
+                  which: np.ndarray) -> np.ndarray:
+    """Per primitive, 1 for a sphere among ``which`` (a mask) that no other primitive's surface
+    enters: from a point inside it, the closest surface along any ray is its own (what a walk in
+    its medium asks at every step, ``trace_path``). Surfaces that only touch it (a sphere resting
+    on a floor), or reach into it by less than ``SPAWN_EPSILON`` of its scale (the scale of a
+    ray's offset from a surface), leave it alone. A sphere with more than ``ALONE_MAX_NEAR``
+    primitives near it (bounds overlapping its own) is not examined, and counts as not alone."""
+    alone = np.zeros(len(kind), np.int8)
+    for k in np.flatnonzero(which & (kind == SPHERE)):
+        c, r = geo[k, 0:3], float(geo[k, 3])
+        near = np.flatnonzero(np.all(lo < c + r, axis=1) & np.all(hi > c - r, axis=1))
+        near = near[near != k]
+        if len(near) > ALONE_MAX_NEAR:
+            continue
+        inner = r - SPAWN_EPSILON * max(r, float(np.abs(c).max()))
+        alone[k] = not any(_enters_ball(int(kind[j]), geo[j], c, inner) for j in near)
+    return alone
+
+
 @alloc_kernel
 def prim_bounds(kind, geo):
     """Axis-aligned bounds (lo, hi), each (n, 3), of every primitive.

@@ -25,7 +25,12 @@ import numpy as np
 
 from renderer.environment import direction_to_uv, environment_pdf, environment_radiance
 from renderer.geometry.bvh import intersect_closest, traversal_stack
-from renderer.geometry.shapes import interpolated_normal, spawn_offset, surface_point
+from renderer.geometry.shapes import (
+    interpolated_normal,
+    intersect_sphere,
+    spawn_offset,
+    surface_point,
+)
 from renderer.integrators.direct import surface_direct
 from renderer.integrators.roulette import RR_MAX, roulette
 from renderer.integrators.sampler import (
@@ -123,6 +128,9 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     # behind a refracting boundary): an emitter found next then counts in full, without MIS.
     unweighted, prev_pdf, prev_p = True, 0.0, o
     medium = -1  # material whose medium the ray travels in (−1: vacuum)
+    # The primitive the ray last crossed into or back into ``medium`` at: when it is a sphere
+    # nothing else enters (``prim_alone``), the walk inside asks that sphere alone
+    medium_prim = -1
     # Product of η² over refractions: the η² radiance scaling is undone for roulette, which would
     # otherwise kill 60 % of the paths inside glass at every event (pbrt-v4's etaScale,
     # Mitsuba's `eta`).
@@ -136,9 +144,18 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     segments = 0
     for _ in range(MAX_SEGMENTS):
         segments += 1
-        # The closest surface along the ray
-        t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat,
-                                          S.prim_kind, S.prim_geo, o, d, math.inf, stack)
+        # The closest surface along the ray: inside a sphere no other surface enters, that
+        # sphere's (the same t the whole scene's query finds; Cycles' random walk likewise
+        # intersects only its own object)
+        t, prim, u, v = math.inf, -1, 0.0, 0.0
+        if medium >= 0 and medium_prim >= 0 and S.prim_alone[medium_prim] != 0 \
+                and S.prim_material[medium_prim] == medium:
+            t = intersect_sphere(o, d, S.prim_geo[medium_prim])[0]
+            prim, u, v = medium_prim, 0.0, 0.0
+        if t == math.inf:
+            t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count,
+                                              S.flat, S.prim_kind, S.prim_geo, o, d, math.inf,
+                                              stack)
 
         # Inside a medium: single_scatter's after its one event only attenuates; otherwise a free
         # flight may end at a scattering event before the surface (volumetric, single_scatter)
@@ -192,6 +209,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         # from inside (the camera in the object) is left straight too, past the depth check
         crossed, medium, single_done, skip_emission = null_boundary(
             S, mk, mp, mat, cos_o, medium, single_done, skip_emission, key, dim, sidx, sob)
+        if crossed:
+            medium_prim = prim
         if not crossed and max_depth >= 0 and depth >= max_depth:
             break
         diffusion = mk == DIFFUSION or mk == ROUGH_DIFFUSION
@@ -240,6 +259,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
                 or mk == ROUGH_DIFFUSE_ENTRY):
             # Refracted in or out, or reflected: the side wi leaves on decides the medium
             medium = mat if wi[0] * n[0] + wi[1] * n[1] + wi[2] * n[2] < 0.0 else -1
+            medium_prim = prim
         if (mk == DIELECTRIC or mk == TRANSLUCENT) and weight[0] != 1.0:
             eta_scale /= weight[0]  # a refraction: the weight was (η_i/η_t)²
         elif (mk == ROUGH_DIELECTRIC or mk == ROUGH_TRANSLUCENT) and (cos_o > 0.0) != (

@@ -17,7 +17,7 @@ import numpy as np
 from renderer.environment import build_environment, no_environment
 from renderer.geometry.bvh import BVH_WIDTH, MAX_LEAF, build_bvh, stack_size, widen_bvh
 from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_order
-from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds
+from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds, spheres_alone
 from renderer.geometry.transform import rotation_matrix
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, ENVIRONMENT, POINT
 from renderer.materials.auto import auto_choice
@@ -81,8 +81,15 @@ SceneArrays = namedtuple(
         "prim_uv", "mat_tex", "tex_param", "texels",
         # per triangle its corners' shading normals (renderer.materials.shading; NaN: none)
         "prim_normal",
+        # per primitive 1 for a sphere of a material with a medium that no other surface enters
+        # (renderer.geometry.shapes.spheres_alone: a walk inside asks it alone)
+        "prim_alone",
     ],
 )
+
+
+# The material kinds a ray can travel inside of (``trace_path``'s ``medium``)
+MEDIUM_KINDS = (TRANSLUCENT, SINGLE_SCATTER, DIFFUSE_ENTRY, ROUGH_TRANSLUCENT, ROUGH_DIFFUSE_ENTRY)
 
 
 class CompileError(ValueError):
@@ -382,6 +389,8 @@ def compile_scene(scene) -> CompiledScene:
         sampler=np.array([1 if scene.render.sampler == "sobol" else 0], np.int64),
         prim_uv=prim_uv, mat_tex=mat_tex, tex_param=tex_param, texels=texels,
         prim_normal=prim_normal,
+        prim_alone=spheres_alone(prim_kind, prim_geo, lo, hi,
+                                 np.isin(mat_kind[prim_material], MEDIUM_KINDS)),
     )
     return CompiledScene(
         arrays=arrays,
