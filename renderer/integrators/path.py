@@ -114,6 +114,21 @@ def escaped_radiance(S, env, d):
     return (S.background[0], S.background[1], S.background[2]), INV_4PI
 
 
+@block
+def closest_surface(S, o, d, medium, medium_prim, stack):
+    """(t, prim, u, v) of the closest surface along the ray. In a medium entered through a
+    sphere that no other surface enters (``prim_alone``), that sphere's: the t the whole scene's
+    query finds, for one ``intersect_sphere`` (Cycles' random walk likewise intersects only its
+    own object)."""
+    if medium >= 0 and medium_prim >= 0 and S.prim_alone[medium_prim] != 0 \
+            and S.prim_material[medium_prim] == medium:
+        t = intersect_sphere(o, d, S.prim_geo[medium_prim])[0]
+        if t < math.inf:
+            return t, medium_prim, 0.0, 0.0
+    return intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count, S.flat, S.prim_kind,
+                             S.prim_geo, o, d, math.inf, stack)
+
+
 @inline_kernel
 def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     """Radiance arriving at o from direction −d along one sampled path, and the path's segments
@@ -128,9 +143,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     # behind a refracting boundary): an emitter found next then counts in full, without MIS.
     unweighted, prev_pdf, prev_p = True, 0.0, o
     medium = -1  # material whose medium the ray travels in (−1: vacuum)
-    # The primitive the ray last crossed into or back into ``medium`` at: when it is a sphere
-    # nothing else enters (``prim_alone``), the walk inside asks that sphere alone
-    medium_prim = -1
+    medium_prim = -1  # the primitive the ray last crossed into ``medium`` at (closest_surface)
     # Product of η² over refractions: the η² radiance scaling is undone for roulette, which would
     # otherwise kill 60 % of the paths inside glass at every event (pbrt-v4's etaScale,
     # Mitsuba's `eta`).
@@ -144,18 +157,8 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
     segments = 0
     for _ in range(MAX_SEGMENTS):
         segments += 1
-        # The closest surface along the ray: inside a sphere no other surface enters, that
-        # sphere's (the same t the whole scene's query finds; Cycles' random walk likewise
-        # intersects only its own object)
-        t, prim, u, v = math.inf, -1, 0.0, 0.0
-        if medium >= 0 and medium_prim >= 0 and S.prim_alone[medium_prim] != 0 \
-                and S.prim_material[medium_prim] == medium:
-            t = intersect_sphere(o, d, S.prim_geo[medium_prim])[0]
-            prim, u, v = medium_prim, 0.0, 0.0
-        if t == math.inf:
-            t, prim, u, v = intersect_closest(S.bvh_lo, S.bvh_hi, S.bvh_child, S.bvh_count,
-                                              S.flat, S.prim_kind, S.prim_geo, o, d, math.inf,
-                                              stack)
+        # The closest surface along the ray
+        t, prim, u, v = closest_surface(S, o, d, medium, medium_prim, stack)
 
         # Inside a medium: single_scatter's after its one event only attenuates; otherwise a free
         # flight may end at a scattering event before the surface (volumetric, single_scatter)
@@ -209,8 +212,7 @@ def trace_path(S, o, d, key, stack, max_depth, sidx, sob, scratch):
         # from inside (the camera in the object) is left straight too, past the depth check
         crossed, medium, single_done, skip_emission = null_boundary(
             S, mk, mp, mat, cos_o, medium, single_done, skip_emission, key, dim, sidx, sob)
-        if crossed:
-            medium_prim = prim
+        medium_prim = prim if crossed else medium_prim
         if not crossed and max_depth >= 0 and depth >= max_depth:
             break
         diffusion = mk == DIFFUSION or mk == ROUGH_DIFFUSION
