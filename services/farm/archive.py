@@ -311,7 +311,11 @@ def delete_finished(store: JobStore, records: Records, blobs: BlobStore, job_id:
     other job's image is. False (nothing deleted) when it is unknown or still queued or running."""
     status = store.get_status(job_id)
     if status is not None and not store.delete_job(job_id):
-        return False  # queued or running
+        # Queued or running; or gone from Redis since it was read: archived (or parked) in
+        # between by the sweeper, and then its record decides, as below
+        status = store.get_status(job_id)
+        if status is not None:
+            return False
     if status is None:
         record = records.get(job_id)
         if record is None or record.status in ACTIVE:

@@ -15,7 +15,7 @@ from services.api.main import create_app
 from services.farm.archive import archive_job
 from services.farm.blobs import FileBlobStore, content_key
 from services.farm.settings import Settings
-from services.farm.store import JobStore
+from services.farm.store import FINAL, JobStore
 from tests.conftest import wait_until
 from tests.farm.conftest import records_of
 
@@ -163,6 +163,36 @@ def test_deleting_a_finished_job_leaves_no_key_and_no_blob(farm, tiny_scene, tmp
         # a pass that was rendering when it was deleted lands, and its merge drops it
         wait_until(lambda: not job_keys(store, third), 30, "no key of the deleted job")
         assert third not in listed_ids(client)
+
+
+def test_a_job_archived_while_it_is_deleted_is_deleted(farm, tiny_scene, tmp_path,
+                                                       wait_for_job, monkeypatch):
+    """DELETE reads a done job's status in Redis, then deletes its keys; archived by the sweeper
+    in between (its keys already gone), the job is deleted from its record instead: 204, no
+    record, no blob, not the 200 of a cancel that found nothing to cancel."""
+    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
+    store = farm.store()
+    with TestClient(create_app(settings)) as client:
+        job_id = client.post("/api/jobs", json={"scene": own_scene(tiny_scene),
+                                                "tile_size": 16}).json()["id"]
+        assert wait_for_job(client, job_id)["status"] == "done"
+        records, blobs = records_of(settings), FileBlobStore(settings.blob_path)
+        real = JobStore.delete_job
+        archived = []
+
+        def archived_first(self, job, statuses=FINAL):
+            if job == job_id and not archived:
+                archived.append(None)  # (archive_job deletes the job's keys through here too)
+                archived[0] = archive_job(store, records, blobs, job_id)
+            return real(self, job, statuses)
+
+        monkeypatch.setattr(JobStore, "delete_job", archived_first)
+        r = client.delete(f"/api/jobs/{job_id}")
+        assert archived == [True]
+        assert r.status_code == 204, r.text
+        monkeypatch.undo()
+        assert records.get(job_id) is None and job_keys(store, job_id) == set()
+        assert client.get(f"/api/jobs/{job_id}").status_code == 404
 
 
 def test_retention_removes_old_finished_jobs(farm, tiny_scene, tmp_path, wait_for_job):
