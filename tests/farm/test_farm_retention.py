@@ -15,7 +15,7 @@ from services.api.main import create_app
 from services.farm.archive import archive_job
 from services.farm.blobs import FileBlobStore, content_key
 from services.farm.settings import Settings
-from services.farm.store import FINAL, JobStore
+from services.farm.store import JobStore
 from tests.conftest import wait_until
 from tests.farm.conftest import records_of
 
@@ -50,6 +50,22 @@ def archived(records, job_id: str) -> bool:
     return record is not None and bool(record.images)
 
 
+def archive_inside(monkeypatch, method: str, store, records, blobs, job_id: str) -> list:
+    """Make the first call of ``JobStore.<method>`` for ``job_id`` archive the job first (the
+    sweeper running in between); the list returned gets ``archive_job``'s answer."""
+    real = getattr(JobStore, method)
+    archived: list = []
+
+    def archived_first(self, job, *args, **kwargs):
+        if job == job_id and not archived:
+            archived.append(None)  # (archive_job itself calls the method too)
+            archived[0] = archive_job(store, records, blobs, job_id)
+        return real(self, job, *args, **kwargs)
+
+    monkeypatch.setattr(JobStore, method, archived_first)
+    return archived
+
+
 def test_an_image_read_while_its_job_is_archived_is_its_image(farm, tiny_scene, tmp_path,
                                                                wait_for_job, monkeypatch):
     """The API reads a done job's answer from Redis, then its tiles; archived in between (the
@@ -63,16 +79,7 @@ def test_an_image_read_while_its_job_is_archived_is_its_image(farm, tiny_scene, 
         assert wait_for_job(client, job_id)["status"] == "done"
         before = {path: client.get(f"/api/jobs/{job_id}/{path}").content for path in IMAGES}
         records, blobs = records_of(settings), FileBlobStore(settings.blob_path)
-        real = JobStore.tile_buffers
-        archived = []
-
-        def archived_first(self, job, n_tiles, first=0):
-            if job == job_id and not archived:
-                archived.append(None)  # (archive_job reads the tiles too)
-                archived[0] = archive_job(store, records, blobs, job_id)
-            return real(self, job, n_tiles, first)
-
-        monkeypatch.setattr(JobStore, "tile_buffers", archived_first)
+        archived = archive_inside(monkeypatch, "tile_buffers", store, records, blobs, job_id)
         r = client.get(f"/api/jobs/{job_id}/image.png")
         assert archived == [True]
         assert r.status_code == 200
@@ -177,16 +184,7 @@ def test_a_job_archived_while_it_is_deleted_is_deleted(farm, tiny_scene, tmp_pat
                                                 "tile_size": 16}).json()["id"]
         assert wait_for_job(client, job_id)["status"] == "done"
         records, blobs = records_of(settings), FileBlobStore(settings.blob_path)
-        real = JobStore.delete_job
-        archived = []
-
-        def archived_first(self, job, statuses=FINAL):
-            if job == job_id and not archived:
-                archived.append(None)  # (archive_job deletes the job's keys through here too)
-                archived[0] = archive_job(store, records, blobs, job_id)
-            return real(self, job, statuses)
-
-        monkeypatch.setattr(JobStore, "delete_job", archived_first)
+        archived = archive_inside(monkeypatch, "delete_job", store, records, blobs, job_id)
         r = client.delete(f"/api/jobs/{job_id}")
         assert archived == [True]
         assert r.status_code == 204, r.text
