@@ -4,6 +4,7 @@ real farm (embedded Redis, Celery workers)."""
 
 from __future__ import annotations
 
+import contextlib
 import random
 import time
 from pathlib import Path
@@ -50,6 +51,18 @@ def archived(records, job_id: str) -> bool:
     return record is not None and bool(record.images)
 
 
+@contextlib.contextmanager
+def done_job(farm, tiny_scene, tmp_path, wait_for_job):
+    """An API on the farm whose sweeper waits (only its sweep at start), and a done job of a
+    scene of its own: (client, job id, the farm's records, its blob store)."""
+    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
+    with TestClient(create_app(settings)) as client:
+        job_id = client.post("/api/jobs", json={"scene": own_scene(tiny_scene),
+                                                "tile_size": 16}).json()["id"]
+        assert wait_for_job(client, job_id)["status"] == "done"
+        yield client, job_id, records_of(settings), FileBlobStore(settings.blob_path)
+
+
 def archive_inside(monkeypatch, method: str, store, records, blobs, job_id: str) -> list:
     """Make the first call of ``JobStore.<method>`` for ``job_id`` archive the job first (the
     sweeper running in between); the list returned gets ``archive_job``'s answer."""
@@ -71,15 +84,10 @@ def test_an_image_read_while_its_job_is_archived_is_its_image(farm, tiny_scene, 
     """The API reads a done job's answer from Redis, then its tiles; archived in between (the
     tiles deleted from Redis), the frame it would assemble has no tiles: it serves the archived
     image instead, not a black frame."""
-    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
-    store = farm.store()
-    with TestClient(create_app(settings)) as client:
-        job_id = client.post("/api/jobs", json={"scene": own_scene(tiny_scene),
-                                                "tile_size": 16}).json()["id"]
-        assert wait_for_job(client, job_id)["status"] == "done"
+    with done_job(farm, tiny_scene, tmp_path, wait_for_job) as (client, job_id, records, blobs):
         before = {path: client.get(f"/api/jobs/{job_id}/{path}").content for path in IMAGES}
-        records, blobs = records_of(settings), FileBlobStore(settings.blob_path)
-        archived = archive_inside(monkeypatch, "tile_buffers", store, records, blobs, job_id)
+        archived = archive_inside(monkeypatch, "tile_buffers", farm.store(), records, blobs,
+                                  job_id)
         r = client.get(f"/api/jobs/{job_id}/image.png")
         assert archived == [True]
         assert r.status_code == 200
@@ -176,14 +184,9 @@ def test_a_job_archived_while_it_is_deleted_is_deleted(farm, tiny_scene, tmp_pat
                                                        wait_for_job, monkeypatch):
     """DELETE reads a done job's status in Redis, then deletes its keys; archived by the sweeper
     in between (its keys already gone), the job is deleted from its record instead: 204, no
-    record, no blob, not the 200 of a cancel that found nothing to cancel."""
-    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
+    record, no key left, not the 200 of a cancel that found nothing to cancel."""
     store = farm.store()
-    with TestClient(create_app(settings)) as client:
-        job_id = client.post("/api/jobs", json={"scene": own_scene(tiny_scene),
-                                                "tile_size": 16}).json()["id"]
-        assert wait_for_job(client, job_id)["status"] == "done"
-        records, blobs = records_of(settings), FileBlobStore(settings.blob_path)
+    with done_job(farm, tiny_scene, tmp_path, wait_for_job) as (client, job_id, records, blobs):
         archived = archive_inside(monkeypatch, "delete_job", store, records, blobs, job_id)
         r = client.delete(f"/api/jobs/{job_id}")
         assert archived == [True]
