@@ -1,7 +1,7 @@
 """Paths per second on the Cornell box: Lucent and Mitsuba 3, measured in the same run.
 
     .venv/bin/python -m bench.cornell_speed [--spp 64] [--repeats 3] [--scene examples/X.json]
-        [--kernels scalar wavefront] [--variants scalar_rgb llvm_ad_rgb]
+        [--kernels scalar wavefront packet] [--variants scalar_rgb llvm_ad_rgb]
 
 Both renderers draw the same scene (``examples/cornell_box.json`` unless ``--scene``) at the same
 resolution, spp and depth (Lucent max_depth -1 ↔ Mitsuba -1; both use Russian roulette from 5
@@ -9,7 +9,8 @@ events on) on all cores. Lucent's time is the best of ``repeats`` renders after 
 (which includes loading its kernels from the numba cache, or compiling them on a cold cache; that
 time is printed separately, as is Mitsuba's JIT warm-up). Mitsuba is an optional extra: without it
 only Lucent's figures are printed. Lucent runs once with each of ``--kernels`` (``render_tile``'s
-``kernel``: the one-path-at-a-time kernel and the wavefront kernel), Mitsuba with each of
+``kernel``: the one-path-at-a-time kernel, the wavefront kernel, the packet kernel of 16 paths
+in the vector lanes), Mitsuba with each of
 ``--variants``; "lucent ÷ it" is the first kernel's paths/s over each row's. Record results in
 docs/performance.md.
 """
@@ -49,7 +50,7 @@ def main() -> int:
     parser.add_argument("--scene", default=str(ROOT / "examples" / "cornell_box.json"))
     parser.add_argument("--spp", type=int, default=64)
     parser.add_argument("--repeats", type=int, default=3)
-    parser.add_argument("--kernels", nargs="+", choices=["scalar", "wavefront"],
+    parser.add_argument("--kernels", nargs="+", choices=["scalar", "wavefront", "packet"],
                         default=["scalar", "wavefront"])
     parser.add_argument("--variants", nargs="*", default=["scalar_rgb", "llvm_ad_rgb"],
                         help="Mitsuba 3 variants to time (none: Lucent only)")

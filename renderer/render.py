@@ -11,10 +11,12 @@ import numpy as np
 from renderer.film.adaptive import sample_to_target
 from renderer.film.buffer import SampleBuffer
 from renderer.integrators.path import render_tile_kernel
+from renderer.packet import render_tile_packet
+from renderer.packet import unsupported as packet_unsupported
 from renderer.scene.compile import CompiledScene, compile_scene
 from renderer.wavefront.cpu import pixel_counts, render_tile_wavefront, unsupported
 
-KERNELS = ("scalar", "wavefront", "gpu")  # render_tile's kernels (the CLI's --kernel)
+KERNELS = ("scalar", "wavefront", "gpu", "packet")  # render_tile's kernels (the CLI's --kernel)
 
 
 def render_tile(
@@ -56,6 +58,8 @@ def render_tile(
         from renderer.wavefront.gpu import render_tile_gpu
 
         return render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, counts)
+    if kernel == "packet" and packet_unsupported(scene) is None:
+        return render_tile_packet(scene, x0, y0, width, height, sample_start, counts)
     if kernel == "wavefront" and unsupported(scene) is None:
         return render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_count,
                                      counts)

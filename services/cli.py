@@ -31,7 +31,7 @@ DEFAULT_SERVER = "http://127.0.0.1:8000"
 API_PROCESSES = 2
 # renderer.render.KERNELS, written out: the parser is built without importing the renderer
 # (numba); tests/services/test_cli.py checks that the two agree
-KERNELS = ("scalar", "wavefront", "gpu")
+KERNELS = ("scalar", "wavefront", "gpu", "packet")
 # What a cold compile of the kernels takes on a 2-core machine (docs/performance.md, "Start-up":
 # `python -m bench.startup`).
 COLD_COMPILE = "a minute on 2 cores"
@@ -127,7 +127,13 @@ def cmd_render(args: argparse.Namespace) -> int:
     )
     if not _kernel_usable(args.kernel):
         return 1
-    if args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
+    if args.kernel == "packet":
+        from renderer.packet import unsupported as packet_unsupported
+
+        if (reason := packet_unsupported(compiled)) is not None:
+            print(f"the packet kernel does not cover {reason}: the scalar kernel renders it",
+                  file=sys.stderr)
+    elif args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
         by = "the scalar kernel" if args.kernel == "wavefront" else "the GPU's path kernel"
         print(f"the wavefront stages do not cover {reason}: {by} renders it", file=sys.stderr)
     total = compiled.width * compiled.height * spp

@@ -32,7 +32,7 @@ NODE = ""
 # A scene small enough to render in milliseconds that still runs every kernel the tile renderer
 # calls (a quad light over a diffuse sphere), to load numba's cached machine code before the
 # first real task.
-WARM_UP_SCENE = {
+WARM_UP_SCENE: dict[str, Any] = {
     "camera": {"position": [0, 0, 3], "look_at": [0, 0, 0], "fov": 40},
     "film": {"width": 4, "height": 4},
     "render": {"spp": 1, "max_depth": 2, "seed": 1},
@@ -50,7 +50,8 @@ def warm_up_kernels(kernel: str = "scalar") -> float:
     them) and mark the cache folder warm; returns seconds. With another ``kernel`` (the node's
     ``worker_kernel``) the scene is rendered with it too: with ``wavefront`` the scalar kernel
     stays the one for scenes it does not cover; with ``gpu`` the path kernel, which renders those
-    on the GPU, is compiled as well. The CUDA kernels are not cached on disk (their ``cuda.jit``
+    on the GPU, is compiled as well; with ``packet`` it renders the scene's light alone too (the
+    packet kernel draws no spheres). The CUDA kernels are not cached on disk (their ``cuda.jit``
     has no ``cache=True``), so each pool process of a GPU node compiles them here
     (docs/performance.md, "On a GPU")."""
     from renderer.film import adaptive
@@ -63,6 +64,11 @@ def warm_up_kernels(kernel: str = "scalar") -> float:
     render_tile(compiled, 0, 0, 4, 4, 0, 1)
     if kernel != "scalar":
         render_tile(compiled, 0, 0, 4, 4, 0, 1, kernel=kernel)
+    if kernel == "packet":
+        # the warm-up scene's sphere is the scalar kernel's: the packet kernel's on its light
+        quads = {**WARM_UP_SCENE,
+                 "objects": [o for o in WARM_UP_SCENE["objects"] if o["type"] == "quad"]}
+        render_tile(compile_scene(load_scene(quads)), 0, 0, 4, 4, 0, 1, kernel=kernel)
     if kernel == "gpu":
         from renderer.wavefront.gpu import render_tile_gpu
 

@@ -1,0 +1,488 @@
+"""The packet kernel: 16 paths at once, one in each float32 lane of the CPU's vectors.
+
+The scalar kernel (``renderer.integrators.path``) traces one path at a time in float64 and
+vectorizes only its loop over a flat scene's primitives. Mitsuba 3's ``llvm_ad_rgb`` gets its lead
+on the CPU from running 8–16 paths in the vector lanes in float32 (docs/performance.md). This
+kernel does the same for the scenes it covers: each thread keeps a packet of ``LANES`` paths,
+their state by column in one float32 array, and runs every stage as a loop over the lanes that
+LLVM vectorizes (selects instead of branches; a stage per function, so that no value of one
+stage's loop is live after it):
+
+- closest hit: every primitive against the 16 rays (the flat scene's loop turned inside out);
+- gather: each lane's hit primitive's normal, albedo and emission, and a light picked by power
+  for it (a scalar loop: indexed loads, and the light's cumulative table);
+- shade: emission seen (weighted by Veach's power heuristic against light sampling), a point on
+  the light and its shadow ray, the cosine-weighted next direction, Russian roulette (Lucent's
+  rule: from the ``RR_DEPTH``-th scattering event, q = min(max β, ``RR_MAX``));
+- shadow: every primitive against the 16 shadow rays;
+- a lane whose path ended writes its sample to the tile's buffer and starts the next path of
+  its thread's pixels at once (path regeneration: the lanes stay full).
+
+Covered (``unsupported`` says why not): flat scenes (at most ``FLAT_MAX`` primitives) of quads
+and triangles, untextured ``diffuse`` materials, emitting quads and triangles as the only lights,
+no background, the independent sampler. Anything else renders with the scalar kernel.
+
+Randomness: each path starts from its sample's key (``renderer.rng.sample_key`` of the seed, the
+pixel and the global sample index), so a tile's image does not depend on how the frame was cut or
+which thread took it; within a path a 64-bit LCG steps from that key (the top 24 bits a float32
+draw). The image is deterministic but not the scalar kernel's: it is checked against Mitsuba 3's
+(tests/renderer/test_packet.py), as the scalar kernel is.
+
+Float32, and where it is not enough: ray origins are moved off a surface by ``EPS_REL`` of the
+scene's scale (the largest coordinate of any primitive or of the camera), and hits nearer than
+that are ignored.
+float32 puts a point within ~6e-8 of that scale, 1600 times less than the offset, so no ray finds
+the surface it leaves; detail finer than 1e-4 of the scene's scale (a gap, a thin slab) is lost,
+which the scalar kernel's float64 keeps. A scene more than ``FAR`` times its size from the
+origin is the scalar kernel's. The film sums are float64, as the scalar kernel's.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numba
+import numpy as np
+
+from renderer.film.buffer import SampleBuffer
+from renderer.geometry.flat import FLAT_MAX
+from renderer.geometry.shapes import QUAD, TRIANGLE, prim_bounds
+from renderer.integrators.path import camera_ray
+from renderer.integrators.roulette import RR_DEPTH, RR_MAX
+from renderer.jit import JIT_OPTIONS, kernel, run_chunks
+from renderer.lights import AREA
+from renderer.materials.bsdf import DIFFUSE
+from renderer.materials.diffuse import ALBEDO
+from renderer.rng import sample_key
+
+LANES = 16
+F32 = np.float32
+EPS_REL = 1e-4  # the ray offset and least hit distance, as a share of the scene's scale
+# A scene (camera included) whose largest coordinate is more than this many times its size is
+# left to the scalar kernel: the offset, EPS_REL of the coordinate, would grow past 1e-3 of the
+# scene (tests/renderer/test_packet.py renders the Cornell box moved away from the origin)
+FAR = 10.0
+_INF = np.float32(1e30)
+_INV_PI = np.float32(1.0 / math.pi)
+_QUARTER_PI = np.float32(math.pi / 4.0)
+_RR_MAX = np.float32(RR_MAX)
+_RR_DEPTH = np.int32(RR_DEPTH)
+_WEYL = np.uint32(0x9E3779B9)
+_H1 = np.uint32(0x7FEB352D)
+_H2 = np.uint32(0x846CA68B)
+_TWO_POW_M24 = np.float32(1.0 / 16777216.0)
+
+# The helpers of the lane loops are inlined by numba before LLVM sees the loops: a call LLVM
+# inlines later (``inline_kernel``'s ``alwaysinline``) is still a call, returning a tuple, when
+# its loop vectorizer runs, and the shading loop then stayed scalar (4.0 against 5.4 M paths/s)
+_inlined = numba.njit(inline="always", **JIT_OPTIONS)
+
+# The packet's state: row k of the float32 array (P) holds lanes [16k, 16k + 16)
+(OX, OY, OZ, DX, DY, DZ, TR, TG, TB, LR, LG, LB, PDF_B, T_HIT, SX, SY, SZ, S_DIST, CR, CG, CB,
+ NX, NY, NZ, AR, AG, AB, ER, EG, EB, E_PA,
+ QOX, QOY, QOZ, QAX, QAY, QAZ, QBX, QBY, QBZ, QNX, QNY, QNZ, QER, QEG, QEB, Q_PA, Q_TRI) = (
+    k * LANES for k in range(48))
+FLOAT_ROWS = 48
+# and of the int32 array (Q)
+HIT, DEPTH, OCCLUDED, DEAD, SEGMENTS, LIGHT = (k * LANES for k in range(6))
+INT_ROWS = 6
+# Primitive columns (float32, (PRIM_ROWS, primitives)): corner, edges, unit normal (edge1 ×
+# edge2), albedo, emission, the emission's light pmf over its area (0 for a surface that does not
+# emit), 1 for a triangle
+PRIM_ROWS = 20
+
+
+def unsupported(scene) -> str | None:
+    """Why the packet kernel cannot render this ``CompiledScene``, or None when it can."""
+    S = scene.arrays
+    n = len(S.prim_kind)
+    if n == 0:
+        return "no primitives"
+    if n > FLAT_MAX:
+        return f"{n} primitives (the packet kernel tests every one: at most {FLAT_MAX})"
+    if not np.isin(S.prim_kind, (QUAD, TRIANGLE)).all():
+        return "spheres (the packet kernel intersects quads and triangles)"
+    mats = np.unique(S.prim_material)
+    if (S.mat_kind[mats] != DIFFUSE).any():
+        return "materials other than diffuse"
+    if (S.mat_tex[mats, 1] >= 0.0).any():
+        return "textured materials"
+    if S.prim_normal.shape[0] > 0:
+        return "shading normals"
+    if (S.light_kind != AREA).any() or S.env_light[0] >= 0 or S.background.max() > 0.0:
+        return "lights other than emitting surfaces (point, directional, the background)"
+    if len(S.light_kind) == 0:
+        return "no light"
+    if S.sampler[0] != 0:
+        return "the sobol sampler"
+    lo, hi = prim_bounds(S.prim_kind, S.prim_geo)
+    size = float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
+    if scene_scale(scene) > FAR * size:
+        return (f"a scene {scene_scale(scene):.3g} from the origin for a size of {size:.3g} "
+                "(float32 lanes: the scalar kernel keeps float64)")
+    return None
+
+
+def scene_scale(scene) -> float:
+    """The largest coordinate of any primitive or the camera: what float32's rounding of a point
+    is relative to."""
+    S = scene.arrays
+    return max(float(S.prim_scale.max()), float(np.abs(S.camera[0:3]).max()))
+
+
+def prim_columns(scene) -> np.ndarray:
+    """The scene's primitives by column (``PRIM_ROWS`` rows of float32)."""
+    S = scene.arrays
+    geo = S.prim_geo
+    n = len(S.prim_kind)
+    cols = np.zeros((PRIM_ROWS, n))
+    cols[0:9] = geo[:, 0:9].T
+    normal = np.cross(geo[:, 3:6], geo[:, 6:9])
+    length = np.linalg.norm(normal, axis=1)
+    cols[9:12] = (normal / np.where(length > 0.0, length, 1.0)[:, None]).T
+    cols[12:15] = S.mat_param[S.prim_material, ALBEDO:ALBEDO + 3].T
+    tri = S.prim_kind == TRIANGLE
+    area = np.where(tri, 0.5 * length, length)
+    lit = S.prim_light >= 0
+    cols[15:18, lit] = S.light_data[S.prim_light[lit], 3:6].T
+    cols[18, lit] = S.light_pmf[S.prim_light[lit]] / area[lit]
+    cols[19] = tri
+    return np.ascontiguousarray(cols, F32)
+
+
+@_inlined
+def _step(z):
+    """The lane's next counter (a Weyl sequence in 32 bits)."""
+    return np.uint32(z + _WEYL)
+
+
+@_inlined
+def _float(z):
+    """A uniform float32 in [0, 1) from a counter: the top 24 bits of Wellons' lowbias32 hash.
+    32-bit integer lanes throughout (numba widens narrower integers to 64 bits; the casts let
+    LLVM keep 32, twice the lanes of a 64-bit generator)."""
+    z = np.uint32(z ^ (z >> np.uint32(16)))
+    z = np.uint32(z * _H1)
+    z = np.uint32(z ^ (z >> np.uint32(15)))
+    z = np.uint32(z * _H2)
+    z = np.uint32(z ^ (z >> np.uint32(16)))
+    return np.float32(z >> np.uint32(8)) * _TWO_POW_M24
+
+
+@_inlined
+def sin_cos_quarter(x):
+    """(sin x, cos x) for |x| ≤ π/4 by their Taylor polynomials to x⁹ and x⁸ (errors below
+    3e-8 and 4e-7 there, under float32's own rounding): LLVM vectorizes them, not libm's calls."""
+    x2 = x * x
+    s = x * (F32(1.0) + x2 * (F32(-1.0 / 6.0) + x2 * (F32(1.0 / 120.0) + x2 * (
+        F32(-1.0 / 5040.0) + x2 * F32(1.0 / 362880.0)))))
+    c = F32(1.0) + x2 * (F32(-0.5) + x2 * (F32(1.0 / 24.0) + x2 * (
+        F32(-1.0 / 720.0) + x2 * F32(1.0 / 40320.0))))
+    return s, c
+
+
+@_inlined
+def cosine_direction(u1, u2):
+    """A cosine-weighted direction about +z from two uniform draws (Shirley–Chiu's concentric
+    disk, lifted): (x, y, z) with z = cos θ, its pdf z/π. Branch-free, for the vector lanes."""
+    a = F32(2.0) * u1 - F32(1.0)
+    b = F32(2.0) * u2 - F32(1.0)
+    first = abs(a) > abs(b)
+    r = a if first else b
+    num = b if first else a
+    den = a if first else b
+    ratio = num / den if den != F32(0.0) else F32(0.0)
+    s, c = sin_cos_quarter(_QUARTER_PI * ratio)
+    x = r * c if first else r * s
+    y = r * s if first else r * c
+    z = math.sqrt(max(F32(0.0), F32(1.0) - x * x - y * y))
+    return x, y, z
+
+
+@kernel
+def _closest(P, Q, prims, eps):
+    """Every primitive against the packet's rays: T_HIT and HIT (−1: none)."""
+    for lane in range(LANES):
+        P[T_HIT + lane] = _INF
+        Q[HIT + lane] = -1
+    for q in range(prims.shape[1]):
+        g = _prim(prims, q)
+        for lane in range(LANES):
+            ok, t = _lane_hit(P, lane, DX, g, eps, P[T_HIT + lane])
+            P[T_HIT + lane] = t if ok else P[T_HIT + lane]
+            Q[HIT + lane] = q if ok else Q[HIT + lane]
+
+
+@_inlined
+def _prim(prims, q):
+    """Primitive q's corner, edges and triangle flag, loaded once for all the lanes."""
+    return (prims[0, q], prims[1, q], prims[2, q], prims[3, q], prims[4, q], prims[5, q],
+            prims[6, q], prims[7, q], prims[8, q], prims[19, q])
+
+
+@_inlined
+def _lane_hit(P, lane, d, g, eps, far):
+    """(hit, t): the lane's ray from (OX, OY, OZ) along rows d, d + 1, d + 2 of the packet
+    against the primitive ``g`` (``_prim``), between eps and far."""
+    t, u, v = _plane_hit(P[OX + lane], P[OY + lane], P[OZ + lane], P[d + lane],
+                         P[d + LANES + lane], P[d + 2 * LANES + lane],
+                         g[0], g[1], g[2], g[3], g[4], g[5], g[6], g[7], g[8])
+    tri = g[9]
+    ok = ((u >= F32(0.0)) & (v >= F32(0.0)) & (u + tri * v <= F32(1.0))
+          & (v + tri * u <= F32(1.0)) & (t > eps) & (t < far))
+    return ok, t
+
+
+@_inlined
+def _plane_hit(ox, oy, oz, dx, dy, dz, o0, o1, o2, a0, a1, a2, b0, b1, b2):
+    """Möller–Trumbore's (t, u, v) of a ray and the plane of a parallelogram or triangle (corner
+    o, edges a, b); a ray parallel to it gets non-finite values, which fail every test."""
+    px = dy * b2 - dz * b1
+    py = dz * b0 - dx * b2
+    pz = dx * b1 - dy * b0
+    inv = F32(1.0) / (a0 * px + a1 * py + a2 * pz)
+    t0, t1, t2 = ox - o0, oy - o1, oz - o2
+    u = (t0 * px + t1 * py + t2 * pz) * inv
+    q0 = t1 * a2 - t2 * a1
+    q1 = t2 * a0 - t0 * a2
+    q2 = t0 * a1 - t1 * a0
+    v = (dx * q0 + dy * q1 + dz * q2) * inv
+    t = (b0 * q0 + b1 * q1 + b2 * q2) * inv
+    return t, u, v
+
+
+@kernel
+def _gather(P, Q, rng, prims, light_prim, light_cdf):
+    """Each lane's hit primitive's columns (a miss reads primitive 0's, masked later) and a light
+    picked by power, with its columns."""
+    n_lights = light_cdf.shape[0]
+    for lane in range(LANES):
+        h = max(Q[HIT + lane], 0)
+        P[NX + lane], P[NY + lane], P[NZ + lane] = prims[9, h], prims[10, h], prims[11, h]
+        P[AR + lane], P[AG + lane], P[AB + lane] = prims[12, h], prims[13, h], prims[14, h]
+        P[ER + lane], P[EG + lane], P[EB + lane] = prims[15, h], prims[16, h], prims[17, h]
+        P[E_PA + lane] = prims[18, h]
+        z = _step(rng[lane])
+        rng[lane] = z
+        u = float(_float(z))
+        li = 0
+        while li < n_lights - 1 and u >= light_cdf[li]:
+            li += 1
+        q = light_prim[li]
+        if Q[LIGHT + lane] == q:
+            continue  # its columns are there from before (a scene of one light: always)
+        Q[LIGHT + lane] = q
+        for k in range(9):
+            P[QOX + k * LANES + lane] = prims[k, q]
+        P[QNX + lane], P[QNY + lane], P[QNZ + lane] = prims[9, q], prims[10, q], prims[11, q]
+        P[QER + lane], P[QEG + lane], P[QEB + lane] = prims[15, q], prims[16, q], prims[17, q]
+        P[Q_PA + lane], P[Q_TRI + lane] = prims[18, q], prims[19, q]
+
+
+@kernel
+def _shade(P, Q, rng, eps, max_depth):
+    """Emission seen, the light sample and its shadow ray, the next direction, the roulette."""
+    for lane in range(LANES):
+        miss = Q[HIT + lane] < 0
+        t = P[T_HIT + lane]
+        dx, dy, dz = P[DX + lane], P[DY + lane], P[DZ + lane]
+        nx, ny, nz = P[NX + lane], P[NY + lane], P[NZ + lane]
+        cos_d = nx * dx + ny * dy + nz * dz
+        # emission, on the normal's side only; weighted against the light sample that could
+        # have found it (none at the camera: PDF_B 0)
+        pdf_b = P[PDF_B + lane]
+        pdf_l = P[E_PA + lane] * t * t / max(-cos_d, F32(1e-20))
+        w = F32(1.0) if pdf_b == F32(0.0) else pdf_b * pdf_b / (pdf_b * pdf_b + pdf_l * pdf_l)
+        seen = (cos_d < F32(0.0)) & (not miss)
+        P[LR + lane] += P[TR + lane] * P[ER + lane] * w if seen else F32(0.0)
+        P[LG + lane] += P[TG + lane] * P[EG + lane] * w if seen else F32(0.0)
+        P[LB + lane] += P[TB + lane] * P[EB + lane] * w if seen else F32(0.0)
+        depth = Q[DEPTH + lane]
+        last = (max_depth >= np.int32(0)) & (depth >= max_depth)
+        # the surface facing the ray, the next origin off it
+        side = F32(-1.0) if cos_d > F32(0.0) else F32(1.0)
+        nx, ny, nz = nx * side, ny * side, nz * side
+        px = P[OX + lane] + t * dx + nx * eps
+        py = P[OY + lane] + t * dy + ny * eps
+        pz = P[OZ + lane] + t * dz + nz * eps
+        z = _step(rng[lane])
+        u1 = _float(z)
+        z = _step(z)
+        u2 = _float(z)
+        z = _step(z)
+        u3 = _float(z)
+        z = _step(z)
+        u4 = _float(z)
+        z = _step(z)
+        u5 = _float(z)
+        rng[lane] = z
+        # a point on the light picked in _gather (a triangle's: the parallelogram's folded)
+        fold = (P[Q_TRI + lane] > F32(0.0)) & (u1 + u2 > F32(1.0))
+        s1 = F32(1.0) - u1 if fold else u1
+        s2 = F32(1.0) - u2 if fold else u2
+        wx = P[QOX + lane] + s1 * P[QAX + lane] + s2 * P[QBX + lane] - px
+        wy = P[QOY + lane] + s1 * P[QAY + lane] + s2 * P[QBY + lane] - py
+        wz = P[QOZ + lane] + s1 * P[QAZ + lane] + s2 * P[QBZ + lane] - pz
+        d2 = wx * wx + wy * wy + wz * wz
+        dist = math.sqrt(d2)
+        wx, wy, wz = wx / dist, wy / dist, wz / dist
+        cos_s = nx * wx + ny * wy + nz * wz
+        cos_l = -(P[QNX + lane] * wx + P[QNY + lane] * wy + P[QNZ + lane] * wz)
+        pdf_ls = P[Q_PA + lane] * d2 / max(cos_l, F32(1e-20))
+        pdf_bs = cos_s * _INV_PI
+        # the power heuristic's weight × (cos / π) / pdf
+        f = pdf_ls * cos_s * _INV_PI / (pdf_ls * pdf_ls + pdf_bs * pdf_bs)
+        lit = ((cos_s > F32(0.0)) & (cos_l > F32(0.0)) & (not miss) & (not last)
+               & (d2 > F32(0.0)))
+        P[CR + lane] = P[TR + lane] * P[AR + lane] * P[QER + lane] * f if lit else F32(0.0)
+        P[CG + lane] = P[TG + lane] * P[AG + lane] * P[QEG + lane] * f if lit else F32(0.0)
+        P[CB + lane] = P[TB + lane] * P[AB + lane] * P[QEB + lane] * f if lit else F32(0.0)
+        P[SX + lane], P[SY + lane], P[SZ + lane] = wx, wy, wz
+        P[S_DIST + lane] = dist - eps
+        Q[OCCLUDED + lane] = 0 if lit else 1
+        # the next direction, cosine-weighted about the normal (Duff et al.'s branch-free basis)
+        lx, ly, lz = cosine_direction(u3, u4)
+        sign = F32(1.0) if nz >= F32(0.0) else F32(-1.0)
+        a = F32(-1.0) / (sign + nz)
+        b = nx * ny * a
+        P[DX + lane] = lx * (F32(1.0) + sign * nx * nx * a) + ly * b + lz * nx
+        P[DY + lane] = lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny
+        P[DZ + lane] = lx * (-sign * nx) + ly * (-ny) + lz * nz
+        P[PDF_B + lane] = lz * _INV_PI
+        P[OX + lane], P[OY + lane], P[OZ + lane] = px, py, pz
+        br = P[TR + lane] * P[AR + lane]
+        bg = P[TG + lane] * P[AG + lane]
+        bb = P[TB + lane] * P[AB + lane]
+        depth += np.int32(1)
+        q = min(max(br, max(bg, bb)), _RR_MAX)
+        roulette = depth >= _RR_DEPTH
+        scale = F32(1.0) / q if roulette else F32(1.0)
+        P[TR + lane], P[TG + lane], P[TB + lane] = br * scale, bg * scale, bb * scale
+        Q[DEPTH + lane] = depth
+        ends = miss | last | (roulette & (u5 >= q))
+        Q[DEAD + lane] = 1 if ends else 0
+
+
+@kernel
+def _shadow(P, Q, prims, eps):
+    """Every primitive against the packet's shadow rays: OCCLUDED."""
+    for q in range(prims.shape[1]):
+        g = _prim(prims, q)
+        for lane in range(LANES):
+            ok, _ = _lane_hit(P, lane, SX, g, eps, P[S_DIST + lane])
+            Q[OCCLUDED + lane] = 1 if ok else Q[OCCLUDED + lane]
+
+
+@kernel
+def _add_light(P, Q):
+    for lane in range(LANES):
+        free = Q[OCCLUDED + lane] == 0
+        P[LR + lane] += P[CR + lane] if free else F32(0.0)
+        P[LG + lane] += P[CG + lane] if free else F32(0.0)
+        P[LB + lane] += P[CB + lane] if free else F32(0.0)
+
+
+@kernel
+def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_depth, eps, x0, y0,
+                tile_w, tile_h, first_row, row_step, sample_start, counts, out_sum, out_sum_sq,
+                out_count, out_dropped, out_segments, P, Q, rng, lane_pixel):
+    """The paths of rows first_row, first_row + row_step, … of a tile, a packet at a time:
+    each pixel's samples [sample_start, sample_start + counts[pixel]) in turn."""
+    row = first_row
+    col = 0
+    s = 0
+    live = 0
+    for lane in range(LANES):
+        Q[DEAD + lane] = 1
+        Q[LIGHT + lane] = -1
+        lane_pixel[lane] = -1
+    while True:
+        for lane in range(LANES):
+            if Q[DEAD + lane] == 0:
+                continue
+            if lane_pixel[lane] >= 0:  # the path ended: its sample to the tile's buffer
+                ty, tx = lane_pixel[lane] // tile_w, lane_pixel[lane] % tile_w
+                r, g, b = float(P[LR + lane]), float(P[LG + lane]), float(P[LB + lane])
+                sq = r * r + g * g + b * b
+                if math.isfinite(sq) and sq < 1e300:
+                    out_sum[ty, tx, 0] += r
+                    out_sum[ty, tx, 1] += g
+                    out_sum[ty, tx, 2] += b
+                    out_sum_sq[ty, tx, 0] += r * r
+                    out_sum_sq[ty, tx, 1] += g * g
+                    out_sum_sq[ty, tx, 2] += b * b
+                    out_count[ty, tx] += 1
+                else:
+                    out_dropped[ty, tx] += 1
+                out_segments[ty, tx] += Q[SEGMENTS + lane]
+                lane_pixel[lane] = -1
+                live -= 1
+            # the next path of this thread's pixels, if any
+            while row < tile_h and s >= counts[row, col]:
+                s = 0
+                col += 1
+                if col == tile_w:
+                    col = 0
+                    row += row_step
+            if row >= tile_h:
+                continue
+            x, y = x0 + col, y0 + row
+            index = sample_start + s
+            s += 1
+            key = sample_key(seed, y * width + x, index)
+            z = _step(np.uint32((key ^ (key >> np.uint64(32))) & np.uint64(0xFFFFFFFF)))
+            jx = _float(z)
+            z = _step(z)
+            jy = _float(z)
+            rng[lane] = z
+            o, d = camera_ray(cam, width, height, x, y, float(jx), float(jy))
+            P[OX + lane], P[OY + lane], P[OZ + lane] = o
+            P[DX + lane], P[DY + lane], P[DZ + lane] = d
+            P[TR + lane], P[TG + lane], P[TB + lane] = F32(1.0), F32(1.0), F32(1.0)
+            P[LR + lane], P[LG + lane], P[LB + lane] = F32(0.0), F32(0.0), F32(0.0)
+            P[PDF_B + lane] = F32(0.0)
+            Q[DEPTH + lane] = 0
+            Q[SEGMENTS + lane] = 0
+            Q[DEAD + lane] = 0
+            lane_pixel[lane] = row * tile_w + col
+            live += 1
+        if live == 0:
+            return
+        for lane in range(LANES):
+            Q[SEGMENTS + lane] += 1 - Q[DEAD + lane]
+        _closest(P, Q, prims, eps)
+        _gather(P, Q, rng, prims, light_prim, light_cdf)
+        _shade(P, Q, rng, eps, np.int32(max_depth))
+        _shadow(P, Q, prims, eps)
+        _add_light(P, Q)
+        # lanes with no path (the thread's pixels done) stay dead, their sample unwritten
+        for lane in range(LANES):
+            if lane_pixel[lane] < 0:
+                Q[DEAD + lane] = 1
+
+
+def render_tile_packet(scene, x0: int, y0: int, width: int, height: int, sample_start: int,
+                       counts: np.ndarray) -> SampleBuffer:
+    """``render_tile`` (arguments checked there) by the packet kernel; ``counts`` (height, width)
+    int32: each pixel's samples, the first of [sample_start, …)."""
+    S = scene.arrays
+    buf = SampleBuffer.empty(x0, y0, width, height)
+    if not width or not height or not counts.any():
+        return buf
+    prims = prim_columns(scene)
+    eps = F32(EPS_REL * scene_scale(scene))
+    light_prim = np.ascontiguousarray(S.light_prim, np.int64)
+    light_cdf = np.ascontiguousarray(S.light_cdf, np.float64)
+    counts = np.ascontiguousarray(counts, np.int32)
+    n_chunks = max(1, min(height, numba.get_num_threads()))
+
+    def chunk(c: int) -> None:
+        packet_rows(prims, light_prim, light_cdf, S.camera, scene.width, scene.height,
+                    scene.seed, scene.max_depth, eps, x0, y0, width, height, c, n_chunks,
+                    sample_start, counts, buf.sum, buf.sum_sq, buf.count, buf.dropped,
+                    buf.segments, np.zeros(FLOAT_ROWS * LANES, F32),
+                    np.zeros(INT_ROWS * LANES, np.int32), np.zeros(LANES, np.uint32),
+                    np.zeros(LANES, np.int64))
+
+    run_chunks(chunk, n_chunks)
+    return buf
