@@ -18,7 +18,8 @@ is reported so, with its floor.
 Renderers: Mitsuba 3 ``llvm_ad_rgb`` (``path`` / ``volpath`` through ``renderer.mitsuba_bridge``)
 with its default ``independent`` sampler (the target's) and with ``ldsampler`` (its (0,2)-sequence
 sampler), Lucent as the example is written (the ``volumetric`` method for the translucent scenes),
-Lucent with ``render.sampler: sobol``, and Lucent with every translucent material switched to
+Lucent with ``render.sampler: sobol``, Lucent's packet kernel where it covers the scene
+(``renderer.packet``: the Cornell box), and Lucent with every translucent material switched to
 ``method: auto`` (what the farm does when the user does not choose). Both renderers use all
 cores. Mitsuba is an optional extra: without it the target is Lucent's own error at
 ``--target-spp``. Record results in docs/performance.md.
@@ -64,19 +65,29 @@ def scene_at_reference(name: str, ref: np.ndarray, method: str | None = None,
     return scene
 
 
-def ladder_lucent(scene: dict, ladder: list[int]) -> list[tuple[int, float, np.ndarray]]:
+def packet_covers(scene: dict) -> bool:
+    """Whether Lucent's packet kernel renders this scene (``renderer.packet.unsupported``)."""
+    from renderer.packet import unsupported
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    return unsupported(compile_scene(load_scene(copy.deepcopy(scene), allow_paths=True))) is None
+
+
+def ladder_lucent(scene: dict, ladder: list[int],
+                  kernel: str = "scalar") -> list[tuple[int, float, np.ndarray]]:
     """(spp, seconds, image) for each rung; rung k uses seed k + 1 (independent images)."""
     from renderer.render import render
     from renderer.scene import load_scene
     from renderer.scene.compile import compile_scene
 
     compiled = compile_scene(load_scene(copy.deepcopy(scene), allow_paths=True))
-    render(compiled, 1)  # loads the kernels (numba cache) outside the timing
+    render(compiled, 1, kernel=kernel)  # loads the kernels (numba cache) outside the timing
     rungs = []
     for k, spp in enumerate(ladder):
         compiled.seed = k + 1
         start = time.perf_counter()
-        image = render(compiled, spp)
+        image = render(compiled, spp, kernel=kernel)
         rungs.append((spp, time.perf_counter() - start, image))
     return rungs
 
@@ -146,6 +157,8 @@ def main() -> int:
         runs["lucent"] = ladder_lucent(base, args.ladder)
         runs["lucent sobol"] = ladder_lucent(scene_at_reference(name, ref, sampler="sobol"),
                                              args.ladder)
+        if packet_covers(base):
+            runs["lucent packet"] = ladder_lucent(base, args.ladder, "packet")
         if any(m["type"] == "translucent" for m in base["materials"].values()):
             runs["lucent auto"] = ladder_lucent(scene_at_reference(name, ref, "auto"),
                                                 args.ladder)

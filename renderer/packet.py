@@ -75,7 +75,7 @@ _TWO_POW_M24 = np.float32(1.0 / 16777216.0)
 # The helpers of the lane loops are inlined by numba before LLVM sees the loops: a call LLVM
 # inlines later (``inline_kernel``'s ``alwaysinline``) is still a call, returning a tuple, when
 # its loop vectorizer runs, and the shading loop then stayed scalar (4.0 against 5.4 M paths/s)
-_inlined = numba.njit(inline="always", **JIT_OPTIONS)
+_inlined = numba.njit(inline="always", _nrt=False, **JIT_OPTIONS)
 
 # The packet's state: row k of the float32 array (P) holds lanes [16k, 16k + 16)
 (OX, OY, OZ, DX, DY, DZ, TR, TG, TB, LR, LG, LB, PDF_B, T_HIT, SX, SY, SZ, S_DIST, CR, CG, CB,
