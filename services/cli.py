@@ -9,9 +9,9 @@ On this machine:
 On a farm (the code lives in ``services/`` and ``worker/``):
 
     lucent up [--host 127.0.0.1] [--port 8000] [--workers N] [--tags gpu,bigmem]
-              [--kernel scalar|wavefront|gpu]
+              [--kernel scalar|wavefront|gpu|packet]
     lucent worker --redis URL [--concurrency N] [--threads N] [--tags gpu,bigmem]
-                  [--kernel scalar|wavefront|gpu]
+                  [--kernel scalar|wavefront|gpu|packet]
     lucent submit SCENE.json [--server URL] [--wait] [-o OUT.{exr,png,npy}]
     lucent demo [SCENE.json] [-o OUT ...]
 """
@@ -358,7 +358,9 @@ def build_parser() -> argparse.ArgumentParser:
                    help="scalar: one path at a time, every method (default); wavefront: batches "
                         "of paths stage by stage, surface materials only (others fall back to "
                         "scalar); gpu: on this machine's CUDA GPU, every scene (the stages "
-                        "where they cover it)")
+                        "where they cover it); packet: 16 paths at once in the CPU's vector "
+                        "lanes, flat diffuse scenes lit by emitting surfaces (others fall back "
+                        "to scalar)")
     p.add_argument("--exposure", type=float, default=0.0,
                    help="PNG only: exposure in stops, the image is scaled by 2^EV (default 0)")
     p.add_argument("--tonemap", choices=["clamp", "reinhard", "aces"], default="clamp",
@@ -384,7 +386,8 @@ def build_parser() -> argparse.ArgumentParser:
                         "LUCENT_WORKER_TAGS): it also takes the jobs that require them")
     p.add_argument("--kernel", choices=KERNELS, default=None,
                    help="the kernel the worker node renders with (default: "
-                        "LUCENT_WORKER_KERNEL, else scalar); gpu: on this machine's CUDA GPU")
+                        "LUCENT_WORKER_KERNEL, else scalar); gpu: on this machine's CUDA GPU; "
+                        "packet: 16 paths in the vector lanes where it covers the scene")
     p.add_argument("--api-processes", type=int, default=API_PROCESSES,
                    help=f"processes serving the API (default {API_PROCESSES}; 1 serves it in "
                         "this process): the status polls one process answers are bounded by "
@@ -405,7 +408,8 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--kernel", choices=KERNELS, default=None,
                    help="the kernel the node renders with (default: LUCENT_WORKER_KERNEL, else "
                         "scalar); gpu: on this host's CUDA GPU (every scene), refused "
-                        "where none is seen; tag such a node gpu")
+                        "where none is seen; tag such a node gpu; packet: 16 paths in the "
+                        "vector lanes where it covers the scene")
     p.set_defaults(func=cmd_worker)
 
     p = sub.add_parser("submit", help="submit a scene to a farm")
