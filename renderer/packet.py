@@ -24,17 +24,18 @@ no background, the independent sampler. Anything else renders with the scalar ke
 
 Randomness: each path starts from its sample's key (``renderer.rng.sample_key`` of the seed, the
 pixel and the global sample index), so a tile's image does not depend on how the frame was cut or
-which thread took it; within a path a 64-bit LCG steps from that key (the top 24 bits a float32
-draw). The image is deterministic but not the scalar kernel's: it is checked against Mitsuba 3's
+which thread took it; within a path each draw hashes a 32-bit counter that starts from that key
+(a Weyl sequence through Wellons' lowbias32; the top 24 bits a float32 draw). The image is
+deterministic but not the scalar kernel's: it is checked against Mitsuba 3's
 (tests/renderer/test_packet.py), as the scalar kernel is.
 
 Float32, and where it is not enough: ray origins are moved off a surface by ``EPS_REL`` of the
 scene's scale (the largest coordinate of any primitive or of the camera), and hits nearer than
-that are ignored.
-float32 puts a point within ~6e-8 of that scale, 1600 times less than the offset, so no ray finds
-the surface it leaves; detail finer than 1e-4 of the scene's scale (a gap, a thin slab) is lost,
-which the scalar kernel's float64 keeps. A scene more than ``FAR`` times its size from the
-origin is the scalar kernel's. The film sums are float64, as the scalar kernel's.
+that are ignored. float32 puts a point within ~6e-8 of that scale, 1600 times less than the
+offset, so no ray finds the surface it leaves; detail finer than 1e-4 of the scene's scale (a
+gap, a thin slab) is lost, which the scalar kernel's float64 keeps. A scene more than ``FAR``
+times its size from the origin is the scalar kernel's. The film sums are float64, as the scalar
+kernel's.
 """
 
 from __future__ import annotations
@@ -74,7 +75,8 @@ _TWO_POW_M24 = np.float32(1.0 / 16777216.0)
 
 # The helpers of the lane loops are inlined by numba before LLVM sees the loops: a call LLVM
 # inlines later (``inline_kernel``'s ``alwaysinline``) is still a call, returning a tuple, when
-# its loop vectorizer runs, and the shading loop then stayed scalar (4.0 against 5.4 M paths/s)
+# its loop vectorizer runs, and the shading loop then stayed scalar (3.8-4.0 against 4.6-6.0 M
+# paths/s on the Cornell box)
 _inlined = numba.njit(inline="always", _nrt=False, **JIT_OPTIONS)
 
 # The packet's state: row k of the float32 array (P) holds lanes [16k, 16k + 16)

@@ -1094,3 +1094,32 @@ def test_a_worker_renders_its_passes_with_its_configured_kernel(in_process_worke
 
     want = rr.render_tile(compile_scene(load_scene(scene)), 0, 0, 16, 16, 0, 4)
     np.testing.assert_allclose(merged.sum, want.sum, rtol=1e-10)
+
+
+def test_a_packet_node_renders_the_scenes_the_packet_kernel_covers(in_process_worker, prefix,
+                                                                   cornell, monkeypatch):
+    """``worker_kernel`` ``packet``: the Cornell box's pass is the packet kernel's buffer (16
+    paths in the vector lanes, ``renderer.packet``), not the scalar kernel's."""
+    import renderer.render as rr
+    from renderer.film.buffer import SampleBuffer
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+    from worker import tasks
+
+    w = in_process_worker
+    w.state.settings = w.state.settings.model_copy(update={"worker_kernel": "packet"})
+    scene = _scene(cornell, 16, 16, 4)
+    with _api(w.server.url, prefix) as api:
+        job_id = _submit(api, scene, 16, 4)
+
+    def failed(store, settings, delivery, tile, pass_index, reason, node):
+        raise AssertionError(reason)
+
+    monkeypatch.setattr(tasks, "pass_failed", failed)
+    assert tasks.render_pass(job_id, 0, 0) == "merged"
+    merged = SampleBuffer.from_bytes(w.store.tile_buffer(job_id, 0))
+    cs = compile_scene(load_scene(scene))
+    want = rr.render_tile(cs, 0, 0, 16, 16, 0, 4, kernel="packet")
+    np.testing.assert_allclose(merged.sum, want.sum, rtol=1e-12)
+    np.testing.assert_array_equal(merged.count, want.count)
+    assert not np.allclose(merged.sum, rr.render_tile(cs, 0, 0, 16, 16, 0, 4).sum, rtol=1e-6)
