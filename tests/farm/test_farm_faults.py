@@ -1059,16 +1059,36 @@ def test_a_lost_nodes_pass_is_requeued_once_its_heartbeat_expires(own_redis, pre
         nodes.stop()
 
 
+def _one_pass_with_kernel(worker, prefix, cornell, monkeypatch, kernel: str):
+    """Tile 0's first pass of a 16×16 Cornell box (one tile, 4 spp) rendered by an in-process
+    worker whose ``worker_kernel`` is ``kernel`` (a failed pass fails the test); the merged
+    tile's buffer and the compiled scene."""
+    from renderer.film.buffer import SampleBuffer
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+    from worker import tasks
+
+    worker.state.settings = worker.state.settings.model_copy(update={"worker_kernel": kernel})
+    scene = _scene(cornell, 16, 16, 4)
+    with _api(worker.server.url, prefix) as api:
+        job_id = _submit(api, scene, 16, 4)
+
+    def failed(store, settings, delivery, tile, pass_index, reason, node):
+        raise AssertionError(reason)
+
+    monkeypatch.setattr(tasks, "pass_failed", failed)
+    assert tasks.render_pass(job_id, 0, 0) == "merged"
+    return (SampleBuffer.from_bytes(worker.store.tile_buffer(job_id, 0)),
+            compile_scene(load_scene(scene)))
+
+
 def test_a_worker_renders_its_passes_with_its_configured_kernel(in_process_worker, prefix,
                                                                  cornell, monkeypatch):
     """A node's ``worker_kernel`` (``lucent worker --kernel``) is the kernel its passes render
     with: with ``wavefront`` the pass goes through the batched kernel (a GPU node's ``gpu``
     through ``render_tile_gpu`` beside it), and the merged tile is that kernel's buffer."""
     import renderer.render as rr
-    from worker import tasks
 
-    w = in_process_worker
-    w.state.settings = w.state.settings.model_copy(update={"worker_kernel": "wavefront"})
     calls = []
     wavefront = rr.render_tile_wavefront
 
@@ -1077,22 +1097,10 @@ def test_a_worker_renders_its_passes_with_its_configured_kernel(in_process_worke
         return wavefront(*args, **kwargs)
 
     monkeypatch.setattr(rr, "render_tile_wavefront", batched)
-    scene = _scene(cornell, 16, 16, 4)
-    with _api(w.server.url, prefix) as api:
-        job_id = _submit(api, scene, 16, 4)
-    def failed(store, settings, delivery, tile, pass_index, reason, node):
-        raise AssertionError(reason)
-
-    monkeypatch.setattr(tasks, "pass_failed", failed)
-    assert tasks.render_pass(job_id, 0, 0) == "merged"
+    merged, cs = _one_pass_with_kernel(in_process_worker, prefix, cornell, monkeypatch,
+                                       "wavefront")
     assert calls == [(0, 0, 16, 16, 0, 4)]
-    from renderer.film.buffer import SampleBuffer
-    from renderer.scene import load_scene
-    from renderer.scene.compile import compile_scene
-
-    merged = SampleBuffer.from_bytes(w.store.tile_buffer(job_id, 0))
-
-    want = rr.render_tile(compile_scene(load_scene(scene)), 0, 0, 16, 16, 0, 4)
+    want = rr.render_tile(cs, 0, 0, 16, 16, 0, 4)
     np.testing.assert_allclose(merged.sum, want.sum, rtol=1e-10)
 
 
@@ -1101,24 +1109,8 @@ def test_a_packet_node_renders_the_scenes_the_packet_kernel_covers(in_process_wo
     """``worker_kernel`` ``packet``: the Cornell box's pass is the packet kernel's buffer (16
     paths in the vector lanes, ``renderer.packet``), not the scalar kernel's."""
     import renderer.render as rr
-    from renderer.film.buffer import SampleBuffer
-    from renderer.scene import load_scene
-    from renderer.scene.compile import compile_scene
-    from worker import tasks
 
-    w = in_process_worker
-    w.state.settings = w.state.settings.model_copy(update={"worker_kernel": "packet"})
-    scene = _scene(cornell, 16, 16, 4)
-    with _api(w.server.url, prefix) as api:
-        job_id = _submit(api, scene, 16, 4)
-
-    def failed(store, settings, delivery, tile, pass_index, reason, node):
-        raise AssertionError(reason)
-
-    monkeypatch.setattr(tasks, "pass_failed", failed)
-    assert tasks.render_pass(job_id, 0, 0) == "merged"
-    merged = SampleBuffer.from_bytes(w.store.tile_buffer(job_id, 0))
-    cs = compile_scene(load_scene(scene))
+    merged, cs = _one_pass_with_kernel(in_process_worker, prefix, cornell, monkeypatch, "packet")
     want = rr.render_tile(cs, 0, 0, 16, 16, 0, 4, kernel="packet")
     np.testing.assert_allclose(merged.sum, want.sum, rtol=1e-12)
     np.testing.assert_array_equal(merged.count, want.count)
