@@ -256,23 +256,26 @@ def _plane_hit(ox, oy, oz, dx, dy, dz, o0, o1, o2, a0, a1, a2, b0, b1, b2):
 @kernel
 def _gather(P, Q, rng, prims, light_prim, light_cdf):
     """Each lane's hit primitive's columns (a miss reads primitive 0's, masked later) and a light
-    picked by power, with its columns."""
-    n_lights = light_cdf.shape[0]
-    for lane in range(LANES):
+    picked by power, with its columns (a scene of one light: none to pick, its columns written
+    once, by the first call)."""
+    for lane in range(LANES):  # indexed loads: AVX-512's gathers
         h = max(Q[HIT + lane], 0)
         P[NX + lane], P[NY + lane], P[NZ + lane] = prims[9, h], prims[10, h], prims[11, h]
         P[AR + lane], P[AG + lane], P[AB + lane] = prims[12, h], prims[13, h], prims[14, h]
         P[ER + lane], P[EG + lane], P[EB + lane] = prims[15, h], prims[16, h], prims[17, h]
         P[E_PA + lane] = prims[18, h]
-        z = _step(rng[lane])
-        rng[lane] = z
-        u = float(_float(z))
+    n_lights = light_cdf.shape[0]
+    for lane in range(LANES):
         li = 0
-        while li < n_lights - 1 and u >= light_cdf[li]:
-            li += 1
+        if n_lights > 1:
+            z = _step(rng[lane])
+            rng[lane] = z
+            u = float(_float(z))
+            while li < n_lights - 1 and u >= light_cdf[li]:
+                li += 1
         q = light_prim[li]
         if Q[LIGHT + lane] == q:
-            continue  # its columns are there from before (a scene of one light: always)
+            continue  # its columns are there from before
         Q[LIGHT + lane] = q
         for k in range(9):
             P[QOX + k * LANES + lane] = prims[k, q]
