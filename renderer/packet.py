@@ -9,8 +9,9 @@ LLVM vectorizes (selects instead of branches; a stage per function, so that no v
 stage's loop is live after it):
 
 - closest hit: every primitive against the 16 rays (the flat scene's loop turned inside out);
-- gather: each lane's hit primitive's normal, albedo and emission, and a light picked by power
-  for it (a scalar loop: indexed loads, and the light's cumulative table);
+- gather: each lane's hit primitive's normal, albedo and emission (indexed loads, which AVX-512
+  gathers), and where the scene has several lights one picked by power (a scalar loop over the
+  cumulative table);
 - shade: emission seen (weighted by Veach's power heuristic against light sampling), a point on
   the light and its shadow ray, the cosine-weighted next direction, Russian roulette (Lucent's
   rule: from the ``RR_DEPTH``-th scattering event, q = min(max β, ``RR_MAX``));
