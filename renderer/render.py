@@ -38,9 +38,11 @@ def render_tile(
     its number of samples, the first ones of the range (integers; adaptive sampling). ``kernel`` is
     ``"scalar"`` (one path at a time, every method), ``"wavefront"`` (batches of paths stage by
     stage, ``renderer.wavefront``; it renders the scenes it covers, surface materials and the
-    independent sampler, and leaves the others to the scalar kernel) or ``"gpu"`` (this process's
+    independent sampler, and leaves the others to the scalar kernel), ``"gpu"`` (this process's
     CUDA GPU, every scene: the wavefront stages where they cover it, else the scalar kernel's
-    path function one thread a path; ``renderer.wavefront.gpu``).
+    path function one thread a path; ``renderer.wavefront.gpu``) or ``"packet"`` (16 paths at
+    once in float32 vector lanes, ``renderer.packet``: flat diffuse scenes lit by emitting
+    surfaces under the independent sampler; the scalar kernel renders the others).
     """
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {KERNELS}, not {kernel!r}")
