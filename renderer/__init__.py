@@ -68,8 +68,8 @@ def _wide_vectors() -> None:
     """On a CPU with AVX-512, let LLVM fill 512-bit vectors.
 
     LLVM tunes for Intel's AVX-512 server CPUs with ``prefer-256-bit`` (seen on Emerald
-    Rapids): its loop vectorizer then uses half of each AVX-512 register. The packet kernel's 16 float32
-    lanes (``renderer.packet``) fit one 512-bit register: with the preference lifted it drew
+    Rapids): its loop vectorizer then uses half of each AVX-512 register. The packet kernel's 16
+    float32 lanes (``renderer.packet``) fit one 512-bit register: with the preference lifted it drew
     7.60 / 6.74 M paths/s on the Cornell box against 5.98 / 5.15 (Xeon, Emerald Rapids, 2 cores,
     two rounds alternated, docs/performance.md "The packet kernel"), while the scalar kernel's
     scenes moved within the machine's spread. AMD's Zen 4 carries no such preference: nothing
