@@ -47,6 +47,7 @@ import numba
 import numpy as np
 
 from renderer.film.buffer import SampleBuffer
+from renderer.film.samples import add_sample
 from renderer.geometry.flat import FLAT_MAX
 from renderer.geometry.shapes import QUAD, TRIANGLE, prim_bounds
 from renderer.integrators.path import camera_ray
@@ -408,18 +409,8 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
                 continue
             if lane_pixel[lane] >= 0:  # the path ended: its sample to the tile's buffer
                 ty, tx = lane_pixel[lane] // tile_w, lane_pixel[lane] % tile_w
-                r, g, b = float(P[LR + lane]), float(P[LG + lane]), float(P[LB + lane])
-                sq = r * r + g * g + b * b
-                if math.isfinite(sq) and sq < 1e300:
-                    out_sum[ty, tx, 0] += r
-                    out_sum[ty, tx, 1] += g
-                    out_sum[ty, tx, 2] += b
-                    out_sum_sq[ty, tx, 0] += r * r
-                    out_sum_sq[ty, tx, 1] += g * g
-                    out_sum_sq[ty, tx, 2] += b * b
-                    out_count[ty, tx] += 1
-                else:
-                    out_dropped[ty, tx] += 1
+                add_sample(out_sum, out_sum_sq, out_count, out_dropped, ty, tx,
+                           float(P[LR + lane]), float(P[LG + lane]), float(P[LB + lane]))
                 out_segments[ty, tx] += Q[SEGMENTS + lane]
                 lane_pixel[lane] = -1
                 live -= 1

@@ -17,6 +17,7 @@ import math
 
 from numba import prange
 
+from renderer.film.samples import add_sample
 from renderer.geometry.bvh import intersect_closest, traversal_stack
 from renderer.geometry.shapes import spawn_offset, surface_point
 from renderer.integrators.path import camera_ray, escaped_radiance
@@ -259,17 +260,8 @@ def accumulate_one(P, w, g0, first, work, out_sum, out_sum_sq, out_count, out_dr
     col = slot - row * tile_w
     for g in range(first[w], first[w + 1]):
         i = g - g0
-        r, gr, b = P.L[i, 0], P.L[i, 1], P.L[i, 2]
-        if math.isfinite(r * r) and math.isfinite(gr * gr) and math.isfinite(b * b):
-            out_sum[row, col, 0] += r
-            out_sum[row, col, 1] += gr
-            out_sum[row, col, 2] += b
-            out_sum_sq[row, col, 0] += r * r
-            out_sum_sq[row, col, 1] += gr * gr
-            out_sum_sq[row, col, 2] += b * b
-            out_count[row, col] += 1
-        else:
-            out_dropped[row, col] += 1
+        add_sample(out_sum, out_sum_sq, out_count, out_dropped, row, col, P.L[i, 0], P.L[i, 1],
+                   P.L[i, 2])
 
 
 # --- the CPU stages: each a parallel loop over a queue of path slots ------------------------------
