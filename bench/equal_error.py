@@ -18,10 +18,10 @@ is reported so, with its floor.
 Renderers: Mitsuba 3 ``llvm_ad_rgb`` (``path`` / ``volpath`` through ``renderer.mitsuba_bridge``)
 with its default ``independent`` sampler (the target's) and with ``ldsampler`` (its (0,2)-sequence
 sampler), Lucent as the example is written (the ``volumetric`` method for the translucent scenes),
-Lucent with ``render.sampler: sobol``, Lucent's packet kernel where it covers the scene
-(``renderer.packet``: the Cornell box), and Lucent with every translucent material switched to
-``method: auto`` (what the farm does when the user does not choose). Both renderers use all
-cores. Mitsuba is an optional extra: without it the target is Lucent's own error at
+Lucent with ``render.sampler: sobol``, Lucent's packet kernel with each sampler where it covers
+the scene (``renderer.packet``: the Cornell box), and Lucent with every translucent material
+switched to ``method: auto`` (what the farm does when the user does not choose). Both renderers
+use all cores. Mitsuba is an optional extra: without it the target is Lucent's own error at
 ``--target-spp``. Record results in docs/performance.md.
 """
 
@@ -159,6 +159,8 @@ def main() -> int:
                                              args.ladder)
         if packet_covers(base):
             runs["lucent packet"] = ladder_lucent(base, args.ladder, "packet")
+            runs["lucent packet sobol"] = ladder_lucent(
+                scene_at_reference(name, ref, sampler="sobol"), args.ladder, "packet")
         if any(m["type"] == "translucent" for m in base["materials"].values()):
             runs["lucent auto"] = ladder_lucent(scene_at_reference(name, ref, "auto"),
                                                 args.ladder)

@@ -21,14 +21,19 @@ stage's loop is live after it):
 
 Covered (``unsupported`` says why not): flat scenes (at most ``FLAT_MAX`` primitives) of quads
 and triangles, untextured ``diffuse`` materials, emitting quads and triangles as the only lights,
-no background, the independent sampler. Anything else renders with the scalar kernel.
+no background, the independent and the sobol samplers. Anything else renders with the scalar
+kernel.
 
 Randomness: each path starts from its sample's key (``renderer.rng.sample_key`` of the seed, the
 pixel and the global sample index), so a tile's image does not depend on how the frame was cut or
 which thread took it; within a path each draw hashes a 32-bit counter that starts from that key
 (a Weyl sequence through Wellons' lowbias32; the top 24 bits a float32 draw). The image is
 deterministic but not the scalar kernel's: it is checked against Mitsuba 3's
-(tests/renderer/test_packet.py), as the scalar kernel is.
+(tests/renderer/test_packet.py), as the scalar kernel is. Under the sobol sampler the camera
+jitter and the first ``SOBOL_VERTICES`` vertices' light pick, point on the light and direction
+come from the scalar kernel's sequences (``renderer.integrators.sampler.draw``: the same pixel
+seeds, blocks and shuffled, Owen-scrambled (0,2)-sequences), computed in 32-bit lanes
+(``_sobol_stage``) to 24 bits; the roulette and deeper vertices stay independent.
 
 Float32, and where it is not enough: ray origins are moved off a surface by ``EPS_REL`` of the
 scene's scale (the largest coordinate of any primitive or of the camera), and hits nearer than
@@ -52,11 +57,12 @@ from renderer.geometry.flat import FLAT_MAX
 from renderer.geometry.shapes import QUAD, TRIANGLE, prim_bounds
 from renderer.integrators.path import camera_ray
 from renderer.integrators.roulette import RR_DEPTH, RR_MAX
+from renderer.integrators.sampler import PIXEL_SEED_SALT, SOBOL_BLOCKS, SOBOL_VERTICES
 from renderer.jit import JIT_OPTIONS, kernel, run_chunks
 from renderer.lights import AREA
 from renderer.materials.bsdf import DIFFUSE
 from renderer.materials.diffuse import ALBEDO
-from renderer.rng import sample_key
+from renderer.rng import mix64, sample_key, sobol_block_seeds, sobol_value
 
 LANES = 16
 F32 = np.float32
@@ -84,12 +90,19 @@ _inlined = numba.njit(inline="always", _nrt=False, **JIT_OPTIONS)
 # The packet's state: row k of the float32 array (P) holds lanes [16k, 16k + 16)
 (OX, OY, OZ, DX, DY, DZ, TR, TG, TB, LR, LG, LB, PDF_B, T_HIT, SX, SY, SZ, S_DIST, CR, CG, CB,
  NX, NY, NZ, AR, AG, AB, ER, EG, EB, E_PA,
- QOX, QOY, QOZ, QAX, QAY, QAZ, QBX, QBY, QBZ, QNX, QNY, QNZ, QER, QEG, QEB, Q_PA, Q_TRI) = (
-    k * LANES for k in range(48))
-FLOAT_ROWS = 48
-# and of the int32 array (Q)
-HIT, DEPTH, OCCLUDED, DEAD, SEGMENTS, LIGHT = (k * LANES for k in range(6))
-INT_ROWS = 6
+ QOX, QOY, QOZ, QAX, QAY, QAZ, QBX, QBY, QBZ, QNX, QNY, QNZ, QER, QEG, QEB, Q_PA, Q_TRI,
+ U_PICK, U_L1, U_L2, U_B1, U_B2) = (k * LANES for k in range(53))
+FLOAT_ROWS = 53
+# and of the int32 array (Q); SIDX is the path's global sample index (the sobol sampler's)
+HIT, DEPTH, OCCLUDED, DEAD, SEGMENTS, LIGHT, SIDX = (k * LANES for k in range(7))
+INT_ROWS = 7
+# The sobol sampler's seeds of each lane's pixel (uint32, row 3b + c: block b's index shuffle (c
+# 0) and point scrambles (c 1, 2), ``sobol_block_seeds``); a vertex's blocks are those of
+# ``renderer.integrators.sampler.draw``: 1 + 5v the light pick, + 1 the point on the light, + 3
+# the direction
+SEED_ROWS = 3 * SOBOL_BLOCKS
+if SOBOL_VERTICES != 2:  # _lane_seed selects between vertex 0's and vertex 1's seeds
+    raise ImportError("renderer.packet's sobol stage is written for SOBOL_VERTICES = 2")
 # Primitive columns (float32, (PRIM_ROWS, primitives)): corner, edges, unit normal (edge1 ×
 # edge2), albedo, emission, the emission's light pmf over its area (0 for a surface that does not
 # emit), 1 for a triangle
@@ -117,8 +130,6 @@ def unsupported(scene) -> str | None:
         return "lights other than emitting surfaces (point, directional, the background)"
     if len(S.light_kind) == 0:
         return "no light"
-    if S.sampler[0] != 0:
-        return "the sobol sampler"
     lo, hi = prim_bounds(S.prim_kind, S.prim_geo)
     size = float(np.linalg.norm(hi.max(axis=0) - lo.min(axis=0)))
     if scene_scale(scene) > FAR * size:
@@ -203,6 +214,96 @@ def cosine_direction(u1, u2):
     return x, y, z
 
 
+_M1 = np.uint32(0x55555555)
+_M2 = np.uint32(0x33333333)
+_M4 = np.uint32(0x0F0F0F0F)
+_M8 = np.uint32(0x00FF00FF)
+_LK1 = np.uint32(0x6C50B47C)
+_LK2 = np.uint32(0xB82F1E52)
+_LK3 = np.uint32(0xC7AFE638)
+_LK4 = np.uint32(0x8D22F6E6)
+_TWO_POW_M24_SOBOL = np.float32(1.0 / 16777216.0)
+
+
+@_inlined
+def reverse32(x):
+    """``renderer.rng.reverse_bits32`` in 32-bit lanes."""
+    x = np.uint32(((x >> np.uint32(1)) & _M1) | ((x & _M1) << np.uint32(1)))
+    x = np.uint32(((x >> np.uint32(2)) & _M2) | ((x & _M2) << np.uint32(2)))
+    x = np.uint32(((x >> np.uint32(4)) & _M4) | ((x & _M4) << np.uint32(4)))
+    x = np.uint32(((x >> np.uint32(8)) & _M8) | ((x & _M8) << np.uint32(8)))
+    return np.uint32((x >> np.uint32(16)) | (x << np.uint32(16)))
+
+
+@_inlined
+def laine_karras32(x, seed):
+    """``renderer.rng._laine_karras`` in 32-bit lanes."""
+    x = np.uint32(x + seed)
+    x = np.uint32(x ^ np.uint32(x * _LK1))
+    x = np.uint32(x ^ np.uint32(x * _LK2))
+    x = np.uint32(x ^ np.uint32(x * _LK3))
+    return np.uint32(x ^ np.uint32(x * _LK4))
+
+
+_S1 = np.uint32(0xAAAAAAAA)
+_S2 = np.uint32(0xCCCCCCCC)
+_S4 = np.uint32(0xF0F0F0F0)
+_S8 = np.uint32(0xFF00FF00)
+_S16 = np.uint32(0xFFFF0000)
+
+
+@_inlined
+def pascal32(y):
+    """Sobol' dimension 2 (the Pascal matrix mod 2) of the index whose bit reversal is y, bit
+    reversed: by Lucas' theorem C(k, j) is odd iff j's bits are a subset of k's, so bit j of the
+    value is the XOR of y's bits k ⊇ j, a superset sum in five shift-and-XOR steps (the scalar
+    kernel's ``_linear_map(_PASCAL_REVERSED, ·)`` of the unreversed index, without its table
+    lookups, which keep LLVM from vectorizing the loop: it cannot bound a gather's addresses)."""
+    y = np.uint32(y ^ ((y & _S1) >> np.uint32(1)))
+    y = np.uint32(y ^ ((y & _S2) >> np.uint32(2)))
+    y = np.uint32(y ^ ((y & _S4) >> np.uint32(4)))
+    y = np.uint32(y ^ ((y & _S8) >> np.uint32(8)))
+    return np.uint32(y ^ ((y & _S16) >> np.uint32(16)))
+
+
+@_inlined
+def sobol_pair32(reversed_index, shuffle, scramble0, scramble1):
+    """Components 0 and 1 of a point of the shuffled, scrambled (0,2)-sequence
+    (``renderer.rng.sobol_value``, to float32's 24 bits), from the point's reversed index."""
+    y0 = reverse32(laine_karras32(reversed_index, shuffle))
+    u0 = reverse32(laine_karras32(y0, scramble0))
+    u1 = reverse32(laine_karras32(pascal32(y0), scramble1))
+    return (np.float32(u0 >> np.uint32(8)) * _TWO_POW_M24_SOBOL,
+            np.float32(u1 >> np.uint32(8)) * _TWO_POW_M24_SOBOL)
+
+
+@_inlined
+def _lane_seed(SD, block, vertex, lane, c):
+    """Seed c of the lane's block at vertex 0 or 1 (the two loaded as vectors, then selected)."""
+    a = SD[(3 * (1 + block) + c) * LANES + lane]
+    b = SD[(3 * (6 + block) + c) * LANES + lane]
+    return a if vertex == 0 else b
+
+
+@kernel
+def _sobol_stage(P, Q, SD):
+    """Under the sobol sampler, each lane's light pick, point on the light and direction at its
+    vertex (rows U_PICK … U_B2), for the lanes at one of the first SOBOL_VERTICES vertices (the
+    others compute vertex 1's values, unused)."""
+    for lane in range(LANES):
+        vertex = min(Q[DEPTH + lane], np.int32(SOBOL_VERTICES - 1))
+        r = reverse32(np.uint32(Q[SIDX + lane]))
+        P[U_PICK + lane], _ = sobol_pair32(r, _lane_seed(SD, 0, vertex, lane, 0),
+                                           _lane_seed(SD, 0, vertex, lane, 1),
+                                           _lane_seed(SD, 0, vertex, lane, 1))
+        P[U_L1 + lane], P[U_L2 + lane] = sobol_pair32(
+            r, _lane_seed(SD, 1, vertex, lane, 0), _lane_seed(SD, 1, vertex, lane, 1),
+            _lane_seed(SD, 1, vertex, lane, 2))
+        P[U_B1 + lane], P[U_B2 + lane] = sobol_pair32(
+            r, _lane_seed(SD, 3, vertex, lane, 0), _lane_seed(SD, 3, vertex, lane, 1),
+            _lane_seed(SD, 3, vertex, lane, 2))
+
+
 @kernel
 def _closest(P, Q, prims, eps):
     """Every primitive against the packet's rays: T_HIT and HIT (−1: none)."""
@@ -256,10 +357,10 @@ def _plane_hit(ox, oy, oz, dx, dy, dz, o0, o1, o2, a0, a1, a2, b0, b1, b2):
 
 
 @kernel
-def _gather(P, Q, rng, prims, light_prim, light_cdf):
+def _gather(P, Q, rng, prims, light_prim, light_cdf, sobol):
     """Each lane's hit primitive's columns (a miss reads primitive 0's, masked later) and a light
     picked by power, with its columns (a scene of one light: none to pick, its columns written
-    once, by the first call)."""
+    once, by the first call). ``sobol``: the pick of the first vertices is U_PICK's."""
     for lane in range(LANES):  # indexed loads: AVX-512's gathers
         h = max(Q[HIT + lane], 0)
         P[NX + lane], P[NY + lane], P[NZ + lane] = prims[9, h], prims[10, h], prims[11, h]
@@ -273,6 +374,8 @@ def _gather(P, Q, rng, prims, light_prim, light_cdf):
             z = _step(rng[lane])
             rng[lane] = z
             u = float(_float(z))
+            if sobol and Q[DEPTH + lane] < SOBOL_VERTICES:
+                u = float(P[U_PICK + lane])
             while li < n_lights - 1 and u >= light_cdf[li]:
                 li += 1
         q = light_prim[li]
@@ -287,8 +390,9 @@ def _gather(P, Q, rng, prims, light_prim, light_cdf):
 
 
 @kernel
-def _shade(P, Q, rng, eps, max_depth):
-    """Emission seen, the light sample and its shadow ray, the next direction, the roulette."""
+def _shade(P, Q, rng, eps, max_depth, sobol):
+    """Emission seen, the light sample and its shadow ray, the next direction, the roulette;
+    ``sobol``: the first vertices' light point and direction are the sobol stage's."""
     for lane in range(LANES):
         miss = Q[HIT + lane] < 0
         t = P[T_HIT + lane]
@@ -323,6 +427,11 @@ def _shade(P, Q, rng, eps, max_depth):
         z = _step(z)
         u5 = _float(z)
         rng[lane] = z
+        stratified = sobol & (depth < np.int32(SOBOL_VERTICES))
+        u1 = P[U_L1 + lane] if stratified else u1
+        u2 = P[U_L2 + lane] if stratified else u2
+        u3 = P[U_B1 + lane] if stratified else u3
+        u4 = P[U_B2 + lane] if stratified else u4
         # a point on the light picked in _gather (a triangle's: the parallelogram's folded)
         fold = (P[Q_TRI + lane] > F32(0.0)) & (u1 + u2 > F32(1.0))
         s1 = F32(1.0) - u1 if fold else u1
@@ -392,17 +501,23 @@ def _add_light(P, Q):
 @kernel
 def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_depth, eps, x0, y0,
                 tile_w, tile_h, first_row, row_step, sample_start, counts, out_sum, out_sum_sq,
-                out_count, out_dropped, out_segments, P, Q, rng, lane_pixel):
+                out_count, out_dropped, out_segments, sobol, P, Q, rng, lane_pixel, SD, sob,
+                seed_pixel):
     """The paths of rows first_row, first_row + row_step, … of a tile, a packet at a time:
-    each pixel's samples [sample_start, sample_start + counts[pixel]) in turn."""
+    each pixel's samples [sample_start, sample_start + counts[pixel]) in turn. Under the
+    ``sobol`` sampler, ``sob`` (SOBOL_BLOCKS, 3) holds the sequence seeds of the pixel the
+    thread is at, ``SD`` (SEED_ROWS × LANES) those of each lane's, ``seed_pixel`` (LANES) whose
+    they are."""
     row = first_row
     col = 0
     s = 0
     live = 0
+    sob_pixel = -1
     for lane in range(LANES):
         Q[DEAD + lane] = 1
         Q[LIGHT + lane] = -1
         lane_pixel[lane] = -1
+        seed_pixel[lane] = -1
     while True:
         for lane in range(LANES):
             if Q[DEAD + lane] == 0:
@@ -426,13 +541,26 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
             x, y = x0 + col, y0 + row
             index = sample_start + s
             s += 1
-            key = sample_key(seed, y * width + x, index)
+            pixel = y * width + x
+            key = sample_key(seed, pixel, index)
             z = _step(np.uint32((key ^ (key >> np.uint64(32))) & np.uint64(0xFFFFFFFF)))
-            jx = _float(z)
+            jx = float(_float(z))
             z = _step(z)
-            jy = _float(z)
+            jy = float(_float(z))
             rng[lane] = z
-            o, d = camera_ray(cam, width, height, x, y, float(jx), float(jy))
+            if sobol:
+                if sob_pixel != pixel:  # the thread's next pixel: its sequences' seeds
+                    sobol_block_seeds(mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT), sob)
+                    sob_pixel = pixel
+                if seed_pixel[lane] != pixel:
+                    for b in range(SOBOL_BLOCKS):
+                        for c in range(3):
+                            SD[(3 * b + c) * LANES + lane] = np.uint32(sob[b, c])
+                    seed_pixel[lane] = pixel
+                jx = sobol_value(index, sob[0, 0], sob[0, 1], 0)
+                jy = sobol_value(index, sob[0, 0], sob[0, 2], 1)
+                Q[SIDX + lane] = np.int32(index)
+            o, d = camera_ray(cam, width, height, x, y, jx, jy)
             P[OX + lane], P[OY + lane], P[OZ + lane] = o
             P[DX + lane], P[DY + lane], P[DZ + lane] = d
             P[TR + lane], P[TG + lane], P[TB + lane] = F32(1.0), F32(1.0), F32(1.0)
@@ -448,8 +576,10 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
         for lane in range(LANES):
             Q[SEGMENTS + lane] += 1 - Q[DEAD + lane]
         _closest(P, Q, prims, eps)
-        _gather(P, Q, rng, prims, light_prim, light_cdf)
-        _shade(P, Q, rng, eps, np.int32(max_depth))
+        if sobol:
+            _sobol_stage(P, Q, SD)
+        _gather(P, Q, rng, prims, light_prim, light_cdf, sobol)
+        _shade(P, Q, rng, eps, np.int32(max_depth), sobol)
         _shadow(P, Q, prims, eps)
         _add_light(P, Q)
         # lanes with no path (the thread's pixels done) stay dead, their sample unwritten
@@ -477,9 +607,10 @@ def render_tile_packet(scene, x0: int, y0: int, width: int, height: int, sample_
         packet_rows(prims, light_prim, light_cdf, S.camera, scene.width, scene.height,
                     scene.seed, scene.max_depth, eps, x0, y0, width, height, c, n_chunks,
                     sample_start, counts, buf.sum, buf.sum_sq, buf.count, buf.dropped,
-                    buf.segments, np.zeros(FLOAT_ROWS * LANES, F32),
+                    buf.segments, S.sampler[0] == 1, np.zeros(FLOAT_ROWS * LANES, F32),
                     np.zeros(INT_ROWS * LANES, np.int32), np.zeros(LANES, np.uint32),
-                    np.zeros(LANES, np.int64))
+                    np.zeros(LANES, np.int64), np.zeros(SEED_ROWS * LANES, np.uint32),
+                    np.zeros((SOBOL_BLOCKS, 3), np.uint64), np.zeros(LANES, np.int64))
 
     run_chunks(chunk, n_chunks)
     return buf
