@@ -9,9 +9,9 @@ LLVM vectorizes (selects instead of branches; a stage per function, so that no v
 stage's loop is live after it):
 
 - closest hit: every primitive against the 16 rays (the flat scene's loop turned inside out);
-- gather: each lane's hit primitive's normal, albedo and emission (indexed loads, which AVX-512
-  gathers), and where the scene has several lights one picked by power (a scalar loop over the
-  cumulative table);
+- gather: each lane's hit primitive's normal, albedo and emission (indexed loads: LLVM leaves
+  this loop scalar, as it cannot bound the loads' addresses), and where the scene has several
+  lights one picked by power (a scalar loop over the cumulative table);
 - shade: emission seen (weighted by Veach's power heuristic against light sampling), a point on
   the light and its shadow ray, the cosine-weighted next direction, Russian roulette (Lucent's
   rule: from the ``RR_DEPTH``-th scattering event, q = min(max β, ``RR_MAX``));
@@ -19,10 +19,19 @@ stage's loop is live after it):
 - a lane whose path ended writes its sample to the tile's buffer and starts the next path of
   its thread's pixels at once (path regeneration: the lanes stay full).
 
+The seed paper's ``single_scatter`` media (Lundgren, "A Simple Approach To Translucent
+Materials") add stages, run only in a scene that has them: inside a medium a free flight that
+may end at its one scattering event, or after that event the segment's attenuation
+(``_flight``); the medium entered or left where the ray crossed a surface straight on
+(``_enter``); the event's light sample, weighted against the Henyey–Greenstein phase function,
+and its direction (``_scatter``); shadow rays through the media, which sum their optical depth as
+``renderer.integrators.shadow.flat_transmittance`` does (``_shadow_media``). exp and log are
+polynomials (``exp32``, ``log32``), as libm's calls would keep LLVM from vectorizing the loops.
+
 Covered (``unsupported`` says why not): flat scenes (at most ``FLAT_MAX`` primitives) of quads
-and triangles, untextured ``diffuse`` materials, emitting quads and triangles as the only lights,
-no background, the independent and the sobol samplers. Anything else renders with the scalar
-kernel.
+and triangles, untextured ``diffuse`` and grey ``single_scatter`` materials, emitting quads and
+triangles as the only lights, no background, the independent and the sobol samplers (a medium's
+free flights draw independently). Anything else renders with the scalar kernel.
 
 Randomness: each path starts from its sample's key (``renderer.rng.sample_key`` of the seed, the
 pixel and the global sample index), so a tile's image does not depend on how the frame was cut or
@@ -60,8 +69,11 @@ from renderer.integrators.roulette import RR_DEPTH, RR_MAX
 from renderer.integrators.sampler import PIXEL_SEED_SALT, SOBOL_BLOCKS, SOBOL_VERTICES
 from renderer.jit import JIT_OPTIONS, kernel, run_chunks
 from renderer.lights import AREA
-from renderer.materials.bsdf import DIFFUSE
+from renderer.materials.bsdf import DIFFUSE, SINGLE_SCATTER
 from renderer.materials.diffuse import ALBEDO
+from renderer.materials.phase import ISOTROPIC_G
+from renderer.materials.translucent import ALBEDO as MEDIUM_ALBEDO
+from renderer.materials.translucent import CHROMATIC, DENSITY, SIGMA_T, SURFACE_FRACTION, G
 from renderer.rng import mix64, sample_key, sobol_block_seeds, sobol_value
 
 LANES = 16
@@ -73,6 +85,7 @@ EPS_REL = 1e-4  # the ray offset and least hit distance, as a share of the scene
 FAR = 10.0
 _INF = np.float32(1e30)
 _INV_PI = np.float32(1.0 / math.pi)
+_INV_4PI = np.float32(0.25 / math.pi)
 _QUARTER_PI = np.float32(math.pi / 4.0)
 _RR_MAX = np.float32(RR_MAX)
 _RR_DEPTH = np.int32(RR_DEPTH)
@@ -91,11 +104,23 @@ _inlined = numba.njit(inline="always", _nrt=False, **JIT_OPTIONS)
 (OX, OY, OZ, DX, DY, DZ, TR, TG, TB, LR, LG, LB, PDF_B, T_HIT, SX, SY, SZ, S_DIST, CR, CG, CB,
  NX, NY, NZ, AR, AG, AB, ER, EG, EB, E_PA,
  QOX, QOY, QOZ, QAX, QAY, QAZ, QBX, QBY, QBZ, QNX, QNY, QNZ, QER, QEG, QEB, Q_PA, Q_TRI,
- U_PICK, U_L1, U_L2, U_B1, U_B2) = (k * LANES for k in range(53))
-FLOAT_ROWS = 53
-# and of the int32 array (Q); SIDX is the path's global sample index (the sobol sampler's)
-HIT, DEPTH, OCCLUDED, DEAD, SEGMENTS, LIGHT, SIDX = (k * LANES for k in range(7))
-INT_ROWS = 7
+ U_PICK, U_L1, U_L2, U_B1, U_B2,
+ PPX, PPY, PPZ, HSS, HSF, HSIG, HSR, HSG, HSB, HG,
+ MSIG, MSR, MSG, MSB, MAR, MAG, MAB, MG, FLIGHT, TAUR, TAUG, TAUB, OPR, OPG, OPB, STR) = (
+    k * LANES for k in range(79))
+FLOAT_ROWS = 79
+# PPX…: the path's last scattering vertex (the light pdf of an emitter found next is measured
+# from it); HSS…: the hit primitive's medium (1 for single_scatter, its surface fraction, grey
+# σt, σt per channel, g); MSIG…: the medium the lane's ray is in (σt, per channel, albedo, g);
+# FLIGHT: the free flight's distance; TAUR…STR: the shadow ray's optical depth, the σt of the
+# media open along it, and the surfaces' share let in
+# The int32 array (Q); SIDX is the path's global sample index (the sobol sampler's); IN_MED: the
+# ray is inside a single_scatter medium, DONE: which has had its one event; EVENT: this segment
+# ended at that event; N_OPEN: media open along the shadow ray; CROSS: 1 (−1) where the ray
+# crossed into (out of) a single_scatter medium at this segment's surface
+HIT, DEPTH, OCCLUDED, DEAD, SEGMENTS, LIGHT, SIDX, IN_MED, DONE, EVENT, N_OPEN, CROSS = (
+    k * LANES for k in range(12))
+INT_ROWS = 12
 # The sobol sampler's seeds of each lane's pixel (uint32, row 3b + c: block b's index shuffle (c
 # 0) and point scrambles (c 1, 2), ``sobol_block_seeds``); a vertex's blocks are those of
 # ``renderer.integrators.sampler.draw``: 1 + 5v the light pick, + 1 the point on the light, + 3
@@ -105,8 +130,9 @@ if SOBOL_VERTICES != 2:  # _lane_seed selects between vertex 0's and vertex 1's 
     raise ImportError("renderer.packet's sobol stage is written for SOBOL_VERTICES = 2")
 # Primitive columns (float32, (PRIM_ROWS, primitives)): corner, edges, unit normal (edge1 ×
 # edge2), albedo, emission, the emission's light pmf over its area (0 for a surface that does not
-# emit), 1 for a triangle
-PRIM_ROWS = 20
+# emit), 1 for a triangle; then its material's medium: 1 for single_scatter, the surface
+# fraction, grey σt, σt per channel, g
+PRIM_ROWS = 27
 
 
 def unsupported(scene) -> str | None:
@@ -120,8 +146,13 @@ def unsupported(scene) -> str | None:
     if not np.isin(S.prim_kind, (QUAD, TRIANGLE)).all():
         return "spheres (the packet kernel intersects quads and triangles)"
     mats = np.unique(S.prim_material)
-    if (S.mat_kind[mats] != DIFFUSE).any():
-        return "materials other than diffuse"
+    if not np.isin(S.mat_kind[mats], (DIFFUSE, SINGLE_SCATTER)).all():
+        return "materials other than diffuse and single_scatter"
+    single = mats[S.mat_kind[mats] == SINGLE_SCATTER]
+    if (S.mat_param[single, CHROMATIC] > 0.0).any():
+        return "a chromatic single_scatter medium (σt per channel)"
+    if (S.prim_light[np.isin(S.prim_material, single)] >= 0).any():
+        return "an emitting single_scatter surface"
     if (S.mat_tex[mats, 1] >= 0.0).any():
         return "textured materials"
     if S.prim_normal.shape[0] > 0:
@@ -155,7 +186,15 @@ def prim_columns(scene) -> np.ndarray:
     normal = np.cross(geo[:, 3:6], geo[:, 6:9])
     length = np.linalg.norm(normal, axis=1)
     cols[9:12] = (normal / np.where(length > 0.0, length, 1.0)[:, None]).T
-    cols[12:15] = S.mat_param[S.prim_material, ALBEDO:ALBEDO + 3].T
+    single = S.mat_kind[S.prim_material] == SINGLE_SCATTER
+    mp = S.mat_param[S.prim_material]
+    cols[12:15] = np.where(single, mp[:, MEDIUM_ALBEDO:MEDIUM_ALBEDO + 3].T,
+                           mp[:, ALBEDO:ALBEDO + 3].T)
+    cols[20] = single
+    cols[21] = np.where(single, mp[:, SURFACE_FRACTION], 0.0)
+    cols[22] = np.where(single, mp[:, DENSITY], 0.0)
+    cols[23:26] = np.where(single, mp[:, SIGMA_T:SIGMA_T + 3].T, 0.0)
+    cols[26] = np.where(single & (np.abs(mp[:, G]) >= ISOTROPIC_G), mp[:, G], 0.0)
     tri = S.prim_kind == TRIANGLE
     area = np.where(tri, 0.5 * length, length)
     lit = S.prim_light >= 0
@@ -212,6 +251,45 @@ def cosine_direction(u1, u2):
     y = r * s if first else r * c
     z = math.sqrt(max(F32(0.0), F32(1.0) - x * x - y * y))
     return x, y, z
+
+
+_LOG2E = np.float32(1.4426950408889634)
+_LN2 = np.float32(0.6931471805599453)
+_SQRT2 = np.float32(1.4142135623730951)
+
+
+@_inlined
+def exp32(x):
+    """e^x for x ≤ 0 in float32, branch-free for the vector lanes (libm's call is not): x = (n +
+    f)·ln 2 with n whole and |f| ≤ 1/2, e^{f ln 2} by its Taylor polynomial to the 7th power,
+    2^n put in the exponent's bits: relative error below 4e-6 on [−87, 0] (float32's rounding of
+    x·log₂e; tests/renderer/test_packet.py). Below −87 (float32's least normal number) it returns
+    ~2e-38 rather than 0."""
+    y = max(x, F32(-87.0)) * _LOG2E
+    n = math.floor(y + F32(0.5))
+    g = (y - n) * _LN2
+    p = F32(1.0) + g * (F32(1.0) + g * (F32(0.5) + g * (F32(1.0 / 6.0) + g * (
+        F32(1.0 / 24.0) + g * (F32(1.0 / 120.0) + g * (
+            F32(1.0 / 720.0) + g * F32(1.0 / 5040.0)))))))
+    return p * np.int32((np.int32(n) + np.int32(127)) << np.int32(23)).view(np.float32)
+
+
+@_inlined
+def log32(x):
+    """ln x for a normal positive float32, branch-free: the exponent's bits, and the mantissa m
+    moved into [√½, √2) by ln m = 2 atanh((m − 1)/(m + 1)), its odd series to the 11th power:
+    absolute error below 2e-6 on [2⁻²⁴, 1] (tests/renderer/test_packet.py)."""
+    i = np.float32(x).view(np.int32)
+    e = ((i >> np.int32(23)) & np.int32(255)) - np.int32(127)
+    m = np.int32((i & np.int32(0x7FFFFF)) | np.int32(0x3F800000)).view(np.float32)
+    big = m > _SQRT2
+    m = m * F32(0.5) if big else m
+    e = e + np.int32(1) if big else e
+    r = (m - F32(1.0)) / (m + F32(1.0))
+    r2 = r * r
+    series = F32(2.0) * r * (F32(1.0) + r2 * (F32(1.0 / 3.0) + r2 * (F32(1.0 / 5.0) + r2 * (
+        F32(1.0 / 7.0) + r2 * (F32(1.0 / 9.0) + r2 * F32(1.0 / 11.0))))))
+    return F32(e) * _LN2 + series
 
 
 _M1 = np.uint32(0x55555555)
@@ -357,16 +435,23 @@ def _plane_hit(ox, oy, oz, dx, dy, dz, o0, o1, o2, a0, a1, a2, b0, b1, b2):
 
 
 @kernel
-def _gather(P, Q, rng, prims, light_prim, light_cdf, sobol):
-    """Each lane's hit primitive's columns (a miss reads primitive 0's, masked later) and a light
-    picked by power, with its columns (a scene of one light: none to pick, its columns written
-    once, by the first call). ``sobol``: the pick of the first vertices is U_PICK's."""
+def _gather(P, Q, rng, prims, light_prim, light_cdf, sobol, media):
+    """Each lane's hit primitive's columns (a miss reads primitive 0's, masked later; with
+    ``media`` its medium's too) and a light picked by power, with its columns (a scene of one
+    light: none to pick, its columns written once, by the first call). ``sobol``: the pick of
+    the first vertices is U_PICK's."""
     for lane in range(LANES):  # indexed loads: AVX-512's gathers
         h = max(Q[HIT + lane], 0)
         P[NX + lane], P[NY + lane], P[NZ + lane] = prims[9, h], prims[10, h], prims[11, h]
         P[AR + lane], P[AG + lane], P[AB + lane] = prims[12, h], prims[13, h], prims[14, h]
         P[ER + lane], P[EG + lane], P[EB + lane] = prims[15, h], prims[16, h], prims[17, h]
         P[E_PA + lane] = prims[18, h]
+    if media:
+        for lane in range(LANES):
+            h = max(Q[HIT + lane], 0)
+            P[HSS + lane], P[HSF + lane], P[HSIG + lane] = prims[20, h], prims[21, h], prims[22, h]
+            P[HSR + lane], P[HSG + lane], P[HSB + lane] = prims[23, h], prims[24, h], prims[25, h]
+            P[HG + lane] = prims[26, h]
     n_lights = light_cdf.shape[0]
     for lane in range(LANES):
         li = 0
@@ -389,22 +474,73 @@ def _gather(P, Q, rng, prims, light_prim, light_cdf, sobol):
         P[Q_PA + lane], P[Q_TRI + lane] = prims[18, q], prims[19, q]
 
 
+@_inlined
+def _draws(P, rng, lane, stratified):
+    """The lane's six draws of a vertex: the light point's two, the direction's two, the
+    roulette's, one more (a single_scatter surface's choice); ``stratified``: the first four are
+    the sobol stage's."""
+    z = _step(rng[lane])
+    u1 = _float(z)
+    z = _step(z)
+    u2 = _float(z)
+    z = _step(z)
+    u3 = _float(z)
+    z = _step(z)
+    u4 = _float(z)
+    z = _step(z)
+    u5 = _float(z)
+    z = _step(z)
+    u6 = _float(z)
+    rng[lane] = z
+    u1 = P[U_L1 + lane] if stratified else u1
+    u2 = P[U_L2 + lane] if stratified else u2
+    u3 = P[U_B1 + lane] if stratified else u3
+    u4 = P[U_B2 + lane] if stratified else u4
+    return u1, u2, u3, u4, u5, u6
+
+
+@_inlined
+def _light_point(P, lane, u1, u2, px, py, pz):
+    """A point on the light picked in _gather (a triangle's: the parallelogram's folded), seen
+    from (px, py, pz): its direction, squared distance, distance, cosine at the light and the
+    sample's solid-angle density."""
+    fold = (P[Q_TRI + lane] > F32(0.0)) & (u1 + u2 > F32(1.0))
+    s1 = F32(1.0) - u1 if fold else u1
+    s2 = F32(1.0) - u2 if fold else u2
+    wx = P[QOX + lane] + s1 * P[QAX + lane] + s2 * P[QBX + lane] - px
+    wy = P[QOY + lane] + s1 * P[QAY + lane] + s2 * P[QBY + lane] - py
+    wz = P[QOZ + lane] + s1 * P[QAZ + lane] + s2 * P[QBZ + lane] - pz
+    d2 = wx * wx + wy * wy + wz * wz
+    dist = math.sqrt(d2)
+    wx, wy, wz = wx / dist, wy / dist, wz / dist
+    cos_l = -(P[QNX + lane] * wx + P[QNY + lane] * wy + P[QNZ + lane] * wz)
+    return wx, wy, wz, d2, dist, cos_l, P[Q_PA + lane] * d2 / max(cos_l, F32(1e-20))
+
+
 @kernel
-def _shade(P, Q, rng, eps, max_depth, sobol):
+def _shade(P, Q, rng, eps, max_depth, sobol, media):
     """Emission seen, the light sample and its shadow ray, the next direction, the roulette;
-    ``sobol``: the first vertices' light point and direction are the sobol stage's."""
+    ``sobol``: the first vertices' light point and direction are the sobol stage's. With
+    ``media``: a lane whose segment ended at a medium's event (EVENT, ``_scatter``'s) is left as
+    it is, and a single_scatter surface is crossed straight on (always on the way out, with
+    probability 1 − surface_fraction on the way in) or else reflects as a diffuse surface."""
     for lane in range(LANES):
         miss = Q[HIT + lane] < 0
+        event = media & (Q[EVENT + lane] != 0)
         t = P[T_HIT + lane]
         dx, dy, dz = P[DX + lane], P[DY + lane], P[DZ + lane]
         nx, ny, nz = P[NX + lane], P[NY + lane], P[NZ + lane]
         cos_d = nx * dx + ny * dy + nz * dz
+        hx = P[OX + lane] + t * dx
+        hy = P[OY + lane] + t * dy
+        hz = P[OZ + lane] + t * dz
         # emission, on the normal's side only; weighted against the light sample that could
-        # have found it (none at the camera: PDF_B 0)
+        # have found it from the last scattering vertex (none at the camera: PDF_B 0)
         pdf_b = P[PDF_B + lane]
-        pdf_l = P[E_PA + lane] * t * t / max(-cos_d, F32(1e-20))
+        ex, ey, ez = hx - P[PPX + lane], hy - P[PPY + lane], hz - P[PPZ + lane]
+        pdf_l = P[E_PA + lane] * (ex * ex + ey * ey + ez * ez) / max(-cos_d, F32(1e-20))
         w = F32(1.0) if pdf_b == F32(0.0) else pdf_b * pdf_b / (pdf_b * pdf_b + pdf_l * pdf_l)
-        seen = (cos_d < F32(0.0)) & (not miss)
+        seen = (cos_d < F32(0.0)) & (not miss) & (not event)
         P[LR + lane] += P[TR + lane] * P[ER + lane] * w if seen else F32(0.0)
         P[LG + lane] += P[TG + lane] * P[EG + lane] * w if seen else F32(0.0)
         P[LB + lane] += P[TB + lane] * P[EB + lane] * w if seen else F32(0.0)
@@ -413,43 +549,22 @@ def _shade(P, Q, rng, eps, max_depth, sobol):
         # the surface facing the ray, the next origin off it
         side = F32(-1.0) if cos_d > F32(0.0) else F32(1.0)
         nx, ny, nz = nx * side, ny * side, nz * side
-        px = P[OX + lane] + t * dx + nx * eps
-        py = P[OY + lane] + t * dy + ny * eps
-        pz = P[OZ + lane] + t * dz + nz * eps
-        z = _step(rng[lane])
-        u1 = _float(z)
-        z = _step(z)
-        u2 = _float(z)
-        z = _step(z)
-        u3 = _float(z)
-        z = _step(z)
-        u4 = _float(z)
-        z = _step(z)
-        u5 = _float(z)
-        rng[lane] = z
-        stratified = sobol & (depth < np.int32(SOBOL_VERTICES))
-        u1 = P[U_L1 + lane] if stratified else u1
-        u2 = P[U_L2 + lane] if stratified else u2
-        u3 = P[U_B1 + lane] if stratified else u3
-        u4 = P[U_B2 + lane] if stratified else u4
-        # a point on the light picked in _gather (a triangle's: the parallelogram's folded)
-        fold = (P[Q_TRI + lane] > F32(0.0)) & (u1 + u2 > F32(1.0))
-        s1 = F32(1.0) - u1 if fold else u1
-        s2 = F32(1.0) - u2 if fold else u2
-        wx = P[QOX + lane] + s1 * P[QAX + lane] + s2 * P[QBX + lane] - px
-        wy = P[QOY + lane] + s1 * P[QAY + lane] + s2 * P[QBY + lane] - py
-        wz = P[QOZ + lane] + s1 * P[QAZ + lane] + s2 * P[QBZ + lane] - pz
-        d2 = wx * wx + wy * wy + wz * wz
-        dist = math.sqrt(d2)
-        wx, wy, wz = wx / dist, wy / dist, wz / dist
+        px = hx + nx * eps
+        py = hy + ny * eps
+        pz = hz + nz * eps
+        u1, u2, u3, u4, u5, u6 = _draws(P, rng, lane, sobol & (depth < np.int32(SOBOL_VERTICES)))
+        # a single_scatter surface let through: out always, in with probability 1 − fraction
+        cross = (media & (P[HSS + lane] > F32(0.0)) & (not miss) & (not event)
+                 & ((cos_d > F32(0.0)) | (u6 >= P[HSF + lane])))
+        keep = event | cross
+        wx, wy, wz, d2, dist, cos_l, pdf_ls = _light_point(P, lane, u1, u2, px, py, pz)
         cos_s = nx * wx + ny * wy + nz * wz
-        cos_l = -(P[QNX + lane] * wx + P[QNY + lane] * wy + P[QNZ + lane] * wz)
-        pdf_ls = P[Q_PA + lane] * d2 / max(cos_l, F32(1e-20))
         pdf_bs = cos_s * _INV_PI
         # the power heuristic's weight × (cos / π) / pdf
         f = pdf_ls * cos_s * _INV_PI / (pdf_ls * pdf_ls + pdf_bs * pdf_bs)
         lit = ((cos_s > F32(0.0)) & (cos_l > F32(0.0)) & (not miss) & (not last)
-               & (d2 > F32(0.0)))
+               & (d2 > F32(0.0)) & (not keep))
+        # (an event's lane: _scatter writes its own light sample over these)
         P[CR + lane] = P[TR + lane] * P[AR + lane] * P[QER + lane] * f if lit else F32(0.0)
         P[CG + lane] = P[TG + lane] * P[AG + lane] * P[QEG + lane] * f if lit else F32(0.0)
         P[CB + lane] = P[TB + lane] * P[AB + lane] * P[QEB + lane] * f if lit else F32(0.0)
@@ -461,22 +576,158 @@ def _shade(P, Q, rng, eps, max_depth, sobol):
         sign = F32(1.0) if nz >= F32(0.0) else F32(-1.0)
         a = F32(-1.0) / (sign + nz)
         b = nx * ny * a
-        P[DX + lane] = lx * (F32(1.0) + sign * nx * nx * a) + ly * b + lz * nx
-        P[DY + lane] = lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny
-        P[DZ + lane] = lx * (-sign * nx) + ly * (-ny) + lz * nz
-        P[PDF_B + lane] = lz * _INV_PI
-        P[OX + lane], P[OY + lane], P[OZ + lane] = px, py, pz
+        P[DX + lane] = dx if keep else lx * (F32(1.0) + sign * nx * nx * a) + ly * b + lz * nx
+        P[DY + lane] = dy if keep else lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny
+        P[DZ + lane] = dz if keep else lx * (-sign * nx) + ly * (-ny) + lz * nz
+        P[PDF_B + lane] = pdf_b if keep else lz * _INV_PI
+        # a crossing goes on from the far side of the surface
+        P[OX + lane] = P[OX + lane] if event else (hx - nx * eps if cross else px)
+        P[OY + lane] = P[OY + lane] if event else (hy - ny * eps if cross else py)
+        P[OZ + lane] = P[OZ + lane] if event else (hz - nz * eps if cross else pz)
+        P[PPX + lane] = P[PPX + lane] if keep else px
+        P[PPY + lane] = P[PPY + lane] if keep else py
+        P[PPZ + lane] = P[PPZ + lane] if keep else pz
         br = P[TR + lane] * P[AR + lane]
         bg = P[TG + lane] * P[AG + lane]
         bb = P[TB + lane] * P[AB + lane]
-        depth += np.int32(1)
+        depth_next = depth + np.int32(1)
         q = min(max(br, max(bg, bb)), _RR_MAX)
+        roulette = depth_next >= _RR_DEPTH
+        scale = F32(1.0) / q if roulette else F32(1.0)
+        P[TR + lane] = P[TR + lane] if keep else br * scale
+        P[TG + lane] = P[TG + lane] if keep else bg * scale
+        P[TB + lane] = P[TB + lane] if keep else bb * scale
+        Q[DEPTH + lane] = depth if keep else depth_next
+        # (a path that carries nothing ends, as the scalar kernel's: a black surface)
+        ends = miss | last | (roulette & (u5 >= q)) | (q == F32(0.0))
+        Q[DEAD + lane] = Q[DEAD + lane] if event else (0 if cross else (1 if ends else 0))
+        # a crossing's direction (``_enter``: the medium the ray goes on in)
+        Q[CROSS + lane] = (1 if cos_d < F32(0.0) else -1) if cross else 0
+
+
+@kernel
+def _enter(P, Q):
+    """After ``_shade``: a lane that crossed into a single_scatter medium takes the medium's
+    parameters (its event still to come), one that crossed out leaves it. A stage of its own:
+    in ``_shade``'s loop these stores kept LLVM from vectorizing it."""
+    for lane in range(LANES):
+        enters = Q[CROSS + lane] > 0
+        leaves = Q[CROSS + lane] < 0
+        Q[IN_MED + lane] = 1 if enters else (0 if leaves else Q[IN_MED + lane])
+        Q[DONE + lane] = 0 if enters else Q[DONE + lane]
+        P[MSIG + lane] = P[HSIG + lane] if enters else P[MSIG + lane]
+        P[MSR + lane] = P[HSR + lane] if enters else P[MSR + lane]
+        P[MSG + lane] = P[HSG + lane] if enters else P[MSG + lane]
+        P[MSB + lane] = P[HSB + lane] if enters else P[MSB + lane]
+        P[MAR + lane] = P[AR + lane] if enters else P[MAR + lane]
+        P[MAG + lane] = P[AG + lane] if enters else P[MAG + lane]
+        P[MAB + lane] = P[AB + lane] if enters else P[MAB + lane]
+        P[MG + lane] = P[HG + lane] if enters else P[MG + lane]
+
+
+@kernel
+def _flight(P, Q, rng):
+    """Inside a single_scatter medium: before its event, a free flight from exp(−σt·s) that may
+    end short of the surface (EVENT, FLIGHT its length); after it, the segment's attenuation
+    exp(−σt·t) per channel."""
+    for lane in range(LANES):
+        inside = (Q[IN_MED + lane] != 0) & (Q[DEAD + lane] == 0)
+        done = Q[DONE + lane] != 0
+        t = P[T_HIT + lane]
+        after = inside & done
+        P[TR + lane] *= exp32(-P[MSR + lane] * t) if after else F32(1.0)
+        P[TG + lane] *= exp32(-P[MSG + lane] * t) if after else F32(1.0)
+        P[TB + lane] *= exp32(-P[MSB + lane] * t) if after else F32(1.0)
+        z = _step(rng[lane])
+        rng[lane] = z
+        s = -log32(F32(1.0) - _float(z)) / max(P[MSIG + lane], F32(1e-30))
+        P[FLIGHT + lane] = s
+        Q[EVENT + lane] = 1 if inside & (not done) & (s < t) else 0
+
+
+@_inlined
+def hg_pdf32(cos_theta, g):
+    """Henyey–Greenstein's density (``renderer.materials.phase.hg_pdf``: isotropic below
+    ``ISOTROPIC_G``, as ``hg_direction`` samples)."""
+    den = F32(1.0) + g * g - F32(2.0) * g * cos_theta
+    pdf = _INV_4PI * (F32(1.0) - g * g) / (den * math.sqrt(den))
+    return pdf if abs(g) >= F32(ISOTROPIC_G) else _INV_4PI
+
+
+@_inlined
+def hg_direction(u1, u2, g):
+    """A direction from Henyey–Greenstein's phase function about +z, (x, y, z = cos θ), from two
+    uniform draws, branch-free: the concentric map's uniform point of the disk gives the angle
+    φ and an independent uniform r², which the phase function's inverse cdf turns into cos θ
+    (``renderer.materials.phase.hg_sample_cos``; isotropic below ``ISOTROPIC_G``)."""
+    a, b, _ = cosine_direction(u1, u2)
+    r2 = a * a + b * b
+    r = math.sqrt(r2)
+    cphi = a / r if r > F32(0.0) else F32(1.0)
+    sphi = b / r if r > F32(0.0) else F32(0.0)
+    gg = g if abs(g) >= F32(ISOTROPIC_G) else F32(ISOTROPIC_G)
+    h = (F32(1.0) - gg * gg) / (F32(1.0) - gg + F32(2.0) * gg * r2)
+    hg = min(F32(1.0), max(F32(-1.0), (F32(1.0) + gg * gg - h * h) / (F32(2.0) * gg)))
+    cos_t = hg if abs(g) >= F32(ISOTROPIC_G) else F32(1.0) - F32(2.0) * r2
+    sin_t = math.sqrt(max(F32(0.0), F32(1.0) - cos_t * cos_t))
+    return sin_t * cphi, sin_t * sphi, cos_t
+
+
+@kernel
+def _scatter(P, Q, rng, eps, max_depth, sobol):
+    """The lanes whose flight ended at the medium's one event (``renderer.integrators.subsurface
+    .volumetric.medium_segment`` with single_scatter's medium, grey): the albedo, a light sample
+    from the event MIS-weighted against the phase function (its shadow ray leaves through the
+    medium: ``_shadow_media``), the phase function's direction, the roulette (capped at 1 in a
+    medium, as the scalar kernel's)."""
+    for lane in range(LANES):
+        if Q[EVENT + lane] == 0:
+            continue
+        depth = Q[DEPTH + lane]
+        s = P[FLIGHT + lane]
+        dx, dy, dz = P[DX + lane], P[DY + lane], P[DZ + lane]
+        px = P[OX + lane] + s * dx
+        py = P[OY + lane] + s * dy
+        pz = P[OZ + lane] + s * dz
+        g = P[MG + lane]
+        br = P[TR + lane] * P[MAR + lane]
+        bg = P[TG + lane] * P[MAG + lane]
+        bb = P[TB + lane] * P[MAB + lane]
+        u1, u2, u3, u4, u5, _ = _draws(P, rng, lane, sobol & (depth < np.int32(SOBOL_VERTICES)))
+        if max_depth >= 0 and depth >= max_depth:
+            Q[DEAD + lane] = 1
+            Q[OCCLUDED + lane] = 1
+            continue
+        # the light sample
+        wx, wy, wz, d2, dist, cos_l, pdf_ls = _light_point(P, lane, u1, u2, px, py, pz)
+        ph = hg_pdf32(dx * wx + dy * wy + dz * wz, g)
+        f = ph * pdf_ls / (pdf_ls * pdf_ls + ph * ph)
+        lit = (cos_l > F32(0.0)) & (d2 > F32(0.0))
+        P[CR + lane] = br * P[QER + lane] * f if lit else F32(0.0)
+        P[CG + lane] = bg * P[QEG + lane] * f if lit else F32(0.0)
+        P[CB + lane] = bb * P[QEB + lane] * f if lit else F32(0.0)
+        P[SX + lane], P[SY + lane], P[SZ + lane] = wx, wy, wz
+        P[S_DIST + lane] = dist - eps
+        Q[OCCLUDED + lane] = 0 if lit else 1
+        # the phase function's direction about d
+        lx, ly, lz = hg_direction(u3, u4, g)
+        sign = F32(1.0) if dz >= F32(0.0) else F32(-1.0)
+        e = F32(-1.0) / (sign + dz)
+        k = dx * dy * e
+        P[DX + lane] = lx * (F32(1.0) + sign * dx * dx * e) + ly * k + lz * dx
+        P[DY + lane] = lx * (sign * k) + ly * (sign + dy * dy * e) + lz * dy
+        P[DZ + lane] = lx * (-sign * dx) + ly * (-dy) + lz * dz
+        P[PDF_B + lane] = hg_pdf32(lz, g)
+        P[OX + lane], P[OY + lane], P[OZ + lane] = px, py, pz
+        P[PPX + lane], P[PPY + lane], P[PPZ + lane] = px, py, pz
+        depth += np.int32(1)
+        q = min(max(br, max(bg, bb)), F32(1.0))
         roulette = depth >= _RR_DEPTH
         scale = F32(1.0) / q if roulette else F32(1.0)
         P[TR + lane], P[TG + lane], P[TB + lane] = br * scale, bg * scale, bb * scale
         Q[DEPTH + lane] = depth
-        ends = miss | last | (roulette & (u5 >= q))
-        Q[DEAD + lane] = 1 if ends else 0
+        Q[DONE + lane] = 1
+        Q[DEAD + lane] = 1 if (roulette & (u5 >= q)) | (q == F32(0.0)) else 0
 
 
 @kernel
@@ -487,6 +738,58 @@ def _shadow(P, Q, prims, eps):
         for lane in range(LANES):
             ok, _ = _lane_hit(P, lane, SX, g, eps, P[S_DIST + lane])
             Q[OCCLUDED + lane] = 1 if ok else Q[OCCLUDED + lane]
+
+
+@kernel
+def _shadow_media(P, Q, prims, eps):
+    """``_shadow`` in a scene with single_scatter media: a single_scatter surface lets the shadow
+    ray through, and the optical depth of the media it crosses is summed as
+    ``renderer.integrators.shadow.flat_transmittance`` sums it (leaving a medium at t adds σt·t,
+    entering one takes σt·t off, the media open at the end add σt·length; each entry lets
+    1 − surface_fraction in)."""
+    for lane in range(LANES):
+        inside = Q[IN_MED + lane] != 0
+        P[TAUR + lane], P[TAUG + lane], P[TAUB + lane] = F32(0.0), F32(0.0), F32(0.0)
+        P[OPR + lane] = P[MSR + lane] if inside else F32(0.0)
+        P[OPG + lane] = P[MSG + lane] if inside else F32(0.0)
+        P[OPB + lane] = P[MSB + lane] if inside else F32(0.0)
+        Q[N_OPEN + lane] = 1 if inside else 0
+        P[STR + lane] = F32(1.0)
+    for q in range(prims.shape[1]):
+        g = _prim(prims, q)
+        passable = prims[20, q] > F32(0.0)
+        qnx, qny, qnz = prims[9, q], prims[10, q], prims[11, q]
+        sf = prims[21, q]
+        sr, sg, sb = prims[23, q], prims[24, q], prims[25, q]
+        for lane in range(LANES):
+            ok, t = _lane_hit(P, lane, SX, g, eps, P[S_DIST + lane])
+            Q[OCCLUDED + lane] = 1 if ok & (not passable) else Q[OCCLUDED + lane]
+            cross = ok & passable
+            enters = (P[SX + lane] * qnx + P[SY + lane] * qny + P[SZ + lane] * qnz) < F32(0.0)
+            sign = F32(-1.0) if enters else F32(1.0)
+            P[TAUR + lane] += sign * sr * t if cross else F32(0.0)
+            P[TAUG + lane] += sign * sg * t if cross else F32(0.0)
+            P[TAUB + lane] += sign * sb * t if cross else F32(0.0)
+            P[OPR + lane] -= sign * sr if cross else F32(0.0)
+            P[OPG + lane] -= sign * sg if cross else F32(0.0)
+            P[OPB + lane] -= sign * sb if cross else F32(0.0)
+            Q[N_OPEN + lane] += (np.int32(1) if enters else np.int32(-1)) if cross else np.int32(0)
+            P[STR + lane] *= (F32(1.0) - sf) if cross & enters else F32(1.0)
+
+
+@kernel
+def _add_light_media(P, Q):
+    """``_add_light`` times the shadow ray's transmittance (``_shadow_media``'s sums)."""
+    for lane in range(LANES):
+        free = Q[OCCLUDED + lane] == 0
+        length = P[S_DIST + lane] if Q[N_OPEN + lane] > 0 else F32(0.0)
+        tr = P[STR + lane]
+        er = exp32(-max(P[TAUR + lane] + P[OPR + lane] * length, F32(0.0)))
+        eg = exp32(-max(P[TAUG + lane] + P[OPG + lane] * length, F32(0.0)))
+        eb = exp32(-max(P[TAUB + lane] + P[OPB + lane] * length, F32(0.0)))
+        P[LR + lane] += P[CR + lane] * tr * er if free else F32(0.0)
+        P[LG + lane] += P[CG + lane] * tr * eg if free else F32(0.0)
+        P[LB + lane] += P[CB + lane] * tr * eb if free else F32(0.0)
 
 
 @kernel
@@ -501,8 +804,8 @@ def _add_light(P, Q):
 @kernel
 def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_depth, eps, x0, y0,
                 tile_w, tile_h, first_row, row_step, sample_start, counts, out_sum, out_sum_sq,
-                out_count, out_dropped, out_segments, sobol, P, Q, rng, lane_pixel, SD, sob,
-                seed_pixel):
+                out_count, out_dropped, out_segments, sobol, media, P, Q, rng, lane_pixel, SD,
+                sob, seed_pixel):
     """The paths of rows first_row, first_row + row_step, … of a tile, a packet at a time:
     each pixel's samples [sample_start, sample_start + counts[pixel]) in turn. Under the
     ``sobol`` sampler, ``sob`` (SOBOL_BLOCKS, 3) holds the sequence seeds of the pixel the
@@ -566,6 +869,10 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
             P[TR + lane], P[TG + lane], P[TB + lane] = F32(1.0), F32(1.0), F32(1.0)
             P[LR + lane], P[LG + lane], P[LB + lane] = F32(0.0), F32(0.0), F32(0.0)
             P[PDF_B + lane] = F32(0.0)
+            P[PPX + lane], P[PPY + lane], P[PPZ + lane] = o
+            Q[IN_MED + lane] = 0
+            Q[DONE + lane] = 0
+            Q[EVENT + lane] = 0
             Q[DEPTH + lane] = 0
             Q[SEGMENTS + lane] = 0
             Q[DEAD + lane] = 0
@@ -578,10 +885,18 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
         _closest(P, Q, prims, eps)
         if sobol:
             _sobol_stage(P, Q, SD)
-        _gather(P, Q, rng, prims, light_prim, light_cdf, sobol)
-        _shade(P, Q, rng, eps, np.int32(max_depth), sobol)
-        _shadow(P, Q, prims, eps)
-        _add_light(P, Q)
+        _gather(P, Q, rng, prims, light_prim, light_cdf, sobol, media)
+        if media:
+            _flight(P, Q, rng)
+        _shade(P, Q, rng, eps, np.int32(max_depth), sobol, media)
+        if media:
+            _enter(P, Q)
+            _scatter(P, Q, rng, eps, np.int32(max_depth), sobol)
+            _shadow_media(P, Q, prims, eps)
+            _add_light_media(P, Q)
+        else:
+            _shadow(P, Q, prims, eps)
+            _add_light(P, Q)
         # lanes with no path (the thread's pixels done) stay dead, their sample unwritten
         for lane in range(LANES):
             if lane_pixel[lane] < 0:
@@ -607,7 +922,8 @@ def render_tile_packet(scene, x0: int, y0: int, width: int, height: int, sample_
         packet_rows(prims, light_prim, light_cdf, S.camera, scene.width, scene.height,
                     scene.seed, scene.max_depth, eps, x0, y0, width, height, c, n_chunks,
                     sample_start, counts, buf.sum, buf.sum_sq, buf.count, buf.dropped,
-                    buf.segments, S.sampler[0] == 1, np.zeros(FLOAT_ROWS * LANES, F32),
+                    buf.segments, S.sampler[0] == 1, bool(prims[20].any()),
+                    np.zeros(FLOAT_ROWS * LANES, F32),
                     np.zeros(INT_ROWS * LANES, np.int32), np.zeros(LANES, np.uint32),
                     np.zeros(LANES, np.int64), np.zeros(SEED_ROWS * LANES, np.uint32),
                     np.zeros((SOBOL_BLOCKS, 3), np.uint64), np.zeros(LANES, np.int64))
