@@ -1,13 +1,16 @@
 """The seed paper's workload: 300×300 pixels, 300 spp, its translucent boxes, whole process.
 
     .venv/bin/python -m bench.seed_workload [--spp 300] [--size 300] [--repeats 2] [--peer]
+                                            [--kernels packet scalar]
 
 Renders ``examples/seed_paper_boxes_{low,high}_density.json`` (the paper's two density settings,
 its ``single_scatter`` method, max_depth 8) at ``--size``² pixels and ``--spp`` with the CLI,
-``lucent render SCENE -o x.npy -q``, and times the whole process (interpreter start, imports,
-scene compile, kernel load from a warm numba cache, render, file written) on all cores. A first,
-untimed run at 1 spp warms the cache. The paper's figure is 50 s on a 4-core 4.2 GHz CPU; the
-issue's target is under 5 s on this 2-core machine. Record results in docs/performance.md.
+``lucent render SCENE -o x.npy -q --kernel K`` for each of ``--kernels`` (the packet kernel, 16
+paths in the vector lanes, and the scalar kernel), and times the whole process (interpreter
+start, imports, scene compile, kernel load from a warm numba cache, render, file written) on all
+cores. A first, untimed run at 1 spp warms the cache. The paper's figure is 50 s on a 4-core
+4.2 GHz CPU; the issue's target is under 5 s on this 2-core machine. Record results in
+docs/performance.md.
 
 ``--peer`` adds what the fastest CPU peer takes for the same workload on this machine, in the same
 run. Mitsuba 3 has no single-scatter model, so it draws the same boxes as the two materials it
@@ -36,11 +39,14 @@ SCENES = ["seed_paper_boxes_low_density", "seed_paper_boxes_high_density"]
 PEER_MATERIALS = ("diffuse", "volumetric")
 
 
-def run(scene_file: str, out: str, spp: int) -> float:
-    start = time.perf_counter()
-    subprocess.run([LUCENT, "render", scene_file, "-o", out, "--spp", str(spp), "-q"],
-                   check=True)
-    return time.perf_counter() - start
+def lucent(kernel: str):
+    """A runner of ``lucent render --kernel KERNEL`` as a whole process: its seconds."""
+    def run(scene_file: str, out: str, spp: int) -> float:
+        start = time.perf_counter()
+        subprocess.run([LUCENT, "render", scene_file, "-o", out, "--spp", str(spp), "-q",
+                        "--kernel", kernel], check=True)
+        return time.perf_counter() - start
+    return run
 
 
 def run_mitsuba(scene_file: str, out: str, spp: int) -> float:
@@ -85,6 +91,9 @@ def main() -> int:
     parser.add_argument("--spp", type=int, default=300)
     parser.add_argument("--size", type=int, default=300)
     parser.add_argument("--repeats", type=int, default=2)
+    parser.add_argument("--kernels", nargs="+", choices=["packet", "scalar"],
+                        default=["packet", "scalar"],
+                        help="Lucent's kernels to time (the packet kernel covers the boxes)")
     parser.add_argument("--peer", action="store_true",
                         help="also time Lucent and Mitsuba 3 on the boxes as diffuse and as "
                              "volumetric (Mitsuba has no single-scatter model)")
@@ -106,7 +115,7 @@ def main() -> int:
             for material, variant in variants:
                 scene_file = f"{tmp}/{name}_{material}.json"
                 Path(scene_file).write_text(json.dumps(variant))
-                renderers = [("lucent", run)]
+                renderers = [(f"lucent {kernel}", lucent(kernel)) for kernel in args.kernels]
                 if material != "single_scatter":
                     renderers.append(("mitsuba 3", run_mitsuba))
                 for renderer, fn in renderers:

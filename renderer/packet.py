@@ -73,7 +73,7 @@ from renderer.materials.bsdf import DIFFUSE, SINGLE_SCATTER
 from renderer.materials.diffuse import ALBEDO
 from renderer.materials.phase import ISOTROPIC_G
 from renderer.materials.translucent import ALBEDO as MEDIUM_ALBEDO
-from renderer.materials.translucent import CHROMATIC, DENSITY, SIGMA_T, SURFACE_FRACTION, G
+from renderer.materials.translucent import CHROMATIC, DENSITY, SURFACE_FRACTION, G
 from renderer.rng import mix64, sample_key, sobol_block_seeds, sobol_value
 
 LANES = 16
@@ -86,6 +86,9 @@ FAR = 10.0
 _INF = np.float32(1e30)
 _INV_PI = np.float32(1.0 / math.pi)
 _INV_4PI = np.float32(0.25 / math.pi)
+# The least cosine at a light in an MIS weight: its square times a density stays a normal float32
+# (denormals cost Intel's cores a microcode assist each: the shading stage ran 1.5x slower)
+_COS_MIN = np.float32(1e-10)
 _QUARTER_PI = np.float32(math.pi / 4.0)
 _RR_MAX = np.float32(RR_MAX)
 _RR_DEPTH = np.int32(RR_DEPTH)
@@ -105,15 +108,14 @@ _inlined = numba.njit(inline="always", _nrt=False, **JIT_OPTIONS)
  NX, NY, NZ, AR, AG, AB, ER, EG, EB, E_PA,
  QOX, QOY, QOZ, QAX, QAY, QAZ, QBX, QBY, QBZ, QNX, QNY, QNZ, QER, QEG, QEB, Q_PA, Q_TRI,
  U_PICK, U_L1, U_L2, U_B1, U_B2,
- PPX, PPY, PPZ, HSS, HSF, HSIG, HSR, HSG, HSB, HG,
- MSIG, MSR, MSG, MSB, MAR, MAG, MAB, MG, FLIGHT, TAUR, TAUG, TAUB, OPR, OPG, OPB, STR) = (
-    k * LANES for k in range(79))
-FLOAT_ROWS = 79
+ PPX, PPY, PPZ, HSS, HSF, MSIG, MAR, MAG, MAB, MG, FLIGHT, TAU, OPEN, STR) = (
+    k * LANES for k in range(67))
+FLOAT_ROWS = 67
 # PPX…: the path's last scattering vertex (the light pdf of an emitter found next is measured
-# from it); HSS…: the hit primitive's medium (1 for single_scatter, its surface fraction, grey
-# σt, σt per channel, g); MSIG…: the medium the lane's ray is in (σt, per channel, albedo, g);
-# FLIGHT: the free flight's distance; TAUR…STR: the shadow ray's optical depth, the σt of the
-# media open along it, and the surfaces' share let in
+# from it); HSS, HSF: 1 where the hit primitive is single_scatter, its surface fraction; MSIG…:
+# the medium the lane's ray is in (its grey σt, albedo, g); FLIGHT: the free flight's length;
+# TAU, OPEN, STR: the shadow ray's optical depth, the σt of the media open along it, and the
+# surfaces' share let in
 # The int32 array (Q); SIDX is the path's global sample index (the sobol sampler's); IN_MED: the
 # ray is inside a single_scatter medium, DONE: which has had its one event; EVENT: this segment
 # ended at that event; N_OPEN: media open along the shadow ray; CROSS: 1 (−1) where the ray
@@ -131,8 +133,8 @@ if SOBOL_VERTICES != 2:  # _lane_seed selects between vertex 0's and vertex 1's 
 # Primitive columns (float32, (PRIM_ROWS, primitives)): corner, edges, unit normal (edge1 ×
 # edge2), albedo, emission, the emission's light pmf over its area (0 for a surface that does not
 # emit), 1 for a triangle; then its material's medium: 1 for single_scatter, the surface
-# fraction, grey σt, σt per channel, g
-PRIM_ROWS = 27
+# fraction, σt (grey: the kernel covers no chromatic medium), g
+PRIM_ROWS = 24
 
 
 def unsupported(scene) -> str | None:
@@ -193,8 +195,7 @@ def prim_columns(scene) -> np.ndarray:
     cols[20] = single
     cols[21] = np.where(single, mp[:, SURFACE_FRACTION], 0.0)
     cols[22] = np.where(single, mp[:, DENSITY], 0.0)
-    cols[23:26] = np.where(single, mp[:, SIGMA_T:SIGMA_T + 3].T, 0.0)
-    cols[26] = np.where(single & (np.abs(mp[:, G]) >= ISOTROPIC_G), mp[:, G], 0.0)
+    cols[23] = np.where(single & (np.abs(mp[:, G]) >= ISOTROPIC_G), mp[:, G], 0.0)
     tri = S.prim_kind == TRIANGLE
     area = np.where(tri, 0.5 * length, length)
     lit = S.prim_light >= 0
@@ -446,12 +447,10 @@ def _gather(P, Q, rng, prims, light_prim, light_cdf, sobol, media):
         P[AR + lane], P[AG + lane], P[AB + lane] = prims[12, h], prims[13, h], prims[14, h]
         P[ER + lane], P[EG + lane], P[EB + lane] = prims[15, h], prims[16, h], prims[17, h]
         P[E_PA + lane] = prims[18, h]
-    if media:
+    if media:  # (the medium's own columns: _enter's, for the lanes that go in)
         for lane in range(LANES):
             h = max(Q[HIT + lane], 0)
-            P[HSS + lane], P[HSF + lane], P[HSIG + lane] = prims[20, h], prims[21, h], prims[22, h]
-            P[HSR + lane], P[HSG + lane], P[HSB + lane] = prims[23, h], prims[24, h], prims[25, h]
-            P[HG + lane] = prims[26, h]
+            P[HSS + lane], P[HSF + lane] = prims[20, h], prims[21, h]
     n_lights = light_cdf.shape[0]
     for lane in range(LANES):
         li = 0
@@ -502,8 +501,8 @@ def _draws(P, rng, lane, stratified):
 @_inlined
 def _light_point(P, lane, u1, u2, px, py, pz):
     """A point on the light picked in _gather (a triangle's: the parallelogram's folded), seen
-    from (px, py, pz): its direction, squared distance, distance, cosine at the light and the
-    sample's solid-angle density."""
+    from (px, py, pz): its direction, squared distance, distance, cosine at the light, and the
+    sample's solid-angle density times that cosine (pmf / area × distance²)."""
     fold = (P[Q_TRI + lane] > F32(0.0)) & (u1 + u2 > F32(1.0))
     s1 = F32(1.0) - u1 if fold else u1
     s2 = F32(1.0) - u2 if fold else u2
@@ -512,9 +511,10 @@ def _light_point(P, lane, u1, u2, px, py, pz):
     wz = P[QOZ + lane] + s1 * P[QAZ + lane] + s2 * P[QBZ + lane] - pz
     d2 = wx * wx + wy * wy + wz * wz
     dist = math.sqrt(d2)
-    wx, wy, wz = wx / dist, wy / dist, wz / dist
+    inv = F32(1.0) / dist
+    wx, wy, wz = wx * inv, wy * inv, wz * inv
     cos_l = -(P[QNX + lane] * wx + P[QNY + lane] * wy + P[QNZ + lane] * wz)
-    return wx, wy, wz, d2, dist, cos_l, P[Q_PA + lane] * d2 / max(cos_l, F32(1e-20))
+    return wx, wy, wz, d2, dist, cos_l, P[Q_PA + lane] * d2
 
 
 @kernel
@@ -536,10 +536,13 @@ def _shade(P, Q, rng, eps, max_depth, sobol, media):
         hz = P[OZ + lane] + t * dz
         # emission, on the normal's side only; weighted against the light sample that could
         # have found it from the last scattering vertex (none at the camera: PDF_B 0)
+        # (pdf_l = a / c, the weight pdf_b² / (pdf_b² + pdf_l²) with c² multiplied in: one
+        # division, not two; a surface that does not emit has a = 0 and weight 1)
         pdf_b = P[PDF_B + lane]
         ex, ey, ez = hx - P[PPX + lane], hy - P[PPY + lane], hz - P[PPZ + lane]
-        pdf_l = P[E_PA + lane] * (ex * ex + ey * ey + ez * ez) / max(-cos_d, F32(1e-20))
-        w = F32(1.0) if pdf_b == F32(0.0) else pdf_b * pdf_b / (pdf_b * pdf_b + pdf_l * pdf_l)
+        a = P[E_PA + lane] * (ex * ex + ey * ey + ez * ez)
+        bc = pdf_b * max(-cos_d, _COS_MIN)
+        w = F32(1.0) if (pdf_b == F32(0.0)) | (a == F32(0.0)) else bc * bc / (bc * bc + a * a)
         seen = (cos_d < F32(0.0)) & (not miss) & (not event)
         P[LR + lane] += P[TR + lane] * P[ER + lane] * w if seen else F32(0.0)
         P[LG + lane] += P[TG + lane] * P[EG + lane] * w if seen else F32(0.0)
@@ -557,11 +560,13 @@ def _shade(P, Q, rng, eps, max_depth, sobol, media):
         cross = (media & (P[HSS + lane] > F32(0.0)) & (not miss) & (not event)
                  & ((cos_d > F32(0.0)) | (u6 >= P[HSF + lane])))
         keep = event | cross
-        wx, wy, wz, d2, dist, cos_l, pdf_ls = _light_point(P, lane, u1, u2, px, py, pz)
+        wx, wy, wz, d2, dist, cos_l, a_l = _light_point(P, lane, u1, u2, px, py, pz)
         cos_s = nx * wx + ny * wy + nz * wz
-        pdf_bs = cos_s * _INV_PI
-        # the power heuristic's weight × (cos / π) / pdf
-        f = pdf_ls * cos_s * _INV_PI / (pdf_ls * pdf_ls + pdf_bs * pdf_bs)
+        # the power heuristic's weight × (cos / π) / pdf: pdf_l pdf_b / (pdf_l² + pdf_b²) / pdf_l
+        # with pdf_l = a_l / c_l, pdf_b = cos/π, c_l² multiplied in
+        c_l = max(cos_l, _COS_MIN)
+        bc = cos_s * _INV_PI * c_l
+        f = a_l * bc / (a_l * a_l + bc * bc)
         lit = ((cos_s > F32(0.0)) & (cos_l > F32(0.0)) & (not miss) & (not last)
                & (d2 > F32(0.0)) & (not keep))
         # (an event's lane: _scatter writes its own light sample over these)
@@ -606,38 +611,37 @@ def _shade(P, Q, rng, eps, max_depth, sobol, media):
 
 
 @kernel
-def _enter(P, Q):
-    """After ``_shade``: a lane that crossed into a single_scatter medium takes the medium's
-    parameters (its event still to come), one that crossed out leaves it. A stage of its own:
-    in ``_shade``'s loop these stores kept LLVM from vectorizing it."""
+def _enter(P, Q, prims):
+    """After ``_shade``, where a lane crossed a single_scatter surface: going in, the lane takes
+    the medium's parameters from the primitive's columns (its event still to come); going out,
+    it leaves the medium. A stage of its own, run only when some lane crossed: in ``_shade``'s
+    loop these stores kept LLVM from vectorizing it."""
     for lane in range(LANES):
-        enters = Q[CROSS + lane] > 0
-        leaves = Q[CROSS + lane] < 0
-        Q[IN_MED + lane] = 1 if enters else (0 if leaves else Q[IN_MED + lane])
-        Q[DONE + lane] = 0 if enters else Q[DONE + lane]
-        P[MSIG + lane] = P[HSIG + lane] if enters else P[MSIG + lane]
-        P[MSR + lane] = P[HSR + lane] if enters else P[MSR + lane]
-        P[MSG + lane] = P[HSG + lane] if enters else P[MSG + lane]
-        P[MSB + lane] = P[HSB + lane] if enters else P[MSB + lane]
-        P[MAR + lane] = P[AR + lane] if enters else P[MAR + lane]
-        P[MAG + lane] = P[AG + lane] if enters else P[MAG + lane]
-        P[MAB + lane] = P[AB + lane] if enters else P[MAB + lane]
-        P[MG + lane] = P[HG + lane] if enters else P[MG + lane]
+        cross = Q[CROSS + lane]
+        if cross < 0:
+            Q[IN_MED + lane] = 0
+        elif cross > 0:
+            h = Q[HIT + lane]
+            Q[IN_MED + lane] = 1
+            Q[DONE + lane] = 0
+            P[MSIG + lane], P[MG + lane] = prims[22, h], prims[23, h]
+            P[MAR + lane], P[MAG + lane], P[MAB + lane] = prims[12, h], prims[13, h], prims[14, h]
 
 
 @kernel
 def _flight(P, Q, rng):
     """Inside a single_scatter medium: before its event, a free flight from exp(−σt·s) that may
     end short of the surface (EVENT, FLIGHT its length); after it, the segment's attenuation
-    exp(−σt·t) per channel."""
+    exp(−σt·t)."""
     for lane in range(LANES):
         inside = (Q[IN_MED + lane] != 0) & (Q[DEAD + lane] == 0)
         done = Q[DONE + lane] != 0
         t = P[T_HIT + lane]
         after = inside & done
-        P[TR + lane] *= exp32(-P[MSR + lane] * t) if after else F32(1.0)
-        P[TG + lane] *= exp32(-P[MSG + lane] * t) if after else F32(1.0)
-        P[TB + lane] *= exp32(-P[MSB + lane] * t) if after else F32(1.0)
+        attenuation = exp32(-P[MSIG + lane] * t) if after else F32(1.0)
+        P[TR + lane] *= attenuation
+        P[TG + lane] *= attenuation
+        P[TB + lane] *= attenuation
         z = _step(rng[lane])
         rng[lane] = z
         s = -log32(F32(1.0) - _float(z)) / max(P[MSIG + lane], F32(1e-30))
@@ -699,9 +703,10 @@ def _scatter(P, Q, rng, eps, max_depth, sobol):
             Q[OCCLUDED + lane] = 1
             continue
         # the light sample
-        wx, wy, wz, d2, dist, cos_l, pdf_ls = _light_point(P, lane, u1, u2, px, py, pz)
-        ph = hg_pdf32(dx * wx + dy * wy + dz * wz, g)
-        f = ph * pdf_ls / (pdf_ls * pdf_ls + ph * ph)
+        wx, wy, wz, d2, dist, cos_l, a_l = _light_point(P, lane, u1, u2, px, py, pz)
+        # phase · the power heuristic's weight / pdf_l, as in _shade: one division
+        bc = hg_pdf32(dx * wx + dy * wy + dz * wz, g) * max(cos_l, _COS_MIN)
+        f = a_l * bc / (a_l * a_l + bc * bc)
         lit = (cos_l > F32(0.0)) & (d2 > F32(0.0))
         P[CR + lane] = br * P[QER + lane] * f if lit else F32(0.0)
         P[CG + lane] = bg * P[QEG + lane] * f if lit else F32(0.0)
@@ -746,35 +751,29 @@ def _shadow_media(P, Q, prims, eps):
     ray through, and the optical depth of the media it crosses is summed as
     ``renderer.integrators.shadow.flat_transmittance`` sums it (leaving a medium at t adds σt·t,
     entering one takes σt·t off, the media open at the end add σt·length; each entry lets
-    1 − surface_fraction in)."""
+    1 − surface_fraction in). The media are grey: one sum, not three."""
     for lane in range(LANES):
         inside = Q[IN_MED + lane] != 0
-        P[TAUR + lane], P[TAUG + lane], P[TAUB + lane] = F32(0.0), F32(0.0), F32(0.0)
-        P[OPR + lane] = P[MSR + lane] if inside else F32(0.0)
-        P[OPG + lane] = P[MSG + lane] if inside else F32(0.0)
-        P[OPB + lane] = P[MSB + lane] if inside else F32(0.0)
+        P[TAU + lane] = F32(0.0)
+        P[OPEN + lane] = P[MSIG + lane] if inside else F32(0.0)
         Q[N_OPEN + lane] = 1 if inside else 0
         P[STR + lane] = F32(1.0)
     for q in range(prims.shape[1]):
         g = _prim(prims, q)
         passable = prims[20, q] > F32(0.0)
         qnx, qny, qnz = prims[9, q], prims[10, q], prims[11, q]
-        sf = prims[21, q]
-        sr, sg, sb = prims[23, q], prims[24, q], prims[25, q]
+        let_in = F32(1.0) - prims[21, q]
+        sigma = prims[22, q]
         for lane in range(LANES):
             ok, t = _lane_hit(P, lane, SX, g, eps, P[S_DIST + lane])
             Q[OCCLUDED + lane] = 1 if ok & (not passable) else Q[OCCLUDED + lane]
             cross = ok & passable
             enters = (P[SX + lane] * qnx + P[SY + lane] * qny + P[SZ + lane] * qnz) < F32(0.0)
-            sign = F32(-1.0) if enters else F32(1.0)
-            P[TAUR + lane] += sign * sr * t if cross else F32(0.0)
-            P[TAUG + lane] += sign * sg * t if cross else F32(0.0)
-            P[TAUB + lane] += sign * sb * t if cross else F32(0.0)
-            P[OPR + lane] -= sign * sr if cross else F32(0.0)
-            P[OPG + lane] -= sign * sg if cross else F32(0.0)
-            P[OPB + lane] -= sign * sb if cross else F32(0.0)
+            signed = -sigma if enters else sigma
+            P[TAU + lane] += signed * t if cross else F32(0.0)
+            P[OPEN + lane] -= signed if cross else F32(0.0)
             Q[N_OPEN + lane] += (np.int32(1) if enters else np.int32(-1)) if cross else np.int32(0)
-            P[STR + lane] *= (F32(1.0) - sf) if cross & enters else F32(1.0)
+            P[STR + lane] *= let_in if cross & enters else F32(1.0)
 
 
 @kernel
@@ -783,13 +782,10 @@ def _add_light_media(P, Q):
     for lane in range(LANES):
         free = Q[OCCLUDED + lane] == 0
         length = P[S_DIST + lane] if Q[N_OPEN + lane] > 0 else F32(0.0)
-        tr = P[STR + lane]
-        er = exp32(-max(P[TAUR + lane] + P[OPR + lane] * length, F32(0.0)))
-        eg = exp32(-max(P[TAUG + lane] + P[OPG + lane] * length, F32(0.0)))
-        eb = exp32(-max(P[TAUB + lane] + P[OPB + lane] * length, F32(0.0)))
-        P[LR + lane] += P[CR + lane] * tr * er if free else F32(0.0)
-        P[LG + lane] += P[CG + lane] * tr * eg if free else F32(0.0)
-        P[LB + lane] += P[CB + lane] * tr * eb if free else F32(0.0)
+        tr = P[STR + lane] * exp32(-max(P[TAU + lane] + P[OPEN + lane] * length, F32(0.0)))
+        P[LR + lane] += P[CR + lane] * tr if free else F32(0.0)
+        P[LG + lane] += P[CG + lane] * tr if free else F32(0.0)
+        P[LB + lane] += P[CB + lane] * tr if free else F32(0.0)
 
 
 @kernel
@@ -886,12 +882,24 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
         if sobol:
             _sobol_stage(P, Q, SD)
         _gather(P, Q, rng, prims, light_prim, light_cdf, sobol, media)
-        if media:
-            _flight(P, Q, rng)
+        if media:  # each medium stage only where some lane needs it
+            inside = 0
+            for lane in range(LANES):
+                inside += Q[IN_MED + lane]
+                Q[EVENT + lane] = 0
+            if inside > 0:
+                _flight(P, Q, rng)
         _shade(P, Q, rng, eps, np.int32(max_depth), sobol, media)
         if media:
-            _enter(P, Q)
-            _scatter(P, Q, rng, eps, np.int32(max_depth), sobol)
+            crossed = 0
+            events = 0
+            for lane in range(LANES):
+                crossed += Q[CROSS + lane] != 0
+                events += Q[EVENT + lane]
+            if crossed > 0:
+                _enter(P, Q, prims)
+            if events > 0:
+                _scatter(P, Q, rng, eps, np.int32(max_depth), sobol)
             _shadow_media(P, Q, prims, eps)
             _add_light_media(P, Q)
         else:
