@@ -441,7 +441,7 @@ def _gather(P, Q, rng, prims, light_prim, light_cdf, sobol, media):
     ``media`` its medium's too) and a light picked by power, with its columns (a scene of one
     light: none to pick, its columns written once, by the first call). ``sobol``: the pick of
     the first vertices is U_PICK's."""
-    for lane in range(LANES):  # indexed loads: AVX-512's gathers
+    for lane in range(LANES):  # indexed loads: scalar (LLVM cannot bound their addresses)
         h = max(Q[HIT + lane], 0)
         P[NX + lane], P[NY + lane], P[NZ + lane] = prims[9, h], prims[10, h], prims[11, h]
         P[AR + lane], P[AG + lane], P[AB + lane] = prims[12, h], prims[13, h], prims[14, h]
