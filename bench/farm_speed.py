@@ -3,7 +3,7 @@ completion, per-task overhead, and prefork (N single-threaded processes) against
 with N numba threads.
 
     .venv/bin/python -m bench.farm_speed [--scene examples/cornell_box.json] [--repeats 3]
-        [--equal-passes] [--pass-growth 1 2] [--prefork-only]
+        [--equal-passes] [--pass-growth 1 2] [--prefork-only] [--kernel scalar|packet]
 
 Each configuration starts an embedded Redis and one worker node, waits until its processes are
 warm (JIT loaded), renders the job once untimed (the scene compiled in every process), then
@@ -111,30 +111,32 @@ from renderer.render import render_buffer
 from renderer.scene import load_scene
 from renderer.scene.compile import compile_scene
 cs = compile_scene(load_scene(json.loads(sys.stdin.read())))
-render_buffer(cs, 1)  # untimed: loads the kernels
+kernel = sys.argv[1]
+render_buffer(cs, 1, kernel=kernel)  # untimed: loads the kernels
 t0 = time.perf_counter()
-render_buffer(cs)
+render_buffer(cs, kernel=kernel)
 print(time.perf_counter() - t0)
 """
 
 
-def local_seconds(scene: dict, threads: int) -> float:
+def local_seconds(scene: dict, threads: int, kernel: str = "scalar") -> float:
     """Seconds ``render_buffer`` takes for the whole ``scene`` in a fresh process with
-    ``threads`` numba threads, kernels loaded, the scene compiled (what ``lucent render`` spends
-    rendering): the local render the farm is compared with."""
-    out = subprocess.run([sys.executable, "-c", _LOCAL], input=json.dumps(scene), cwd=ROOT,
+    ``threads`` numba threads and ``kernel``, kernels loaded, the scene compiled (what ``lucent
+    render`` spends rendering): the local render the farm is compared with."""
+    out = subprocess.run([sys.executable, "-c", _LOCAL, kernel], input=json.dumps(scene), cwd=ROOT,
                          env={**os.environ, "NUMBA_NUM_THREADS": str(threads)},
                          capture_output=True, text=True, check=True)
     return float(out.stdout.split()[-1])
 
 
 def measure(name: str, concurrency: int, threads: int, body: dict, repeats: int,
-            growths: list[int | None]) -> list[dict]:
+            growths: list[int | None], kernel: str = "scalar") -> list[dict]:
     """The job ``repeats`` times for each pass growth of ``growths`` (None: the farm's
-    default), taking turns on one worker node, each after a local render."""
+    default), taking turns on one worker node rendering with ``kernel``, each after a local
+    render with the same kernel."""
     server = EmbeddedRedis().start()
     proc = start_worker(server.url, concurrency, threads, log=open(os.devnull, "w"),
-                        extra_env={"LUCENT_KEY_PREFIX": "bench"})
+                        extra_env={"LUCENT_KEY_PREFIX": "bench"}, kernel=kernel)
     store = JobStore(redis.Redis.from_url(server.url), "bench")
     runs: dict[int | None, list[dict]] = {g: [] for g in growths}
     local: dict[int | None, list[float]] = {g: [] for g in growths}
@@ -151,7 +153,8 @@ def measure(name: str, concurrency: int, threads: int, body: dict, repeats: int,
             # each job after a local render on as many cores (the same drift of the machine)
             for _ in range(repeats):
                 for g, client in clients.items():
-                    local[g].append(local_seconds(body["scene"], concurrency * threads))
+                    local[g].append(local_seconds(body["scene"], concurrency * threads,
+                                                  kernel))
                     runs[g] += timed_runs(client, store, body, 1, concurrency)
     finally:
         terminate(proc, 30)
@@ -187,6 +190,8 @@ def main() -> None:
     parser.add_argument("--pass-growth", type=int, nargs="+", default=[None],
                         help="the farm's pass growth (LUCENT_PASS_GROWTH) for the job, several "
                              "taking turns (default: the farm's default)")
+    parser.add_argument("--kernel", choices=["scalar", "packet"], default="scalar",
+                        help="the kernel of the worker node and of the local render")
     parser.add_argument("--prefork-only", action="store_true",
                         help="leave out one process of N numba threads")
     args = parser.parse_args()
@@ -201,10 +206,10 @@ def main() -> None:
     for label, shape in shapes:
         body = {"scene": scene, **shape}
         measure(f"prefork {cores}x1 thread, {label}", cores, 1, body, args.repeats,
-                args.pass_growth)
+                args.pass_growth, args.kernel)
         if not args.prefork_only:
             measure(f"1 process x{cores} threads, {label}", 1, cores, body, args.repeats,
-                    args.pass_growth)
+                    args.pass_growth, args.kernel)
 
 
 if __name__ == "__main__":
