@@ -326,6 +326,69 @@ def test_hg_direction_is_henyey_greenstein_distributed(g):
         assert abs(np.mean(1.0 / d[:, 3]) / (4 * math.pi) - 1.0) < 0.02
 
 
+def test_an_event_samples_the_phase_function_and_weighs_its_light_sample():
+    """``_scatter`` on 16 lanes at a medium's event (g 0.6, albedo 1, a square light above):
+    the new direction's density (PDF_B, the MIS weight of an emitter found next) is
+    Henyey–Greenstein's at the angle turned, the event's point is FLIGHT along the ray, and its
+    light sample carries Le · phase · w / pdf_l with w the power heuristic of pdf_l (solid angle)
+    against the phase function, as ``renderer.integrators.direct.medium_direct`` computes it."""
+    from renderer import packet as pk
+    from renderer.materials.phase import hg_pdf
+
+    lanes, g = pk.LANES, 0.6
+    P = np.zeros(pk.FLOAT_ROWS * lanes, np.float32)
+    Q = np.zeros(pk.INT_ROWS * lanes, np.int32)
+    rng = np.random.default_rng(9)
+    d = rng.normal(size=(lanes, 3))
+    d /= np.linalg.norm(d, axis=1)[:, None]
+    o = rng.uniform(-0.3, 0.3, (lanes, 3))
+
+    def put(row, values):
+        P[row:row + lanes] = values
+
+    for k, row in enumerate((pk.OX, pk.OY, pk.OZ)):
+        put(row, o[:, k])
+    for k, row in enumerate((pk.DX, pk.DY, pk.DZ)):
+        put(row, d[:, k])
+    for row in (pk.TR, pk.TG, pk.TB, pk.MAR, pk.MAG, pk.MAB):
+        put(row, 1.0)
+    put(pk.FLIGHT, 0.1)
+    put(pk.MG, g)
+    # the light: a 0.5 × 0.5 square at y = 1 facing down, emission (4, 3, 2), pmf 1
+    for row, value in ((pk.QOX, -0.25), (pk.QOY, 1.0), (pk.QOZ, -0.25), (pk.QAX, 0.5),
+                       (pk.QBZ, 0.5), (pk.QNY, -1.0), (pk.Q_PA, 4.0), (pk.QER, 4.0),
+                       (pk.QEG, 3.0), (pk.QEB, 2.0)):
+        put(row, value)
+    Q[pk.EVENT:pk.EVENT + lanes] = 1
+    Q[pk.IN_MED:pk.IN_MED + lanes] = 1
+    pk._scatter(P, Q, np.arange(lanes, dtype=np.uint32) * np.uint32(7919), np.float32(1e-4),
+                np.int32(-1), False)
+
+    def get(row):
+        return P[row:row + lanes].astype(np.float64)
+
+    p = o + 0.1 * d
+    np.testing.assert_allclose(np.stack([get(pk.OX), get(pk.OY), get(pk.OZ)], 1), p, atol=1e-6)
+    new = np.stack([get(pk.DX), get(pk.DY), get(pk.DZ)], 1)
+    np.testing.assert_allclose(np.linalg.norm(new, axis=1), 1.0, atol=1e-5)
+    turned = np.einsum("ij,ij->i", d, new)
+    np.testing.assert_allclose(get(pk.PDF_B), [hg_pdf(c, g) for c in turned], rtol=2e-4)
+    assert (Q[pk.DEPTH:pk.DEPTH + lanes] == 1).all() and (Q[pk.DONE:pk.DONE + lanes] == 1).all()
+    # the light sample: direction to its point, pdf in solid angle, the power heuristic
+    w = np.stack([get(pk.SX), get(pk.SY), get(pk.SZ)], 1)
+    dist = get(pk.S_DIST) + 1e-4
+    point = p + w * dist[:, None]
+    np.testing.assert_allclose(point[:, 1], 1.0, atol=1e-5)
+    assert (np.abs(point[:, [0, 2]]) <= 0.25 + 1e-5).all()
+    cos_l = w[:, 1]
+    pdf_l = 4.0 * dist ** 2 / cos_l
+    ph = np.array([hg_pdf(c, g) for c in np.einsum("ij,ij->i", d, w)])
+    expected = ph * pdf_l / (pdf_l ** 2 + ph ** 2)
+    assert (Q[pk.OCCLUDED:pk.OCCLUDED + lanes] == 0).all()
+    for row, le in ((pk.CR, 4.0), (pk.CG, 3.0), (pk.CB, 2.0)):
+        np.testing.assert_allclose(get(row), le * expected, rtol=2e-4)
+
+
 @pytest.mark.parametrize(("change", "reason"), [
     (lambda d: d["objects"].append({"type": "sphere", "center": [0, -0.7, 0], "radius": 0.2,
                                     "material": "white"}), "spheres"),
