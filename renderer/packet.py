@@ -93,6 +93,7 @@ _QUARTER_PI = np.float32(math.pi / 4.0)
 _RR_MAX = np.float32(RR_MAX)
 _RR_DEPTH = np.int32(RR_DEPTH)
 _WEYL = np.uint32(0x9E3779B9)
+_GOLDEN64 = np.uint64(0x9E3779B97F4A7C15)  # renderer.rng.sample_key's
 _H1 = np.uint32(0x7FEB352D)
 _H2 = np.uint32(0x846CA68B)
 _TWO_POW_M24 = np.float32(1.0 / 16777216.0)
@@ -812,6 +813,9 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
     s = 0
     live = 0
     sob_pixel = -1
+    key_pixel = -1
+    pixel_key = np.uint64(0)
+    seed_key = mix64(np.uint64(seed) + _GOLDEN64)
     for lane in range(LANES):
         Q[DEAD + lane] = 1
         Q[LIGHT + lane] = -1
@@ -841,7 +845,10 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
             index = sample_start + s
             s += 1
             pixel = y * width + x
-            key = sample_key(seed, pixel, index)
+            if key_pixel != pixel:  # sample_key's first two mixes, once a pixel
+                pixel_key = mix64(seed_key ^ np.uint64(pixel))
+                key_pixel = pixel
+            key = mix64(pixel_key ^ (np.uint64(index) * _GOLDEN64 + np.uint64(1)))
             z = _step(np.uint32((key ^ (key >> np.uint64(32))) & np.uint64(0xFFFFFFFF)))
             jx = float(_float(z))
             z = _step(z)
