@@ -127,12 +127,15 @@ def cmd_render(args: argparse.Namespace) -> int:
     )
     if not _kernel_usable(args.kernel):
         return 1
-    if args.kernel == "packet":
-        from renderer.packet import unsupported as packet_unsupported
+    from renderer.packet import unsupported as packet_unsupported
 
+    if args.kernel == "packet":
         if (reason := packet_unsupported(compiled)) is not None:
             print(f"the packet kernel does not cover {reason}: the scalar kernel renders it",
                   file=sys.stderr)
+    elif args.kernel == "scalar" and packet_unsupported(compiled) is None:
+        print("the packet kernel covers this scene: --kernel packet traces 16 paths at once "
+              "in the vector lanes (docs/renderer.md)", file=sys.stderr)
     elif args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
         by = "the scalar kernel" if args.kernel == "wavefront" else "the GPU's path kernel"
         print(f"the wavefront stages do not cover {reason}: {by} renders it", file=sys.stderr)

@@ -83,6 +83,30 @@ def test_render_refuses_unknown_image_type(tmp_path, capsys):
     assert ".exr" in capsys.readouterr().err
 
 
+def test_render_says_where_the_packet_kernel_would_serve(tmp_path, capsys):
+    """The scalar kernel (the default) on a scene the packet kernel covers names the faster
+    option; with --kernel packet the image is the packet kernel's; a scene it does not cover
+    gets no hint, and --kernel packet there says why the scalar kernel renders it."""
+    scene = small_scene(tmp_path)
+    assert main(["render", str(scene), "-o", str(tmp_path / "a.npy"), "-q"]) == 0
+    assert "the packet kernel covers this scene: --kernel packet" in capsys.readouterr().err
+    assert main(["render", str(scene), "-o", str(tmp_path / "b.npy"), "-q", "--kernel",
+                 "packet"]) == 0
+    err = capsys.readouterr().err
+    assert "packet kernel" not in err
+    assert not np.array_equal(np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy"))
+    data = json.loads(scene.read_text())
+    data["objects"].append({"type": "sphere", "center": [0, -0.6, 0], "radius": 0.3,
+                            "material": "white"})
+    spheres = tmp_path / "spheres.json"
+    spheres.write_text(json.dumps(data))
+    assert main(["render", str(spheres), "-o", str(tmp_path / "c.npy"), "-q"]) == 0
+    assert "packet kernel" not in capsys.readouterr().err
+    assert main(["render", str(spheres), "-o", str(tmp_path / "d.npy"), "-q", "--kernel",
+                 "packet"]) == 0
+    assert "the packet kernel does not cover spheres" in capsys.readouterr().err
+
+
 def test_render_reports_what_auto_chose(tmp_path, capsys):
     data = json.loads(small_scene(tmp_path).read_text())
     data["materials"]["wax"] = {"type": "translucent", "method": "auto", "ior": 1.3,
