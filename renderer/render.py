@@ -41,8 +41,9 @@ def render_tile(
     independent sampler, and leaves the others to the scalar kernel), ``"gpu"`` (this process's
     CUDA GPU, every scene: the wavefront stages where they cover it, else the scalar kernel's
     path function one thread a path; ``renderer.wavefront.gpu``) or ``"packet"`` (16 paths at
-    once in float32 vector lanes, ``renderer.packet``: flat diffuse scenes lit by emitting
-    surfaces under the independent sampler; the scalar kernel renders the others).
+    once in float32 vector lanes, ``renderer.packet``: flat scenes of diffuse and grey
+    single_scatter materials lit by emitting surfaces, under either sampler; the scalar kernel
+    renders the others).
     """
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {KERNELS}, not {kernel!r}")
