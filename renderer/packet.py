@@ -74,7 +74,13 @@ from renderer.materials.diffuse import ALBEDO
 from renderer.materials.phase import ISOTROPIC_G
 from renderer.materials.translucent import ALBEDO as MEDIUM_ALBEDO
 from renderer.materials.translucent import CHROMATIC, DENSITY, SURFACE_FRACTION, G
-from renderer.rng import mix64, sample_key, sobol_block_seeds, sobol_value
+from renderer.rng import (
+    key_of_sample,
+    mix64,
+    pixel_key,
+    sobol_block_seeds,
+    sobol_value,
+)
 
 LANES = 16
 F32 = np.float32
@@ -93,7 +99,6 @@ _QUARTER_PI = np.float32(math.pi / 4.0)
 _RR_MAX = np.float32(RR_MAX)
 _RR_DEPTH = np.int32(RR_DEPTH)
 _WEYL = np.uint32(0x9E3779B9)
-_GOLDEN64 = np.uint64(0x9E3779B97F4A7C15)  # renderer.rng.sample_key's
 _H1 = np.uint32(0x7FEB352D)
 _H2 = np.uint32(0x846CA68B)
 _TWO_POW_M24 = np.float32(1.0 / 16777216.0)
@@ -136,6 +141,7 @@ if SOBOL_VERTICES != 2:  # _lane_seed selects between vertex 0's and vertex 1's 
 # emit), 1 for a triangle; then its material's medium: 1 for single_scatter, the surface
 # fraction, σt (grey: the kernel covers no chromatic medium), g
 PRIM_ROWS = 24
+SINGLE, FRACTION, SIGMA, PHASE_G = 20, 21, 22, 23  # the medium's rows of the columns
 
 
 def unsupported(scene) -> str | None:
@@ -193,10 +199,10 @@ def prim_columns(scene) -> np.ndarray:
     mp = S.mat_param[S.prim_material]
     cols[12:15] = np.where(single, mp[:, MEDIUM_ALBEDO:MEDIUM_ALBEDO + 3].T,
                            mp[:, ALBEDO:ALBEDO + 3].T)
-    cols[20] = single
-    cols[21] = np.where(single, mp[:, SURFACE_FRACTION], 0.0)
-    cols[22] = np.where(single, mp[:, DENSITY], 0.0)
-    cols[23] = np.where(single & (np.abs(mp[:, G]) >= ISOTROPIC_G), mp[:, G], 0.0)
+    cols[SINGLE] = single
+    cols[FRACTION] = np.where(single, mp[:, SURFACE_FRACTION], 0.0)
+    cols[SIGMA] = np.where(single, mp[:, DENSITY], 0.0)
+    cols[PHASE_G] = np.where(single & (np.abs(mp[:, G]) >= ISOTROPIC_G), mp[:, G], 0.0)
     tri = S.prim_kind == TRIANGLE
     area = np.where(tri, 0.5 * length, length)
     lit = S.prim_light >= 0
@@ -302,7 +308,6 @@ _LK1 = np.uint32(0x6C50B47C)
 _LK2 = np.uint32(0xB82F1E52)
 _LK3 = np.uint32(0xC7AFE638)
 _LK4 = np.uint32(0x8D22F6E6)
-_TWO_POW_M24_SOBOL = np.float32(1.0 / 16777216.0)
 
 
 @_inlined
@@ -353,8 +358,8 @@ def sobol_pair32(reversed_index, shuffle, scramble0, scramble1):
     y0 = reverse32(laine_karras32(reversed_index, shuffle))
     u0 = reverse32(laine_karras32(y0, scramble0))
     u1 = reverse32(laine_karras32(pascal32(y0), scramble1))
-    return (np.float32(u0 >> np.uint32(8)) * _TWO_POW_M24_SOBOL,
-            np.float32(u1 >> np.uint32(8)) * _TWO_POW_M24_SOBOL)
+    return (np.float32(u0 >> np.uint32(8)) * _TWO_POW_M24,
+            np.float32(u1 >> np.uint32(8)) * _TWO_POW_M24)
 
 
 @_inlined
@@ -451,7 +456,7 @@ def _gather(P, Q, rng, prims, light_prim, light_cdf, sobol, media):
     if media:  # (the medium's own columns: _enter's, for the lanes that go in)
         for lane in range(LANES):
             h = max(Q[HIT + lane], 0)
-            P[HSS + lane], P[HSF + lane] = prims[20, h], prims[21, h]
+            P[HSS + lane], P[HSF + lane] = prims[SINGLE, h], prims[FRACTION, h]
     n_lights = light_cdf.shape[0]
     for lane in range(LANES):
         li = 0
@@ -472,6 +477,18 @@ def _gather(P, Q, rng, prims, light_prim, light_cdf, sobol, media):
         P[QNX + lane], P[QNY + lane], P[QNZ + lane] = prims[9, q], prims[10, q], prims[11, q]
         P[QER + lane], P[QEG + lane], P[QEB + lane] = prims[15, q], prims[16, q], prims[17, q]
         P[Q_PA + lane], P[Q_TRI + lane] = prims[18, q], prims[19, q]
+
+
+@_inlined
+def _about(lx, ly, lz, nx, ny, nz):
+    """The direction (lx, ly, lz) of the frame about the unit vector n (z along n) in world
+    coordinates: Duff et al.'s branch-free orthonormal basis."""
+    sign = F32(1.0) if nz >= F32(0.0) else F32(-1.0)
+    a = F32(-1.0) / (sign + nz)
+    b = nx * ny * a
+    return (lx * (F32(1.0) + sign * nx * nx * a) + ly * b + lz * nx,
+            lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny,
+            lx * (-sign * nx) + ly * (-ny) + lz * nz)
 
 
 @_inlined
@@ -577,14 +594,12 @@ def _shade(P, Q, rng, eps, max_depth, sobol, media):
         P[SX + lane], P[SY + lane], P[SZ + lane] = wx, wy, wz
         P[S_DIST + lane] = dist - eps
         Q[OCCLUDED + lane] = 0 if lit else 1
-        # the next direction, cosine-weighted about the normal (Duff et al.'s branch-free basis)
+        # the next direction, cosine-weighted about the normal
         lx, ly, lz = cosine_direction(u3, u4)
-        sign = F32(1.0) if nz >= F32(0.0) else F32(-1.0)
-        a = F32(-1.0) / (sign + nz)
-        b = nx * ny * a
-        P[DX + lane] = dx if keep else lx * (F32(1.0) + sign * nx * nx * a) + ly * b + lz * nx
-        P[DY + lane] = dy if keep else lx * (sign * b) + ly * (sign + ny * ny * a) + lz * ny
-        P[DZ + lane] = dz if keep else lx * (-sign * nx) + ly * (-ny) + lz * nz
+        vx, vy, vz = _about(lx, ly, lz, nx, ny, nz)
+        P[DX + lane] = dx if keep else vx
+        P[DY + lane] = dy if keep else vy
+        P[DZ + lane] = dz if keep else vz
         P[PDF_B + lane] = pdf_b if keep else lz * _INV_PI
         # a crossing goes on from the far side of the surface
         P[OX + lane] = P[OX + lane] if event else (hx - nx * eps if cross else px)
@@ -625,7 +640,7 @@ def _enter(P, Q, prims):
             h = Q[HIT + lane]
             Q[IN_MED + lane] = 1
             Q[DONE + lane] = 0
-            P[MSIG + lane], P[MG + lane] = prims[22, h], prims[23, h]
+            P[MSIG + lane], P[MG + lane] = prims[SIGMA, h], prims[PHASE_G, h]
             P[MAR + lane], P[MAG + lane], P[MAB + lane] = prims[12, h], prims[13, h], prims[14, h]
 
 
@@ -717,12 +732,7 @@ def _scatter(P, Q, rng, eps, max_depth, sobol):
         Q[OCCLUDED + lane] = 0 if lit else 1
         # the phase function's direction about d
         lx, ly, lz = hg_direction(u3, u4, g)
-        sign = F32(1.0) if dz >= F32(0.0) else F32(-1.0)
-        e = F32(-1.0) / (sign + dz)
-        k = dx * dy * e
-        P[DX + lane] = lx * (F32(1.0) + sign * dx * dx * e) + ly * k + lz * dx
-        P[DY + lane] = lx * (sign * k) + ly * (sign + dy * dy * e) + lz * dy
-        P[DZ + lane] = lx * (-sign * dx) + ly * (-dy) + lz * dz
+        P[DX + lane], P[DY + lane], P[DZ + lane] = _about(lx, ly, lz, dx, dy, dz)
         P[PDF_B + lane] = hg_pdf32(lz, g)
         P[OX + lane], P[OY + lane], P[OZ + lane] = px, py, pz
         P[PPX + lane], P[PPY + lane], P[PPZ + lane] = px, py, pz
@@ -761,10 +771,10 @@ def _shadow_media(P, Q, prims, eps):
         P[STR + lane] = F32(1.0)
     for q in range(prims.shape[1]):
         g = _prim(prims, q)
-        passable = prims[20, q] > F32(0.0)
+        passable = prims[SINGLE, q] > F32(0.0)
         qnx, qny, qnz = prims[9, q], prims[10, q], prims[11, q]
-        let_in = F32(1.0) - prims[21, q]
-        sigma = prims[22, q]
+        let_in = F32(1.0) - prims[FRACTION, q]
+        sigma = prims[SIGMA, q]
         for lane in range(LANES):
             ok, t = _lane_hit(P, lane, SX, g, eps, P[S_DIST + lane])
             Q[OCCLUDED + lane] = 1 if ok & (not passable) else Q[OCCLUDED + lane]
@@ -814,8 +824,7 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
     live = 0
     sob_pixel = -1
     key_pixel = -1
-    pixel_key = np.uint64(0)
-    seed_key = mix64(np.uint64(seed) + _GOLDEN64)
+    key_of_pixel = np.uint64(0)
     for lane in range(LANES):
         Q[DEAD + lane] = 1
         Q[LIGHT + lane] = -1
@@ -845,10 +854,10 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
             index = sample_start + s
             s += 1
             pixel = y * width + x
-            if key_pixel != pixel:  # sample_key's first two mixes, once a pixel
-                pixel_key = mix64(seed_key ^ np.uint64(pixel))
+            if key_pixel != pixel:  # sample_key's pixel part, once a pixel
+                key_of_pixel = pixel_key(seed, pixel)
                 key_pixel = pixel
-            key = mix64(pixel_key ^ (np.uint64(index) * _GOLDEN64 + np.uint64(1)))
+            key = key_of_sample(key_of_pixel, index)
             z = _step(np.uint32((key ^ (key >> np.uint64(32))) & np.uint64(0xFFFFFFFF)))
             jx = float(_float(z))
             z = _step(z)
@@ -856,7 +865,8 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
             rng[lane] = z
             if sobol:
                 if sob_pixel != pixel:  # the thread's next pixel: its sequences' seeds
-                    sobol_block_seeds(mix64(sample_key(seed, pixel, 0) ^ PIXEL_SEED_SALT), sob)
+                    sobol_block_seeds(mix64(key_of_sample(key_of_pixel, 0) ^ PIXEL_SEED_SALT),
+                                      sob)
                     sob_pixel = pixel
                 if seed_pixel[lane] != pixel:
                     for b in range(SOBOL_BLOCKS):
@@ -937,7 +947,7 @@ def render_tile_packet(scene, x0: int, y0: int, width: int, height: int, sample_
         packet_rows(prims, light_prim, light_cdf, S.camera, scene.width, scene.height,
                     scene.seed, scene.max_depth, eps, x0, y0, width, height, c, n_chunks,
                     sample_start, counts, buf.sum, buf.sum_sq, buf.count, buf.dropped,
-                    buf.segments, S.sampler[0] == 1, bool(prims[20].any()),
+                    buf.segments, S.sampler[0] == 1, bool(prims[SINGLE].any()),
                     np.zeros(FLOAT_ROWS * LANES, F32),
                     np.zeros(INT_ROWS * LANES, np.int32), np.zeros(LANES, np.uint32),
                     np.zeros(LANES, np.int64), np.zeros(SEED_ROWS * LANES, np.uint32),

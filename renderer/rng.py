@@ -32,11 +32,22 @@ def mix64(z):
 
 
 @kernel
+def pixel_key(seed, pixel):
+    """The key every sample of one pixel starts from (``sample_key``'s first two mixes): a
+    kernel that draws many samples of a pixel mixes it once."""
+    return mix64(mix64(np.uint64(seed) + _GOLDEN) ^ np.uint64(pixel))
+
+
+@kernel
+def key_of_sample(key_of_pixel, sample):
+    """``sample_key`` from the pixel's ``pixel_key``."""
+    return mix64(key_of_pixel ^ (np.uint64(sample) * _GOLDEN + _ONE))
+
+
+@kernel
 def sample_key(seed, pixel, sample):
     """The key of one sample: pixel is the global pixel index y·width + x, sample is global too."""
-    k = mix64(np.uint64(seed) + _GOLDEN)
-    k = mix64(k ^ np.uint64(pixel))
-    return mix64(k ^ (np.uint64(sample) * _GOLDEN + _ONE))
+    return key_of_sample(pixel_key(seed, pixel), sample)
 
 
 @kernel
