@@ -3,7 +3,7 @@ completion, per-task overhead, and prefork (N single-threaded processes) against
 with N numba threads.
 
     .venv/bin/python -m bench.farm_speed [--scene examples/cornell_box.json] [--repeats 3]
-        [--equal-passes] [--pass-growth 1 2] [--prefork-only] [--kernel scalar|packet]
+        [--equal-passes] [--pass-growth 1 2] [--prefork-only] [--kernel packet|scalar]
 
 Each configuration starts an embedded Redis and one worker node, waits until its processes are
 warm (JIT loaded), renders the job once untimed (the scene compiled in every process), then
@@ -190,7 +190,7 @@ def main() -> None:
     parser.add_argument("--pass-growth", type=int, nargs="+", default=[None],
                         help="the farm's pass growth (LUCENT_PASS_GROWTH) for the job, several "
                              "taking turns (default: the farm's default)")
-    parser.add_argument("--kernel", choices=["scalar", "packet"], default="scalar",
+    parser.add_argument("--kernel", choices=["scalar", "packet"], default="packet",
                         help="the kernel of the worker node and of the local render")
     parser.add_argument("--prefork-only", action="store_true",
                         help="leave out one process of N numba threads")

@@ -28,7 +28,7 @@ def render_tile(
     sample_start: int,
     sample_count: int,
     active: np.ndarray | None = None,
-    kernel: str = "scalar",
+    kernel: str = "packet",
 ) -> SampleBuffer:
     """Render samples [sample_start, sample_start + sample_count) of every pixel of a tile.
 
@@ -36,14 +36,14 @@ def render_tile(
     rendered as passes 0–7 and 8–15 adds up to the tile rendered as 0–15. ``active`` (h, w)
     limits the pass to the pixels where it is true (a bool or uint8 mask), or gives each pixel
     its number of samples, the first ones of the range (integers; adaptive sampling). ``kernel`` is
-    ``"scalar"`` (one path at a time, every method), ``"wavefront"`` (batches of paths stage by
-    stage, ``renderer.wavefront``; it renders the scenes it covers, surface materials and the
-    independent sampler, and leaves the others to the scalar kernel), ``"gpu"`` (this process's
-    CUDA GPU, every scene: the wavefront stages where they cover it, else the scalar kernel's
-    path function one thread a path; ``renderer.wavefront.gpu``) or ``"packet"`` (16 paths at
-    once in float32 vector lanes, ``renderer.packet``: flat scenes of diffuse and grey
-    single_scatter materials lit by emitting surfaces, under either sampler; the scalar kernel
-    renders the others).
+    ``"packet"`` (the default: 16 paths at once in float32 vector lanes, ``renderer.packet``,
+    for flat scenes of diffuse and grey single_scatter materials lit by emitting surfaces, under
+    either sampler; the scalar kernel renders the others), ``"scalar"`` (one path at a time,
+    every method), ``"wavefront"`` (batches of paths stage by stage, ``renderer.wavefront``; it
+    renders the scenes it covers, surface materials and the independent sampler, and leaves the
+    others to the scalar kernel) or ``"gpu"`` (this process's CUDA GPU, every scene: the
+    wavefront stages where they cover it, else the scalar kernel's path function one thread a
+    path; ``renderer.wavefront.gpu``).
     """
     if kernel not in KERNELS:
         raise ValueError(f"kernel must be one of {KERNELS}, not {kernel!r}")
@@ -94,7 +94,7 @@ def render_buffer(
     threads: int | None = None,
     pass_spp: int | None = None,
     progress: Callable[[int, int, float], None] | None = None,
-    kernel: str = "scalar",
+    kernel: str = "packet",
     plan: Callable[[float], None] | None = None,
 ) -> SampleBuffer:
     """Render a whole frame in passes of ``pass_spp`` samples per pixel.
@@ -138,7 +138,7 @@ def render_buffer(
 
 
 def render(scene, spp: int | None = None, *, threads: int | None = None,
-           kernel: str = "scalar") -> np.ndarray:
+           kernel: str = "packet") -> np.ndarray:
     """Render a scene (dict, validated ``Scene`` or ``CompiledScene``) to an HxWx3 float32 image
     (``kernel``: see ``render_tile``)."""
     return render_buffer(scene, spp, threads=threads, kernel=kernel).mean()

@@ -130,12 +130,10 @@ def cmd_render(args: argparse.Namespace) -> int:
     from renderer.packet import unsupported as packet_unsupported
 
     if args.kernel == "packet":
+        # the default: say which kernel renders a scene the packet kernel leaves to the scalar one
         if (reason := packet_unsupported(compiled)) is not None:
             print(f"the packet kernel does not cover {reason}: the scalar kernel renders it",
                   file=sys.stderr)
-    elif args.kernel == "scalar" and packet_unsupported(compiled) is None:
-        print("the packet kernel covers this scene: --kernel packet traces 16 paths at once "
-              "in the vector lanes (docs/renderer.md)", file=sys.stderr)
     elif args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
         by = "the scalar kernel" if args.kernel == "wavefront" else "the GPU's path kernel"
         print(f"the wavefront stages do not cover {reason}: {by} renders it", file=sys.stderr)
@@ -357,13 +355,13 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--sampler", choices=["independent", "sobol"],
                    help="random numbers of a sample (default: the scene's render.sampler)")
     p.add_argument("--threads", type=int, help="render threads (default: all cores)")
-    p.add_argument("--kernel", choices=KERNELS, default="scalar",
-                   help="scalar: one path at a time, every method (default); wavefront: batches "
-                        "of paths stage by stage, surface materials only (others fall back to "
-                        "scalar); gpu: on this machine's CUDA GPU, every scene (the stages "
-                        "where they cover it); packet: 16 paths at once in the CPU's vector "
-                        "lanes, flat diffuse scenes lit by emitting surfaces (others fall back "
-                        "to scalar)")
+    p.add_argument("--kernel", choices=KERNELS, default="packet",
+                   help="packet (default): 16 paths at once in the CPU's vector lanes, for "
+                        "flat scenes of diffuse and grey single_scatter materials lit by "
+                        "emitting surfaces; the scalar kernel renders the others; scalar: one "
+                        "path at a time, every method; wavefront: batches of paths stage by "
+                        "stage, surface materials only (others fall back to scalar); gpu: on "
+                        "this machine's CUDA GPU, every scene (the stages where they cover it)")
     p.add_argument("--exposure", type=float, default=0.0,
                    help="PNG only: exposure in stops, the image is scaled by 2^EV (default 0)")
     p.add_argument("--tonemap", choices=["clamp", "reinhard", "aces"], default="clamp",
@@ -389,8 +387,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "LUCENT_WORKER_TAGS): it also takes the jobs that require them")
     p.add_argument("--kernel", choices=KERNELS, default=None,
                    help="the kernel the worker node renders with (default: "
-                        "LUCENT_WORKER_KERNEL, else scalar); gpu: on this machine's CUDA GPU; "
-                        "packet: 16 paths in the vector lanes where it covers the scene")
+                        "LUCENT_WORKER_KERNEL, else packet: 16 paths in the vector lanes where "
+                        "it covers the scene, the scalar kernel elsewhere); gpu: on this "
+                        "machine's CUDA GPU")
     p.add_argument("--api-processes", type=int, default=API_PROCESSES,
                    help=f"processes serving the API (default {API_PROCESSES}; 1 serves it in "
                         "this process): the status polls one process answers are bounded by "
@@ -410,9 +409,9 @@ def build_parser() -> argparse.ArgumentParser:
                         "tags it has all of")
     p.add_argument("--kernel", choices=KERNELS, default=None,
                    help="the kernel the node renders with (default: LUCENT_WORKER_KERNEL, else "
-                        "scalar); gpu: on this host's CUDA GPU (every scene), refused "
-                        "where none is seen; tag such a node gpu; packet: 16 paths in the "
-                        "vector lanes where it covers the scene")
+                        "packet: 16 paths in the vector lanes where it covers the scene, the "
+                        "scalar kernel elsewhere); gpu: on this host's CUDA GPU (every scene), "
+                        "refused where none is seen; tag such a node gpu")
     p.set_defaults(func=cmd_worker)
 
     p = sub.add_parser("submit", help="submit a scene to a farm")

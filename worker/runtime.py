@@ -45,7 +45,7 @@ WARM_UP_SCENE: dict[str, Any] = {
 }
 
 
-def warm_up_kernels(kernel: str = "scalar") -> float:
+def warm_up_kernels(kernel: str = "packet") -> float:
     """Render the warm-up scene once and run the adaptive rule's kernels (loads or compiles
     them) and mark the cache folder warm; returns seconds. With another ``kernel`` (the node's
     ``worker_kernel``) the scene is rendered with it too: with ``wavefront`` the scalar kernel
@@ -61,7 +61,7 @@ def warm_up_kernels(kernel: str = "scalar") -> float:
 
     t0 = time.perf_counter()
     compiled = compile_scene(load_scene(WARM_UP_SCENE))
-    render_tile(compiled, 0, 0, 4, 4, 0, 1)
+    render_tile(compiled, 0, 0, 4, 4, 0, 1, kernel="scalar")
     if kernel != "scalar":
         render_tile(compiled, 0, 0, 4, 4, 0, 1, kernel=kernel)
     if kernel == "packet":
@@ -84,7 +84,7 @@ def warm_up_kernels(kernel: str = "scalar") -> float:
     return seconds
 
 
-def prewarm_cache(timeout: float = 1800.0) -> float | None:
+def prewarm_cache(kernel: str = "packet", timeout: float = 1800.0) -> float | None:
     """Fill a cold kernel cache once per worker node, before the prefork pool forks.
 
     In a child process (the parent's numba must not start threads that a fork would copy), and
@@ -93,13 +93,16 @@ def prewarm_cache(timeout: float = 1800.0) -> float | None:
     and with more pool processes than cores, longer than one compile); and a pool process started
     in place of one that died while the others were still compiling does not have to compile
     within Celery's ``worker_proc_alive_timeout``. Returns the seconds it took, or None when the
-    cache was warm or the child failed (the pool processes then compile as before)."""
+    cache was warm or the child failed (the pool processes then compile as before).
+    ``kernel``: the node's ``worker_kernel``, whose CPU kernels are compiled (a GPU node's CUDA
+    kernels are not cached on disk: its pool processes compile those)."""
     if warm_marker().exists():
         return None
     t0 = time.perf_counter()
     try:
         subprocess.run([sys.executable, "-c",
-                        "from worker.runtime import warm_up_kernels; warm_up_kernels()"],
+                        "import sys; from worker.runtime import warm_up_kernels; "
+                        "warm_up_kernels(sys.argv[1])", "scalar" if kernel == "gpu" else kernel],
                        check=True, timeout=timeout)
     except (OSError, subprocess.SubprocessError) as err:
         log.warning("could not fill the kernel cache before the pool started: %s", err)

@@ -48,7 +48,7 @@ def _init_worker(sender: object = None, **_: object) -> None:
     runtime.NODE = str(getattr(sender, "hostname", "") or "")
     if not get_settings().prewarm:
         return
-    seconds = runtime.prewarm_cache()
+    seconds = runtime.prewarm_cache(get_settings().worker_kernel)
     if seconds is not None:
         log.warning("kernel cache was cold: compiled in %.1f s before the pool started", seconds)
 

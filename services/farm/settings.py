@@ -222,14 +222,15 @@ class Settings(BaseSettings):
     """This worker node's tags, comma-separated (``LUCENT_WORKER_TAGS=gpu,bigmem``): it takes
     the jobs that require no tags and those whose tags it has all of (``services.farm.pools``)."""
 
-    worker_kernel: Literal["scalar", "wavefront", "gpu", "packet"] = "scalar"
+    worker_kernel: Literal["scalar", "wavefront", "gpu", "packet"] = "packet"
     """The kernel this worker node renders its passes with (``LUCENT_WORKER_KERNEL``, ``lucent
     worker --kernel``; ``renderer.render.render_tile``'s ``kernel``). ``gpu``: the wavefront
     stages on the node's CUDA GPU, for the scenes they cover (surface materials; the scalar kernel
     renders the rest); ``lucent worker --kernel gpu`` refuses to start where no GPU is seen. Tag
-    such a node ``gpu`` (``--tags gpu``) so that jobs can ask for it. ``packet``: 16 paths at
-    once in the CPU's vector lanes for the scenes it covers (``renderer.packet``), the scalar
-    kernel for the rest."""
+    such a node ``gpu`` (``--tags gpu``) so that jobs can ask for it. ``packet`` (the default,
+    as for ``lucent render``, so that a farm's image is the local render's): 16 paths at once in
+    the CPU's vector lanes for the scenes it covers (``renderer.packet``), the scalar kernel for
+    the rest; ``scalar``: the scalar kernel for every scene."""
 
     blocklist_threshold: int = Field(default=3, ge=1)
     """Failed passes of one job on one worker node after which that node gets none of the job's

@@ -681,9 +681,11 @@ def test_worker_cut_off_mid_task(own_redis, nodes, prefix, cornell):
         nodes.wait_warm(store, node_a, 1)
         node_b = nodes.start(1)
         nodes.wait_warm(store, node_b, 1)
-        scene = _scene(cornell, 32, 32, 256)
+        # 4 tiles x 16 passes = 64 tasks, of 16 K paths each: long enough (~3 ms on the packet
+        # kernel) that A, behind the proxy, takes a second pass before B has rendered the rest
+        scene = _scene(cornell, 32, 32, 1024)
         with _api(own_redis.url, prefix) as api:
-            job_id = _submit(api, scene, 16, 16)  # 4 tiles x 16 passes = 64 tasks
+            job_id = _submit(api, scene, 16, 64)
             n_tasks = store.get_job(job_id).plan.n_tasks
             assert proxy.cut_done.wait(TIMEOUT), nodes.logs()
             match = PUT_PASS.search(proxy.trigger)
@@ -700,7 +702,7 @@ def test_worker_cut_off_mid_task(own_redis, nodes, prefix, cornell):
                    "the late pass dropped")
             assert store.get_job(job_id).tasks_merged == n_tasks
             _assert_nothing_lost(api, store, job_id, scene)
-        assert store.get_job(job_id).samples_merged == 32 * 32 * 256
+        assert store.get_job(job_id).samples_merged == 32 * 32 * 1024
     finally:
         store.r.close()
         nodes.stop()
@@ -1100,7 +1102,7 @@ def test_a_worker_renders_its_passes_with_its_configured_kernel(in_process_worke
     merged, cs = _one_pass_with_kernel(in_process_worker, prefix, cornell, monkeypatch,
                                        "wavefront")
     assert calls == [(0, 0, 16, 16, 0, 4)]
-    want = rr.render_tile(cs, 0, 0, 16, 16, 0, 4)
+    want = rr.render_tile(cs, 0, 0, 16, 16, 0, 4, kernel="scalar")
     np.testing.assert_allclose(merged.sum, want.sum, rtol=1e-10)
 
 
@@ -1114,4 +1116,5 @@ def test_a_packet_node_renders_the_scenes_the_packet_kernel_covers(in_process_wo
     want = rr.render_tile(cs, 0, 0, 16, 16, 0, 4, kernel="packet")
     np.testing.assert_allclose(merged.sum, want.sum, rtol=1e-12)
     np.testing.assert_array_equal(merged.count, want.count)
-    assert not np.allclose(merged.sum, rr.render_tile(cs, 0, 0, 16, 16, 0, 4).sum, rtol=1e-6)
+    assert not np.allclose(merged.sum, rr.render_tile(cs, 0, 0, 16, 16, 0, 4, kernel="scalar").sum,
+                       rtol=1e-6)

@@ -413,7 +413,7 @@ def test_what_it_leaves_to_the_scalar_kernel(change, reason):
     assert why is not None and reason in why
     # render_tile falls back to the scalar kernel: the same sums bit for bit
     a = render_tile(cs, 0, 0, 8, 6, 0, 2, kernel="packet")
-    b = render_tile(cs, 0, 0, 8, 6, 0, 2)
+    b = render_tile(cs, 0, 0, 8, 6, 0, 2, kernel="scalar")
     np.testing.assert_array_equal(a.sum, b.sum)
 
 

@@ -12,6 +12,9 @@ import numpy as np
 import pytest
 
 from renderer.film.image_io import read_image
+from renderer.render import render
+from renderer.scene import load_scene_file
+from renderer.scene.compile import compile_scene
 from services.cli import main
 
 ROOT = Path(__file__).resolve().parents[2]
@@ -83,17 +86,19 @@ def test_render_refuses_unknown_image_type(tmp_path, capsys):
     assert ".exr" in capsys.readouterr().err
 
 
-def test_render_says_where_the_packet_kernel_would_serve(tmp_path, capsys):
-    """The scalar kernel (the default) on a scene the packet kernel covers names the faster
-    option; with --kernel packet the image is the packet kernel's; a scene it does not cover
-    gets no hint, and --kernel packet there says why the scalar kernel renders it."""
+def test_render_uses_the_packet_kernel_where_it_covers_the_scene(tmp_path, capsys):
+    """The default kernel is the packet kernel: on a scene it covers the image is its own
+    (``render_tile(kernel="packet")``), not the scalar kernel's (``--kernel scalar``), and
+    nothing is said; on a scene it does not cover the scalar kernel renders it and says why."""
     scene = small_scene(tmp_path)
     assert main(["render", str(scene), "-o", str(tmp_path / "a.npy"), "-q"]) == 0
-    assert "the packet kernel covers this scene: --kernel packet" in capsys.readouterr().err
+    assert "packet kernel" not in capsys.readouterr().err
     assert main(["render", str(scene), "-o", str(tmp_path / "b.npy"), "-q", "--kernel",
-                 "packet"]) == 0
-    err = capsys.readouterr().err
-    assert "packet kernel" not in err
+                 "scalar"]) == 0
+    assert "packet kernel" not in capsys.readouterr().err
+    compiled = compile_scene(load_scene_file(scene))
+    np.testing.assert_array_equal(np.load(tmp_path / "a.npy"), render(compiled, kernel="packet"))
+    np.testing.assert_array_equal(np.load(tmp_path / "b.npy"), render(compiled, kernel="scalar"))
     assert not np.array_equal(np.load(tmp_path / "a.npy"), np.load(tmp_path / "b.npy"))
     data = json.loads(scene.read_text())
     data["objects"].append({"type": "sphere", "center": [0, -0.6, 0], "radius": 0.3,
@@ -101,10 +106,11 @@ def test_render_says_where_the_packet_kernel_would_serve(tmp_path, capsys):
     spheres = tmp_path / "spheres.json"
     spheres.write_text(json.dumps(data))
     assert main(["render", str(spheres), "-o", str(tmp_path / "c.npy"), "-q"]) == 0
-    assert "packet kernel" not in capsys.readouterr().err
-    assert main(["render", str(spheres), "-o", str(tmp_path / "d.npy"), "-q", "--kernel",
-                 "packet"]) == 0
-    assert "the packet kernel does not cover spheres" in capsys.readouterr().err
+    err = capsys.readouterr().err
+    assert "the packet kernel does not cover spheres" in err
+    assert "the scalar kernel renders it" in err
+    np.testing.assert_array_equal(np.load(tmp_path / "c.npy"),
+                                  render(compile_scene(load_scene_file(spheres)), kernel="scalar"))
 
 
 def test_render_reports_what_auto_chose(tmp_path, capsys):

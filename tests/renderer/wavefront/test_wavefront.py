@@ -35,7 +35,8 @@ def example(name: str, width=24, height=18, **render_settings) -> dict:
 
 def both(cs, sample_start=0, sample_count=8, active=None, **kw):
     active = np.ones((cs.height, cs.width), np.uint8) if active is None else active
-    scalar = render_tile(cs, 0, 0, cs.width, cs.height, sample_start, sample_count, active)
+    scalar = render_tile(cs, 0, 0, cs.width, cs.height, sample_start, sample_count, active,
+                         kernel="scalar")
     wave = render_tile_wavefront(cs, 0, 0, cs.width, cs.height, sample_start, sample_count,
                                  active, **kw)
     return scalar, wave
@@ -140,7 +141,7 @@ def test_deterministic_and_independent_of_tiles_passes_and_batches():
 def test_a_scene_beyond_the_surface_materials_falls_back_to_the_scalar_kernel():
     cs = compile_scene(load_scene(example("translucent_sphere", width=8, height=6)))
     assert "material kinds" in unsupported(cs)
-    a = render_tile(cs, 0, 0, 8, 6, 0, 2)
+    a = render_tile(cs, 0, 0, 8, 6, 0, 2, kernel="scalar")
     b = render_tile(cs, 0, 0, 8, 6, 0, 2, kernel="wavefront")
     np.testing.assert_array_equal(a.sum, b.sum)
     sobol = compile_scene(load_scene(example("cornell_box", sampler="sobol")))
@@ -163,7 +164,7 @@ def test_textures_and_shading_normals_fall_back_to_the_scalar_kernel():
         "type": "checkerboard", "color0": [0.8, 0.2, 0.2], "color1": [0.1, 0.1, 0.6]}}
     cs = compile_scene(load_scene(scene))
     assert unsupported(cs) == "textured materials"
-    a = render_tile(cs, 0, 0, 8, 6, 0, 2)
+    a = render_tile(cs, 0, 0, 8, 6, 0, 2, kernel="scalar")
     b = render_tile(cs, 0, 0, 8, 6, 0, 2, kernel="wavefront")
     np.testing.assert_array_equal(a.sum, b.sum)
     smooth = example("cornell_box", width=8, height=6)
@@ -183,7 +184,7 @@ def test_cornell_box_error_against_the_mitsuba_reference():
     h, w = ref.shape[:2]
     data = example("cornell_box", width=w, height=h, spp=64, seed=1)
     wave = render(data, kernel="wavefront").astype(np.float64)
-    scalar = render(data).astype(np.float64)
+    scalar = render(data, kernel="scalar").astype(np.float64)
     mitsuba = np.mean([np.mean((np.load(DATA / f"cornell_box_spp64_seed{k}.npy") - ref) ** 2)
                        for k in range(1, 5)])
     mse = np.mean((wave - ref) ** 2)
