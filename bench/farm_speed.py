@@ -145,8 +145,9 @@ def measure(name: str, concurrency: int, threads: int, body: dict, repeats: int,
               interval=0.2)
         with contextlib.ExitStack() as stack:
             # the service plans the passes (LUCENT_PASS_GROWTH): one API per growth, one farm
+            # (and for the workers' kernel: a scene the packet kernel covers gets larger passes)
             clients = {g: stack.enter_context(TestClient(create_app(Settings(
-                redis_url=server.url, key_prefix="bench",
+                redis_url=server.url, key_prefix="bench", worker_kernel=kernel,
                 **({} if g is None else {"pass_growth": g}))))) for g in growths}
             for client in clients.values():
                 run_job(client, body, store)  # untimed: compiles the scene in every process

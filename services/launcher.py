@@ -310,7 +310,7 @@ class LocalFarm:
                  tags: tuple[str, ...] = (), kernel: str | None = None):
         self.host, self.port = host, port
         self.tags = tags  # the worker node's pool tags
-        self.kernel = kernel  # the kernel it renders with (None: LUCENT_WORKER_KERNEL, scalar)
+        self.kernel = kernel  # the kernel it renders with (None: LUCENT_WORKER_KERNEL, packet)
         self.workers = DEFAULT_WORKERS if workers is None else workers
         # 1: the API serves in this process (a thread, or serve_forever); more: a uvicorn child
         # with that many processes (supervised like the rest)
@@ -353,6 +353,9 @@ class LocalFarm:
             children.append(self.redis_child)
             self.redis_url = self.redis.url
         os.environ["REDIS_URL"] = redis_url = self.redis_url
+        if self.kernel:
+            # the API plans a job's passes for the kernel its workers render with
+            os.environ["LUCENT_WORKER_KERNEL"] = self.kernel
         from services.farm.settings import get_settings
 
         get_settings.cache_clear()

@@ -88,6 +88,24 @@ class CheckedScene:
     frames_json: bytes | None = None  # a job of frames: their JSON Patches
     n_frames: int = 1
     target_error: float | None = None  # render.target_error (the frame's expected relMSE)
+    packet: bool = False  # the packet kernel covers the scene (``packet_covers``)
+
+
+def packet_covers(scene) -> bool:
+    """Whether the packet kernel renders this validated scene (``renderer.packet.unsupported``
+    of the compiled scene is None). A scene with more objects or mesh triangles than the kernel
+    takes primitives is not compiled to find out: it cannot be."""
+    from renderer.geometry.flat import FLAT_MAX
+    from renderer.packet import unsupported
+    from renderer.scene.compile import CompileError, compile_scene
+
+    if len(scene.objects) > FLAT_MAX or sum(
+            len(o.model_arrays()[1]) for o in scene.objects if o.type == "mesh") > FLAT_MAX:
+        return False
+    try:
+        return unsupported(compile_scene(scene)) is None
+    except CompileError:
+        return False
 
 
 def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
@@ -135,16 +153,22 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
     return CheckedScene(parsed.film.width, parsed.film.height, parsed.render.spp, methods,
                         json.dumps(scene).encode(),
                         json.dumps(frames).encode() if frames else None,
-                        len(frames) if frames else 1, parsed.render.target_error)
+                        len(frames) if frames else 1, parsed.render.target_error,
+                        packet_covers(parsed))
 
 
 def queue_job(store: JobStore, records: Records, celery: Celery, settings: Settings,
               options: JobOptions, scene: CheckedScene,
               submitter: str | None = None) -> JobMeta | Refusal:
     """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal."""
-    first = min(options.spp_per_pass or settings.default_spp_per_pass, scene.spp)
+    # The default passes of a scene the workers' packet kernel covers are as many times larger
+    # as that kernel is faster: a task as long, its fixed cost as small a share
+    packet = scene.packet and settings.worker_kernel == "packet"
+    first = min(options.spp_per_pass or (settings.packet_spp_per_pass if packet
+                                         else settings.default_spp_per_pass), scene.spp)
     # The largest pass: as asked, else the default but never below the first pass
-    largest = options.max_spp_per_pass or max(first, settings.default_max_spp_per_pass)
+    largest = options.max_spp_per_pass or max(first, settings.packet_max_spp_per_pass if packet
+                                              else settings.default_max_spp_per_pass)
     if largest < first:
         return Refusal(422, [(["body", "max_spp_per_pass"],
                               f"the largest pass ({largest}) is smaller than the first "

@@ -85,6 +85,19 @@ class Settings(BaseSettings):
     (``services.farm.planner``). 64 samples of a 64-px tile are ~260 000 paths, ~0.15 s of one
     core on the Cornell box: the ~6-8 ms a task costs besides rendering stays a small share."""
 
+    packet_spp_per_pass: int = Field(default=32, ge=1)
+    """The first pass of a job whose scene the packet kernel covers, when the workers render
+    with it (``worker_kernel`` ``packet``, the default; the service reads the same setting, so
+    give the API the workers' ``LUCENT_WORKER_KERNEL``): that kernel traces ~4 times as many
+    paths a second as the scalar kernel (3.7x on the Cornell box), so 4 times the samples keep a
+    task as long and the first preview as early as ``default_spp_per_pass`` on the scalar
+    kernel. With the growth of 2 a 64-spp job runs 32 + 32 samples a tile (the 8, 16, 40 of the
+    scalar default are 3 tasks a tile of 5-25 ms there; the ~4 ms a task costs besides rendering
+    took a fifth of the farm's time: docs/performance.md)."""
+    packet_max_spp_per_pass: int = Field(default=256, ge=1)
+    """The largest pass of such a job when it names none: ``default_max_spp_per_pass`` times
+    the same 4."""
+
     max_tasks_per_job: int = Field(default=200_000, ge=1)
     """The most (tile, pass) tasks one job may plan: bounds the queue and the bookkeeping."""
 

@@ -141,6 +141,9 @@ def test_submission_is_planned_and_listed(client, tiny_scene):
 
 def test_a_submission_gets_growing_passes_by_default(client, tiny_scene):
     tiny_scene["render"]["spp"] = 64
+    # a sphere: the scalar kernel renders the scene, and the default passes are its own
+    tiny_scene["objects"].append({"type": "sphere", "center": [0.0, -0.7, 0.0], "radius": 0.2,
+                                  "material": "white"})
     job = client.post("/api/jobs", json={"scene": tiny_scene, "tile_size": 32}).json()
     # 8, 16, 40 samples: 3 passes of 1 tile (the default first pass 8, growth 2, largest 64)
     assert (job["spp_per_pass"], job["max_spp_per_pass"], job["passes"]) == (8, 64, 3)
@@ -162,6 +165,32 @@ def test_a_submission_gets_growing_passes_by_default(client, tiny_scene):
     assert r.status_code == 422
     assert r.json()["detail"][0]["loc"] == ["body", "max_spp_per_pass"]
     assert "smaller than the first" in r.json()["detail"][0]["msg"]
+
+
+def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings, tiny_scene):
+    """On workers of the packet kernel (the default) a scene it covers gets the packet defaults
+    (32 samples first, 256 at most: 32 + 32 for 64 spp); a scene it does not cover, or a farm
+    of scalar workers, the scalar defaults (8, 16, 40); a job's own sizes stand."""
+    tiny_scene["render"]["spp"] = 64
+    spheres = copy.deepcopy(tiny_scene)
+    spheres["objects"].append({"type": "sphere", "center": [0.0, -0.7, 0.0], "radius": 0.2,
+                               "material": "white"})
+    mirror = copy.deepcopy(tiny_scene)  # a material the packet kernel leaves to the scalar one
+    mirror["materials"]["white"] = {"type": "mirror"}
+
+    def passes(client, scene, **shape):
+        job = client.post("/api/jobs", json={"scene": scene, "tile_size": 32, **shape}).json()
+        return job["spp_per_pass"], job["max_spp_per_pass"], job["passes"], job["largest_pass"]
+
+    assert settings.worker_kernel == "packet"
+    with TestClient(create_app(settings)) as client:
+        assert passes(client, tiny_scene) == (32, 256, 2, 32)
+        assert passes(client, spheres) == (8, 64, 3, 40)
+        assert passes(client, mirror) == (8, 64, 3, 40)
+        assert passes(client, tiny_scene, spp_per_pass=8) == (8, 256, 3, 40)
+        assert passes(client, tiny_scene, spp_per_pass=8, max_spp_per_pass=8) == (8, 8, 8, 8)
+    with TestClient(create_app(settings.model_copy(update={"worker_kernel": "scalar"}))) as c:
+        assert passes(c, tiny_scene) == (8, 64, 3, 40)
 
 
 # --- exactly-once merging -----------------------------------------------------------------------

@@ -514,16 +514,16 @@ def test_workers_killed_repeatedly(own_redis, nodes, prefix, cornell):
     # Each kill costs at most one try of the passes in flight: with more tries than kills no pass
     # can run out of them (the cap itself is tested below).
     env = {"LUCENT_MAX_ATTEMPTS": str(len(kills) + 1)}
-    # 12 tiles x 64 passes = 768 tasks of 16k paths (~12 ms of rendering each): long enough that
-    # a kill lands inside a task, not in the gap between two (with 2k-path tasks the pool
-    # processes waited for the broker much of the time, and in half the runs no kill cost a pass
-    # a try).
-    scene = _scene(cornell, 64, 48, 4096)
+    # 12 tiles x 64 passes = 768 tasks of 64k paths (~10 ms of rendering each on the packet
+    # kernel): long enough that a kill lands inside a task, not in the gap between two (with
+    # 2k-path tasks of the scalar kernel the pool processes waited for the broker much of the
+    # time, and in half the runs no kill cost a pass a try).
+    scene = _scene(cornell, 64, 48, 16384)
     node = nodes.start(2, **env)
     store = JobStore.from_url(own_redis.url, prefix)
     nodes.wait_warm(store, node, 2)
     with _api(own_redis.url, prefix) as api:
-        job_id = _submit(api, scene, 16, 64)
+        job_id = _submit(api, scene, 16, 256)
         total = store.get_job(job_id).plan.n_tasks
         kills_done = 0
         for kind, moment in zip(kills, moments, strict=True):
