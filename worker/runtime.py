@@ -45,15 +45,16 @@ WARM_UP_SCENE: dict[str, Any] = {
 }
 
 
-def warm_up_kernels(kernel: str = "packet") -> float:
-    """Render the warm-up scene once and run the adaptive rule's kernels (loads or compiles
-    them) and mark the cache folder warm; returns seconds. With another ``kernel`` (the node's
-    ``worker_kernel``) the scene is rendered with it too: with ``wavefront`` the scalar kernel
-    stays the one for scenes it does not cover; with ``gpu`` the path kernel, which renders those
-    on the GPU, is compiled as well; with ``packet`` it renders the scene's light alone too (the
-    packet kernel draws no spheres). The CUDA kernels are not cached on disk (their ``cuda.jit``
-    has no ``cache=True``), so each pool process of a GPU node compiles them here
-    (docs/performance.md, "On a GPU")."""
+def warm_up_kernels(kernel: str = "packet", scalar: bool = True, mark: bool = True) -> float:
+    """Render the warm-up scene once with the scalar kernel and run the adaptive rule's kernels
+    (loads or compiles them), and mark the cache folder warm; returns seconds. With another
+    ``kernel`` (the node's ``worker_kernel``) it is rendered with that one too: with
+    ``wavefront`` the scalar kernel stays the one for scenes it does not cover; with ``gpu`` the
+    path kernel, which renders those on the GPU, is compiled as well; with ``packet`` the scene's
+    light alone is rendered (the packet kernel draws no spheres). ``scalar=False``: that kernel
+    alone (``prewarm_cache`` compiles the two at once); ``mark=False``: the cache is not marked.
+    The CUDA kernels are not cached on disk (their ``cuda.jit`` has no ``cache=True``), so each
+    pool process of a GPU node compiles them here (docs/performance.md, "On a GPU")."""
     from renderer.film import adaptive
     from renderer.render import render_tile
     from renderer.scene import load_scene
@@ -61,8 +62,10 @@ def warm_up_kernels(kernel: str = "packet") -> float:
 
     t0 = time.perf_counter()
     compiled = compile_scene(load_scene(WARM_UP_SCENE))
-    render_tile(compiled, 0, 0, 4, 4, 0, 1, kernel="scalar")
-    if kernel != "scalar":
+    if scalar:
+        render_tile(compiled, 0, 0, 4, 4, 0, 1, kernel="scalar")
+        adaptive.warm_up()
+    if kernel in ("wavefront", "gpu"):
         render_tile(compiled, 0, 0, 4, 4, 0, 1, kernel=kernel)
     if kernel == "packet":
         # the warm-up scene's sphere is the scalar kernel's: the packet kernel's on its light
@@ -73,40 +76,63 @@ def warm_up_kernels(kernel: str = "packet") -> float:
         from renderer.wavefront.gpu import render_tile_gpu
 
         render_tile_gpu(compiled, 0, 0, 4, 4, 0, 1, megakernel=True)
-    adaptive.warm_up()
     seconds = time.perf_counter() - t0
+    if mark:
+        mark_warm()
+    return seconds
+
+
+def mark_warm() -> None:
+    """Mark the cache folder warm (``warm_marker``)."""
     try:
         marker = warm_marker()
         marker.parent.mkdir(parents=True, exist_ok=True)
         marker.touch()
     except OSError as err:  # a read-only cache folder: the kernels are loaded all the same
         log.warning("could not mark the kernel cache warm: %s", err)
-    return seconds
+
+
+_WARM_UP = ("import sys; from worker.runtime import warm_up_kernels; "
+            "warm_up_kernels(sys.argv[1], sys.argv[2] == 'scalar', False)")
 
 
 def prewarm_cache(kernel: str = "packet", timeout: float = 1800.0) -> float | None:
     """Fill a cold kernel cache once per worker node, before the prefork pool forks.
 
-    In a child process (the parent's numba must not start threads that a fork would copy), and
+    In child processes (the parent's numba must not start threads that a fork would copy), and
     only when there is no ``warm_marker()``: with a warm cache it costs nothing. The pool processes
     then load the kernels (~1.5 s) instead of each compiling them (~60 s each: N times the CPU,
     and with more pool processes than cores, longer than one compile); and a pool process started
     in place of one that died while the others were still compiling does not have to compile
     within Celery's ``worker_proc_alive_timeout``. Returns the seconds it took, or None when the
-    cache was warm or the child failed (the pool processes then compile as before).
+    cache was warm or a child failed (the pool processes then compile as before).
     ``kernel``: the node's ``worker_kernel``, whose CPU kernels are compiled (a GPU node's CUDA
-    kernels are not cached on disk: its pool processes compile those)."""
+    kernels are not cached on disk: its pool processes compile those). A packet node's two
+    kernels compile at once, in two children (the packet kernel's ~8 s beside the scalar
+    kernel's ~35 s on two cores, not after it); the cache is marked warm once both are done."""
     if warm_marker().exists():
         return None
+    kernel = "scalar" if kernel == "gpu" else kernel
+    # (the kernel, whether the child renders the scalar kernel too)
+    parts = [("scalar", "scalar"), ("packet", "alone")] if kernel == "packet" \
+        else [(kernel, "scalar")]
     t0 = time.perf_counter()
+    children = []
     try:
-        subprocess.run([sys.executable, "-c",
-                        "import sys; from worker.runtime import warm_up_kernels; "
-                        "warm_up_kernels(sys.argv[1])", "scalar" if kernel == "gpu" else kernel],
-                       check=True, timeout=timeout)
+        children = [subprocess.Popen([sys.executable, "-c", _WARM_UP, k, with_scalar])
+                    for k, with_scalar in parts]
+        codes = [child.wait(timeout=max(1.0, timeout - (time.perf_counter() - t0)))
+                 for child in children]
     except (OSError, subprocess.SubprocessError) as err:
+        for child in children:
+            child.kill()
         log.warning("could not fill the kernel cache before the pool started: %s", err)
         return None
+    if any(codes):
+        log.warning("could not fill the kernel cache before the pool started: exit codes %s",
+                    codes)
+        return None
+    mark_warm()
     return time.perf_counter() - t0
 
 

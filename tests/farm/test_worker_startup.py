@@ -36,6 +36,33 @@ def test_prewarm_fills_a_cold_cache_once_and_then_costs_nothing():
     assert runtime.prewarm_cache() is None
 
 
+def test_a_packet_nodes_prewarm_marks_the_cache_only_when_both_children_succeed(monkeypatch,
+                                                                                tmp_path):
+    """A packet node compiles its two kernels in two children at once; the cache is marked warm
+    only once both are done: a child that fails (here the packet one) leaves it unmarked, and
+    the pool processes compile as before."""
+    marker = runtime.warm_marker()
+    was_warm = marker.exists()
+    marker.unlink(missing_ok=True)
+    ran = tmp_path / "children"  # what each child was asked to warm up
+    try:
+        monkeypatch.setattr(runtime, "_WARM_UP", (
+            "import sys; p, k, w = sys.argv[-3:]; open(p, 'a').write(k + ' ' + w + '\\n'); "
+            "sys.exit(k == 'packet')"))
+        real_popen = subprocess.Popen
+        monkeypatch.setattr(runtime.subprocess, "Popen",
+                            lambda args, **kw: real_popen([*args[:3], str(ran), *args[3:]], **kw))
+        assert runtime.prewarm_cache("packet") is None
+        assert not marker.exists()
+        assert sorted(ran.read_text().split("\n")[:-1]) == ["packet alone", "scalar scalar"]
+        ran.unlink()
+        assert runtime.prewarm_cache("scalar") is not None  # one child, which succeeds
+        assert marker.exists() and ran.read_text() == "scalar scalar\n"
+    finally:
+        if not was_warm:
+            marker.unlink(missing_ok=True)  # the marker as it was
+
+
 def test_the_warm_up_loads_the_adaptive_rules_kernels():
     """A worker's warm-up also loads (or compiles) the kernels of render.target_error's rule, so
     a pool process's first pass of a job with a target does not pay for them. In a fresh
