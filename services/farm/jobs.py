@@ -97,14 +97,14 @@ def packet_covers(scene) -> bool:
     takes primitives is not compiled to find out: it cannot be."""
     from renderer.geometry.flat import FLAT_MAX
     from renderer.packet import unsupported
-    from renderer.scene.compile import CompileError, compile_scene
+    from renderer.scene.compile import compile_scene
 
     if len(scene.objects) > FLAT_MAX or sum(
             len(o.model_arrays()[1]) for o in scene.objects if o.type == "mesh") > FLAT_MAX:
         return False
     try:
         return unsupported(compile_scene(scene)) is None
-    except CompileError:
+    except ValueError:  # CompileError: the workers fail the job with the reason
         return False
 
 

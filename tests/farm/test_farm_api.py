@@ -193,6 +193,36 @@ def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings
         assert passes(c, tiny_scene) == (8, 64, 3, 40)
 
 
+def test_packet_covers_compiles_only_a_scene_that_could_be_covered(cornell, monkeypatch):
+    """``packet_covers``: the Cornell box yes, a mirror wall no (compiled, asked); a scene of
+    more objects, or of more mesh triangles, than the kernel takes primitives is not compiled."""
+    import renderer.scene.compile as rc
+    from renderer.scene import load_scene
+    from services.farm.jobs import packet_covers
+
+    assert packet_covers(load_scene(cornell))
+    mirror = copy.deepcopy(cornell)
+    mirror["materials"]["white"] = {"type": "mirror"}
+    assert not packet_covers(load_scene(mirror))
+    many = copy.deepcopy(cornell)
+    many["objects"] += [copy.deepcopy(many["objects"][0]) for _ in range(25)]
+    grid = copy.deepcopy(cornell)
+    grid["objects"].append({"type": "mesh", "material": "white",
+                            "vertices": [[x * 0.1, -0.9, z * 0.1] for z in range(5)
+                                         for x in range(5)],
+                            "triangles": [[q + r, q + r + 1, q + r + 5] for q in range(0, 20, 5)
+                                          for r in range(4)] +
+                                         [[q + r + 1, q + r + 6, q + r + 5]
+                                          for q in range(0, 20, 5) for r in range(4)]})
+    scenes = [load_scene(many), load_scene(grid)]
+
+    def refused(*_a, **_k):
+        raise AssertionError("compiled")
+
+    monkeypatch.setattr(rc, "compile_scene", refused)
+    assert [packet_covers(s) for s in scenes] == [False, False]
+
+
 # --- exactly-once merging -----------------------------------------------------------------------
 
 
