@@ -410,13 +410,13 @@ def test_render_tile_takes_per_pixel_counts():
 
     cs = compile_scene(load_scene(data))
     counts = np.arange(48, dtype=np.int32).reshape(6, 8) % 5
-    buf = render_tile(cs, 0, 0, 8, 6, 10, 4, counts)
+    buf = render_tile(cs, 0, 0, 8, 6, 10, 4, counts, kernel="scalar")  # (packet: test_packet.py)
     np.testing.assert_array_equal(buf.count + buf.dropped, np.minimum(counts, 4))
     # every sample traced at least one segment (its cost), pixels without samples none
     assert np.all(buf.segments >= buf.count + buf.dropped)
     assert np.all(buf.segments[counts == 0] == 0) and buf.segments.max() > 4
     for y, x in ((0, 3), (5, 7), (2, 2)):
-        one = render_tile(cs, x, y, 1, 1, 10, int(min(counts[y, x], 4)))
+        one = render_tile(cs, x, y, 1, 1, 10, int(min(counts[y, x], 4)), kernel="scalar")
         np.testing.assert_array_equal(buf.sum[y, x], one.sum[0, 0])
 
 

@@ -75,8 +75,9 @@ def test_outside_furnace_convex_sphere():
             assert np.all(np.abs(centre - 1.0) < 6 * np.sqrt(var) + 1e-9)
 
 
+@pytest.mark.parametrize("kernel", ["scalar", "packet"])
 @pytest.mark.parametrize("max_depth", [0, 1, 2, 5, -1])
-def test_inside_furnace_geometric_series(max_depth):
+def test_inside_furnace_geometric_series(max_depth, kernel):
     """Inside a closed box whose walls have albedo ρ and emit Le, every point sees
     L = Le·(1 + ρ + … + ρ^k) = Le·(1 − ρ^(k+1))/(1 − ρ) with k = max_depth scattering events,
     and Le/(1 − ρ) for an unlimited depth. This pins down the meaning of max_depth (scene format
@@ -88,7 +89,7 @@ def test_inside_furnace_geometric_series(max_depth):
                {"wall": {"type": "diffuse", "albedo": [rho, rho, rho]}},
                camera={"position": [0.1, 0.2, 0.3], "look_at": [0, 0, -1], "fov": 90},
                spp=64, max_depth=max_depth)
-    buf = render_buffer(sc)
+    buf = render_buffer(sc, kernel=kernel)  # the box is a scene the packet kernel covers
     expected = le / (1 - rho) if max_depth < 0 else le * (1 - rho ** (max_depth + 1)) / (1 - rho)
     var = buf.variance_of_mean()
     se = math.sqrt(var[..., 0].sum()) / var[..., 0].size
