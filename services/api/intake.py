@@ -68,8 +68,9 @@ def _is_json(content_type: str | None) -> bool:
 
 
 def read_submission(body: bytes, content_type: str | None, limits: Limits,
-                    blob_root: str | None = None) -> Submission | Rejection:
-    """Parse and check a ``POST /api/jobs`` body: JSON, then ``JobCreate``, then the scene."""
+                    blob_root: str | None = None, packet: bool = False) -> Submission | Rejection:
+    """Parse and check a ``POST /api/jobs`` body: JSON, then ``JobCreate``, then the scene
+    (``packet``: and whether the packet kernel covers it, ``check_scene``)."""
     # Parse
     if not body:
         data: Any = None
@@ -95,7 +96,7 @@ def read_submission(body: bytes, content_type: str | None, limits: Limits,
         return Rejection(status.HTTP_422_UNPROCESSABLE_CONTENT, error_content(
             {**e, "loc": ("body", *e["loc"])} for e in err.errors(include_url=False)))
     # The scene
-    checked = check_scene(create.scene, limits, blob_root, create.frames)
+    checked = check_scene(create.scene, limits, blob_root, create.frames, packet)
     if isinstance(checked, Refusal):
         return Rejection(checked.status, error_content(
             {"loc": loc, "msg": msg, "type": kind} for loc, msg, kind in checked.errors))
@@ -112,17 +113,19 @@ class Intake:
     else ``processes`` processes of its own, started on first use (spawned: the service's
     threads and connections stay behind)."""
 
-    def __init__(self, inline_bytes: int, processes: int, blob_root: str | None = None):
+    def __init__(self, inline_bytes: int, processes: int, blob_root: str | None = None,
+                 packet: bool = False):
         self.inline_bytes = inline_bytes
         self.processes = processes
         self.blob_root = blob_root  # where the assets that scenes reference are read
+        self.packet = packet  # the workers render with the packet kernel: ask if it covers scenes
         self._pool: ProcessPoolExecutor | None = None
 
     async def read(self, body: bytes, content_type: str | None) -> Submission | Rejection:
         limits = Limits()  # read here: the environment of the service, not of a child
         if len(body) <= self.inline_bytes:
             return await run_in_threadpool(read_submission, body, content_type, limits,
-                                           self.blob_root)
+                                           self.blob_root, self.packet)
         if self._pool is None:
             self._pool = ProcessPoolExecutor(self.processes,
                                              mp_context=multiprocessing.get_context("spawn"))
@@ -130,7 +133,7 @@ class Intake:
         try:
             # Submitted from a thread: the first submission spawns the process
             future = await run_in_threadpool(pool.submit, read_submission, body, content_type,
-                                             limits, self.blob_root)
+                                             limits, self.blob_root, self.packet)
             return await asyncio.wrap_future(future)
         except BrokenProcessPool:
             # The process died (killed for memory?): the next large body starts a new one.

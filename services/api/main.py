@@ -64,7 +64,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
                   description="A render farm for physically based images of translucent things.")
     app.state.settings = settings
     app.state.intake = Intake(settings.intake_inline_bytes, settings.intake_processes,
-                              settings.blob_location)
+                              settings.blob_location, settings.worker_kernel == "packet")
     # Read-only allow-lists for the dashboard, built once: requests name entries, never paths.
     app.state.examples = dashboard.find_examples()
     app.state.figures = dashboard.find_figures()

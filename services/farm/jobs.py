@@ -88,7 +88,7 @@ class CheckedScene:
     frames_json: bytes | None = None  # a job of frames: their JSON Patches
     n_frames: int = 1
     target_error: float | None = None  # render.target_error (the frame's expected relMSE)
-    packet: bool = False  # the packet kernel covers the scene (``packet_covers``)
+    packet: bool = False  # the packet kernel covers the scene (asked on packet farms only)
 
 
 def packet_covers(scene) -> bool:
@@ -109,14 +109,16 @@ def packet_covers(scene) -> bool:
 
 
 def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
-                frames: list | None = None) -> CheckedScene | Refusal:
+                frames: list | None = None, packet: bool = False) -> CheckedScene | Refusal:
     """Validate a scene document with ``limits`` (the farm's, read where the request came in).
     Its asset references (``{"asset": "sha256:…"}``) are read from the blob store in
     ``blob_root`` (a folder or ``s3://bucket/prefix``): an unknown one is refused by its field;
     without a blob store, every one is. With ``frames`` (JSON Patches), every frame's scene is
     validated the same way, and must keep the film size and spp: an error names the frame and
     the operation (``["body", "frames", 2, 0, "path"]``) or the frame's scene field
-    (``["body", "frames", 2, "scene", "render", "spp"]``)."""
+    (``["body", "frames", 2, "scene", "render", "spp"]``). ``packet``: the farm's workers render
+    with the packet kernel, so ask whether it covers the scene (``packet_covers``, which compiles
+    a small scene: not done for a farm of other kernels, whose passes do not depend on it)."""
     assets = asset_reader(open_blob_store(blob_root)) if blob_root is not None else None
     try:
         parsed = load_scene(scene, limits=limits, assets=assets)  # mesh paths are refused
@@ -154,16 +156,17 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
                         json.dumps(scene).encode(),
                         json.dumps(frames).encode() if frames else None,
                         len(frames) if frames else 1, parsed.render.target_error,
-                        packet_covers(parsed))
+                        packet and packet_covers(parsed))
 
 
 def queue_job(store: JobStore, records: Records, celery: Celery, settings: Settings,
               options: JobOptions, scene: CheckedScene,
               submitter: str | None = None) -> JobMeta | Refusal:
     """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal."""
-    # The default passes of a scene the workers' packet kernel covers are as many times larger
-    # as that kernel is faster: a task as long, its fixed cost as small a share
-    packet = scene.packet and settings.worker_kernel == "packet"
+    # The default passes of a scene the workers' packet kernel covers (asked by check_scene on
+    # a farm of packet workers) are as many times larger as that kernel is faster: a task as
+    # long, its fixed cost as small a share
+    packet = scene.packet
     first = min(options.spp_per_pass or (settings.packet_spp_per_pass if packet
                                          else settings.default_spp_per_pass), scene.spp)
     # The largest pass: as asked, else the default but never below the first pass

@@ -167,7 +167,8 @@ def test_a_submission_gets_growing_passes_by_default(client, tiny_scene):
     assert "smaller than the first" in r.json()["detail"][0]["msg"]
 
 
-def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings, tiny_scene):
+def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings, tiny_scene,
+                                                                       monkeypatch):
     """On workers of the packet kernel (the default) a scene it covers gets the packet defaults
     (32 samples first, 256 at most: 32 + 32 for 64 spp); a scene it does not cover, or a farm
     of scalar workers, the scalar defaults (8, 16, 40); a job's own sizes stand."""
@@ -189,6 +190,13 @@ def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings
         assert passes(client, mirror) == (8, 64, 3, 40)
         assert passes(client, tiny_scene, spp_per_pass=8) == (8, 256, 3, 40)
         assert passes(client, tiny_scene, spp_per_pass=8, max_spp_per_pass=8) == (8, 8, 8, 8)
+    # a farm of scalar workers does not ask whether the packet kernel covers the scene
+    import services.farm.jobs as farm_jobs
+
+    def not_asked(_scene):
+        raise AssertionError("packet_covers called on a scalar farm")
+
+    monkeypatch.setattr(farm_jobs, "packet_covers", not_asked)
     with TestClient(create_app(settings.model_copy(update={"worker_kernel": "scalar"}))) as c:
         assert passes(c, tiny_scene) == (8, 64, 3, 40)
 
