@@ -1,23 +1,27 @@
 """``render.target_error`` against uniform sampling: achieved error / target, and time / uniform
 time at the same error, per scene and target.
 
-    .venv/bin/python -m bench.target_error [--scenes ...] [--targets 0.1 0.03 ...] [--out CSV]
-                                           [--chart PNG]
+    .venv/bin/python -m bench.target_error [--scenes ...] [--targets 0.1 0.03 ...] [--seeds K]
+                                           [--out CSV] [--chart PNG]
 
 The scenes: the chart suite (``bench.accuracy.suite``: wax sphere, backlit slab, concave torus,
 thin shell, spheres at albedo 0.5/0.9/0.99, 64×48, the translucent material ``volumetric``,
-Mitsuba 3 volpath references at 16384 spp), plus three scenes outside it: the wax sphere
-in the Cornell box at 160×120 (its Mitsuba reference rendered once and cached), and two with
-committed Mitsuba references at 64×48, the glass sphere (a caustic: very uneven noise) and the
-diffuse Cornell box (even noise). The error is the chart suite's frame relMSE,
-mean((x − ref)²/(ref² + 0.01)), the quantity ``render.target_error`` is defined as
-(renderer/film/adaptive.py).
+Mitsuba 3 volpath references at 16384 spp), plus four scenes outside it: the wax sphere
+in the Cornell box at 160×120 (its Mitsuba reference rendered once and cached), and three with
+committed Mitsuba references at 64×48: the glass sphere in the Cornell box (its caustic mostly
+hidden under the sphere), the caustic floor (a glass sphere over an open floor under a small
+light: the caustic in the sphere's shadow, and the light seen through the sphere from everywhere
+on the floor as rare bright paths; very uneven noise) and the diffuse Cornell box (even noise).
+The error is the chart suite's frame relMSE, mean((x − ref)²/(ref² + 0.01)), the quantity
+``render.target_error`` is defined as (renderer/film/adaptive.py).
 
 Each scene is rendered uniformly at 16 … 4096 spp and with each target (``render.spp`` 8192, which
 no target here reaches); wall time of the whole ``render_buffer`` call (the allocation's
-bookkeeping included), best of ``--repeat`` after a warm-up. "uniform s" is the uniform time at
-the target run's achieved error, interpolated on the uniform log–log curve (slope −1 beyond its
-ends); "time ratio" is the target run's time over it (below 1: the target run was faster at equal
+bookkeeping included), best of ``--repeat`` after a warm-up. With ``--seeds K`` every run is
+made with K seeds and its error and time are the means over them (one seed's error is noisy
+where rare bright paths carry much of the image). "uniform s" is the uniform time at the target
+run's achieved error, interpolated on the uniform log–log curve (slope −1 beyond its ends);
+"time ratio" is the target run's time over it (below 1: the target run was faster at equal
 error). "error/target" should lie in [0.5, 1.1].
 """
 
@@ -36,7 +40,8 @@ from bench.accuracy import ROOT, _loglog, reference, rel_mse, suite, with_method
 UNIFORM_SPP = (16, 64, 256, 1024, 4096)
 TARGETS = (0.1, 0.03, 0.01, 0.003, 0.002)
 CAP = 8192
-EXTRA = ("glass_sphere", "cornell_box")  # outside the chart suite, references in tests/data
+# outside the chart suite, references in tests/data
+EXTRA = ("glass_sphere", "caustic_floor", "cornell_box")
 
 
 def scenes() -> dict[str, tuple[dict, str | None]]:
@@ -53,13 +58,14 @@ def scenes() -> dict[str, tuple[dict, str | None]]:
     return out
 
 
-def scene_at(scene: dict, material: str | None, spp: int, target: float | None) -> dict:
+def scene_at(scene: dict, material: str | None, spp: int, target: float | None,
+             seed: int = 7) -> dict:
     if material is not None:
         data = with_method(scene, material, "volumetric", spp)
     else:
         data = json.loads(json.dumps(scene))
-        data["render"].update(spp=spp, seed=7)
-    data["render"]["target_error"] = target
+        data["render"]["spp"] = spp
+    data["render"].update(seed=seed, target_error=target)
     return data
 
 
@@ -69,6 +75,16 @@ def scene_reference(name: str, scene: dict, material: str | None) -> np.ndarray:
     if material is not None:
         return reference(name, scene, material, 16384)[0]
     return np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+
+
+def measured(scene: dict, material: str | None, spp: int, target: float | None,
+             ref: np.ndarray, seeds: int, repeat: int) -> tuple[float, float, float]:
+    """(wall time, relMSE, mean spp), each the mean over the seeds 7, 8, … (``seeds`` of them):
+    one seed's error is noisy where rare bright paths carry much of the image."""
+    runs = [timed(scene_at(scene, material, spp, target, 7 + k), repeat) for k in range(seeds)]
+    return (float(np.mean([t for t, _, _ in runs])),
+            float(np.mean([rel_mse(img, ref) for _, img, _ in runs])),
+            float(np.mean([n for _, _, n in runs])))
 
 
 def timed(data: dict, repeat: int) -> tuple[float, np.ndarray, float]:
@@ -93,6 +109,8 @@ def main(argv: list[str] | None = None) -> int:
                         choices=list(all_scenes))
     parser.add_argument("--targets", nargs="+", type=float, default=list(TARGETS))
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--seeds", type=int, default=1,
+                        help="average each run's error and time over this many seeds (7, 8, …)")
     parser.add_argument("--out", type=Path, default=None, help="write the rows to this CSV")
     parser.add_argument("--chart", type=Path, default=None, help="draw the chart to this PNG")
     parser.add_argument("--oracle", action="store_true",
@@ -116,15 +134,15 @@ def main(argv: list[str] | None = None) -> int:
         render_buffer(scene_at(scene, material, 1, None))  # warm the JIT
         ut, ue = [], []
         for spp in UNIFORM_SPP:
-            t, img, _ = timed(scene_at(scene, material, spp, None), args.repeat)
+            t, e, _ = measured(scene, material, spp, None, ref, args.seeds, args.repeat)
             ut.append(t)
-            ue.append(rel_mse(img, ref))
+            ue.append(e)
             rows.append({"scene": name, "mode": "uniform", "target": "", "mean_spp": spp,
                          "seconds": t, "rel_mse": ue[-1], "ratio": "", "uniform_seconds": t,
                          "time_ratio": 1.0})
         for target in args.targets:
-            t, img, mean_spp = timed(scene_at(scene, material, CAP, target), args.repeat)
-            e = rel_mse(img, ref)
+            t, e, mean_spp = measured(scene, material, CAP, target, ref, args.seeds,
+                                      args.repeat)
             t_uniform = _loglog(e, np.array(ue), np.array(ut))
             rows.append({"scene": name, "mode": "target", "target": target,
                          "mean_spp": mean_spp, "seconds": t, "rel_mse": e, "ratio": e / target,
@@ -273,11 +291,13 @@ def chart(rows: list[dict], path: Path) -> None:
     import matplotlib.pyplot as plt
 
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
-    for name in dict.fromkeys(r["scene"] for r in rows):
+    for i, name in enumerate(dict.fromkeys(r["scene"] for r in rows)):
         mine = [r for r in rows if r["scene"] == name]
         x = [r["target"] for r in mine]
-        a.plot(x, [r["ratio"] for r in mine], "o-", label=name)
-        b.plot(x, [r["time_ratio"] for r in mine], "o-", label=name)
+        # the colour cycle has 10 colours: the scenes after them dashed, square markers
+        style = "o-" if i < 10 else "s--"
+        a.plot(x, [r["ratio"] for r in mine], style, label=name)
+        b.plot(x, [r["time_ratio"] for r in mine], style, label=name)
     for ax in (a, b):
         ax.set_xscale("log")
         ax.set_xlabel("render.target_error")

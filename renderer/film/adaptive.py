@@ -23,21 +23,30 @@ clamped to [samples it already has, ``render.spp``] (``allocate`` solves for λ 
 by bisection: E is monotone in it). The earlier rule (every pixel below the target on its own,
 n_p ∝ v_p) spent most samples on the noisiest pixels and overshot the target 3–25×.
 
-**No low bias.** A pixel's own samples never decide how many samples it gets: ``v_p`` and ``c_p``
-are estimated from the other 24 pixels of its 5×5 neighbourhood (``neighbour_variance``,
-``sample_cost``), so n_p is independent of the samples averaged into I_p and the mean of a
-number of independent samples fixed by other pixels' samples stays unbiased. Stopping on a
-pixel's own variance biases heavy-tailed pixels low (a pixel whose rare bright path has not come
-yet looks converged and stops with it missing): measured 1.4–3.8 % low on the backlit slab with
-the earlier rule; ``tests/renderer/film/test_adaptive.py`` shows the own-sample rule biased and
-this one not on a heavy-tailed synthetic frame. (The floor of the shaping estimate, a tenth of
-the frame's mean, and the scale λ hold each pixel as one of P.)
+**No low bias.** A pixel's own samples never decide how many samples it gets: the ``v_p`` and
+``c_p`` that shape the counts are estimated from the other 24 pixels of its 5×5 neighbourhood
+(``neighbour_variance``, ``sample_cost``), so n_p is independent of the samples averaged into I_p
+and the mean of a number of independent samples fixed by other pixels' samples stays unbiased.
+Stopping each pixel on its own variance biases heavy-tailed pixels low (a pixel whose rare bright
+path has not come yet looks converged and stops with it missing): measured 1.4–3.8 % low on the
+backlit slab with the earlier rule; ``tests/renderer/film/test_adaptive.py`` shows the own-sample
+rule biased and this one not on a heavy-tailed synthetic frame. (The floor of the shaping
+estimate, a tenth of the frame's mean, the scale λ and the frame's stop below hold each pixel's
+samples as one of P.)
+
+**The error estimate.** The frame's error is estimated from each pixel's *own* samples
+(``sample_variance``): Σ s²_p / n_p with s²_p its sample variance, unbiased because n_p does not
+depend on them (the same independence the image's mean needs). Not from the neighbour estimate
+that shapes the counts: a pixel's count grows with that estimate, so Σ ṽ_p / n_p over the same ṽ
+weighs each pixel by an estimate that chose its count, and where the estimate is noisy (rare
+bright paths, seen in some windows and not in others) it comes out low: 1.65× low at target
+0.01 on the caustic floor, which an ad-hoc correction for few samples (1 + 3/√n, as this rule
+had) did not follow from scene to scene.
 
 **Pilot, rounds, stop.** Every pixel first takes ``PILOT`` samples; before every pass the
 allocation is recomputed from all the samples so far, a round adding at most as much work as the
-frame has had; the render stops when the estimated error, with a small-sample correction
-(``small_sample_error``: variances from few samples of heavy-tailed radiance come out low), is at
-most ``AIM`` × target (calibrated by ``python -m bench.target_error``: docs/adaptive-sampling.md).
+frame has had; the render stops when the estimated error is at most ``AIM`` × target
+(``stopping_error``; calibrated by ``python -m bench.target_error``: docs/adaptive-sampling.md).
 
 The farm uses the same rule on a tile's merged buffer (``pass_counts``), a pure function of it
 and of the frame's scale λ, which the merge keeps up to date from every tile's summary
@@ -68,12 +77,8 @@ FLOOR = 0.1
 # itself, so no pixel's count is more than ~n/8000 above the least that meets the target (one
 # sample at most below 8000 samples).
 BISECTIONS = 12
-# Halvings of [0, hi] for the farm's frame-wide scale (frame_scale: a few scalars, so fine)
-FRAME_BISECTIONS = 60
 # Halvings of [0, scale] for a round's budget (a round's size needs no finer grain)
 BUDGET_BISECTIONS = 12
-# The small-sample correction of the error estimate (small_sample_error)
-SMALL_SAMPLE_K = 3.0
 # A sample's cost besides its path segments (the camera ray, the pixel's bookkeeping), in
 # segments (sample_cost)
 SEGMENT_OVERHEAD = 1.0
@@ -227,14 +232,13 @@ def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndar
 
 @kernel
 def _allocation_error(lam, root, lo, ve, cap):
-    """Σ v_p (1 + K/√n_p) / n_p with n_p = clamp(⌈λ root_p⌉, lo_p, cap), at least 1: the
-    numerator of ``small_sample_error`` for the counts of scale ``lam`` (``allocate``'s solve
-    evaluates it ~20 times a round), in one pass."""
+    """Σ v_p / n_p with n_p = clamp(⌈λ root_p⌉, lo_p, cap), at least 1: P × the expected frame
+    error for the counts of scale ``lam`` (``allocate``'s solve evaluates it ~20 times a round),
+    in one pass."""
     total = 0.0
     for i in range(root.shape[0]):
         n = min(max(math.ceil(lam * root[i]), lo[i]), cap)
-        n = max(n, 1.0)
-        total += ve[i] * (1.0 + SMALL_SAMPLE_K / math.sqrt(n)) / n
+        total += ve[i] / max(n, 1.0)
     return total
 
 
@@ -247,10 +251,10 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
     ``budget``, at most that many samples are added in all: λ shrinks until they fit (a round of
     the progressive allocation, which re-estimates before it commits more). ``error_of``: the
     variances the expected error is measured with, when not ``v`` (the loop shapes the counts
-    with the floored estimate and measures with the unfloored one). ``cost``: each pixel's cost
-    of a sample (``sample_cost``); then n_p = λ √(v_p / c_p), the counts that reach the error in
-    the least time rather than with the fewest samples (minimise Σ c_p n_p subject to the error),
-    and ``budget`` is in cost (Σ c_p × samples added).
+    with the neighbours' estimate and measures with each pixel's own; NaN counts as 0).
+    ``cost``: each pixel's cost of a sample (``sample_cost``); then n_p = λ √(v_p / c_p), the
+    counts that reach the error in the least time rather than with the fewest samples (minimise
+    Σ c_p n_p subject to the error), and ``budget`` is in cost (Σ c_p × samples added).
 
     A pure function of its arguments; where even ``cap`` samples everywhere cannot reach the
     target, every pixel gets ``cap``."""
@@ -268,8 +272,8 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
         return np.clip(np.ceil(lam * root), lo, cap)
 
     if scale is None:
-        # The error of a scale, over the pixels that add to it (small_sample_error's terms,
-        # on arrays cut to those pixels once)
+        # The error of a scale, over the pixels that add to it (on arrays cut to those pixels
+        # once)
         pixels = v.size
         live = ve > 0
         ve_l, root_l, lo_l = ve[live], root[live], lo[live]
@@ -279,8 +283,8 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
 
         if error(0.0) <= target:
             return lo.astype(np.int64)
-        # Bracket the scale within a factor 2, from where it would be without the clamps and
-        # the correction ((1/P) Σ v_p / (λ root_p) = target), then halve the bracket
+        # Bracket the scale within a factor 2, from where it would be without the clamps
+        # ((1/P) Σ v_p / (λ root_p) = target), then halve the bracket
         # BISECTIONS times
         guess = float(np.sum(ve_l[root_l > 0] / root_l[root_l > 0])) / (pixels * target)
         hi_lam = guess if math.isfinite(guess) and guess > 0 else 1.0
@@ -327,70 +331,56 @@ def sample_cost(buf: SampleBuffer) -> np.ndarray | None:
     return SEGMENT_OVERHEAD + np.where(k > 0, around, fallback)
 
 
-def small_sample_error(v: np.ndarray, n: np.ndarray) -> float:
-    """The expected frame error (1/P) Σ v_p (1 + K/√n_p) / n_p: the plain estimate with the
-    small-sample correction. Sample variances of heavy-tailed radiance from few samples come out
-    low (the bright path not seen yet): on the chart suite's wax sphere and the glass sphere's
-    caustic the error against the reference was 1.7–2.2× the plain estimate at ~12 samples a
-    pixel, 1.3–1.6× at ~70, 1.1–1.3× at ~250 (python -m bench.target_error); 1 + K/√n with
-    K = ``SMALL_SAMPLE_K`` follows that. Pixels with v = 0 or no samples add nothing."""
-    n = np.maximum(np.asarray(n, np.float64), 1.0)
-    with np.errstate(invalid="ignore"):
-        terms = np.where(v > 0, v * (1.0 + SMALL_SAMPLE_K / np.sqrt(n)) / n, 0.0)
-    return float(np.mean(terms))
+def error_terms(buf: SampleBuffer) -> np.ndarray:
+    """Each pixel's term v_p / n_p of the frame's expected relMSE, (h, w): its own per-sample
+    relative variance (``sample_variance``) over its count, 0 below 2 samples (nothing known).
+    Unbiased for the pixel's error where its count was fixed by other pixels' samples, as the
+    allocation's are."""
+    v = sample_variance(buf)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        return np.where(np.isfinite(v), v / np.maximum(buf.count, 1), 0.0)
 
 
 def expected_error(buf: SampleBuffer) -> float:
     """The frame's expected relMSE from its buffer: (1/P) Σ v_p / n_p with each pixel's own
-    sample variance (what the CLI and the job API report); inf if a pixel has < 2 samples."""
-    v = sample_variance(buf)
-    if not np.all(np.isfinite(v)):
+    sample variance; inf if a pixel has < 2 samples."""
+    if buf.count.size == 0 or int(buf.count.min()) < 2:
         return math.inf
-    return float(np.mean(v / buf.count))
+    return float(error_terms(buf).mean())
 
 
 def stopping_error(buf: SampleBuffer) -> float:
     """The frame's expected relMSE as the loop judges it (what it stops on, the CLI reports and
-    the farm's tile summaries add up): the corrected estimate of ``small_sample_error`` on the
-    unfloored neighbour variances; conservative where the radiance is not heavy-tailed."""
-    return small_sample_error(neighbour_variance(buf, floor=0.0), buf.count)
+    the farm's tile summaries add up): the mean of ``error_terms``, a pixel below 2 samples
+    adding nothing."""
+    return float(error_terms(buf).mean())
 
 
-def tile_summary(buf: SampleBuffer) -> tuple[float, float, float, int]:
+def tile_summary(buf: SampleBuffer) -> tuple[float, float, int]:
     """What the farm keeps of a tile's merged buffer for the frame's allocation and its error:
-    (Σ e_p, Σ √v_p, Σ v_p^¼, pixels), over the pixels with at least 2 samples, v_p the
-    unfloored ``neighbour_variance`` (within the tile) and e_p = v_p (1 + K/√n_p) / n_p."""
-    v = neighbour_variance(buf, floor=0.0)
-    ok = np.isfinite(v) & (buf.count >= 2)
+    (Σ e_p, Σ w_p, pixels) over the pixels with at least 2 samples: e_p = ``error_terms``, and
+    w_p = s_p / √ṽ_p, the pixel's own relative variance s_p over the root of the floored
+    neighbour estimate ṽ_p that ``pass_counts`` shapes its count with (0 where ṽ_p is 0), so that
+    counts n_p = λ √ṽ_p give the tile the expected error Σ w_p / λ (``frame_scale``)."""
+    ok = buf.count >= 2
     if not ok.any():
-        return 0.0, 0.0, 0.0, 0
-    vv, n = v[ok], buf.count[ok].astype(np.float64)
-    err = vv * (1.0 + SMALL_SAMPLE_K / np.sqrt(n)) / n
-    return float(err.sum()), float(np.sqrt(vv).sum()), float((vv**0.25).sum()), int(ok.sum())
+        return 0.0, 0.0, 0
+    own = sample_variance(buf)[ok]
+    shape = neighbour_variance(buf)[ok]
+    n = buf.count[ok].astype(np.float64)
+    with np.errstate(invalid="ignore", divide="ignore"):
+        w = np.where(shape > 0, own / np.sqrt(shape), 0.0)
+    return float((own / n).sum()), float(w.sum()), int(ok.sum())
 
 
-def frame_scale(root_sum: float, quarter_sum: float, pixels: int, target: float) -> float:
-    """The frame-wide λ of n_p = λ √v_p that brings the frame's corrected expected error to
-    AIM × ``target``, from its tiles' summed ``tile_summary``: the unclamped counts give
-    (1/P) Σ v_p (1 + K/√n_p) / n_p = (x² Σ√v + K x³ Σv^¼) / P with x = λ^(−½), increasing in x:
-    solved by bisection. inf when nothing is known (every pixel then takes its pass)."""
-    if pixels <= 0 or root_sum <= 0.0:
+def frame_scale(weight_sum: float, pixels: int, target: float) -> float:
+    """The frame-wide λ of n_p = λ √ṽ_p that brings the frame's expected error to AIM ×
+    ``target``, from its tiles' summed ``tile_summary``: the unclamped counts give
+    (1/P) Σ w_p / λ, so λ = Σ w_p / (P · AIM · target). inf when nothing is known (every pixel
+    then takes its pass); 0 when nothing varies."""
+    if pixels <= 0:
         return math.inf
-    aim = AIM * target
-
-    def error(x: float) -> float:
-        return (x * x * root_sum + SMALL_SAMPLE_K * x**3 * quarter_sum) / pixels
-
-    lo, hi = 0.0, 1.0
-    while error(hi) < aim:
-        hi *= 2.0
-    for _ in range(FRAME_BISECTIONS):
-        mid = 0.5 * (lo + hi)
-        if error(mid) < aim:
-            lo = mid
-        else:
-            hi = mid
-    return 1.0 / (lo * lo) if lo > 0 else math.inf
+    return max(weight_sum, 0.0) / (pixels * AIM * target)
 
 
 def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
@@ -408,7 +398,7 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
         if scale is not None and math.isfinite(scale):
             want = allocate(v, AIM * target, count, cap, scale=scale)
         else:
-            want = allocate(v, AIM * target, count, cap)
+            want = allocate(v, AIM * target, count, cap, error_of=sample_variance(buf))
     return np.clip(want - count, 0, pass_samples).astype(np.int32)
 
 
@@ -448,15 +438,16 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
     frame.add(render_pass(0, np.full((h, w), pilot, np.int32)))
     index = pilot
     aim = AIM * target
-    for rnd in range(max_rounds):
-        # The counts are shaped by the floored estimate (no pixel trusted to be noiseless on a
-        # few samples) and the error measured with the unfloored one (the floor is a guard, not
-        # noise the frame has)
-        v_error = neighbour_variance(frame, floor=0.0)
-        v = np.maximum(v_error, FLOOR * float(v_error.mean()))
+    for _ in range(max_rounds):
+        # The counts are shaped by the neighbours' floored estimate (no pixel trusted to be
+        # noiseless on a few samples) and the error measured with each pixel's own variance,
+        # which did not shape its count
+        v = neighbour_variance(frame)
+        v_error = sample_variance(frame)
         cost = sample_cost(frame)
-        if rnd == 0 and plan is not None:
+        if plan is not None:
             plan(float(allocate(v, aim, frame.count, spp, error_of=v_error, cost=cost).mean()))
+            plan = None
         # (the round's budget: as much work again as the frame has had)
         work = float(np.sum(frame.count * (1.0 if cost is None else cost)))
         want = allocate(v, aim, frame.count, spp, budget=work, error_of=v_error, cost=cost)
@@ -467,7 +458,7 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
             progress(int(frame.count.sum()), int(frame.count.sum() + deficit.sum()))
         # Stop once the frame's estimate meets the aim (chasing the last few samples of a few
         # pixels would change the error by less than its own noise)
-        if small_sample_error(v_error, frame.count) <= aim or not (deficit > 0).any():
+        if stopping_error(frame) <= aim or not (deficit > 0).any():
             break
         k = int(deficit.max())
         frame.add(render_pass(index, deficit.astype(np.int32)))

@@ -134,7 +134,7 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
     scale = None
     if meta.err_pixels >= meta.plan.width * meta.plan.height * meta.plan.frames:
         # Every pixel of the frames has an estimate: the frame-wide allocation
-        scale = frame_scale(meta.root_sum, meta.quarter_sum, meta.err_pixels, target_error)
+        scale = frame_scale(meta.weight_sum, meta.err_pixels, target_error)
     return pass_counts(SampleBuffer.from_bytes(data), target_error, meta.plan.spp,
                        pass_samples, scale)
 

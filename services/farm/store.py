@@ -250,11 +250,25 @@ def _plan_fields(plan: Plan) -> dict[str, Any]:
 
 # A job with a target: the job-hash fields that sum its tiles' error summaries, in the order of
 # ``renderer.film.adaptive.tile_summary``'s tuple, and a summary as its ``tile_err`` entry
-ERROR_SUMS = ("err_sum", "root_sum", "quarter_sum", "err_pixels")
+ERROR_SUMS = ("err_sum", "weight_sum", "err_pixels")
 
 
-def _summary_text(summary: tuple[float, float, float, int]) -> str:
+def _summary_text(summary: tuple[float, float, int]) -> str:
     return " ".join(repr(float(x)) for x in summary)
+
+
+def _summary_values(text: str | None) -> list[float]:
+    """A tile's stored summary as numbers (zeros for none). A summary of four numbers is the
+    earlier rule's (Σ e with a small-sample correction, Σ √v, Σ v^¼, pixels), merged into a job
+    that is still running by a worker from before the error came from the pixels' own samples:
+    its error sum and pixels are taken back out, and it took out no weight (the job's
+    ``weight_sum`` starts at zero with the new rule)."""
+    if not text:
+        return [0.0] * len(ERROR_SUMS)
+    values = [float(x) for x in text.split()]
+    if len(values) == 4:
+        return [values[0], 0.0, values[3]]
+    return values
 
 
 # ``merge_pass_buffer``'s answer when its merge counted the job's last task
@@ -306,8 +320,7 @@ class JobMeta:
     # tile_summary, kept by the merge): the frame's scale and expected error
     target_error: float | None = None
     err_sum: float = 0.0
-    root_sum: float = 0.0
-    quarter_sum: float = 0.0
+    weight_sum: float = 0.0
     err_pixels: int = 0
 
     @property
@@ -368,8 +381,7 @@ class JobMeta:
             denoise=d.get("denoise") == "1",
             target_error=opt_float("target_error"),
             err_sum=float(d.get("err_sum") or 0.0),
-            root_sum=float(d.get("root_sum") or 0.0),
-            quarter_sum=float(d.get("quarter_sum") or 0.0),
+            weight_sum=float(d.get("weight_sum") or 0.0),
             err_pixels=int(float(d.get("err_pixels") or 0)),
         )
 
@@ -683,7 +695,7 @@ class JobStore:
             # each a pure function of the tile's merged buffer, so computed again here rather
             # than carried in the snapshot (the next merge of a tile replaces its summary and
             # adds the change; without them the frame's scale would start from nothing)
-            sums = [0.0, 0.0, 0.0, 0.0]
+            sums = [0.0] * len(ERROR_SUMS)
             for t, data in enumerate(snap.tile_buffers):
                 if data is not None:
                     summary = tile_summary(SampleBuffer.from_bytes(data))
@@ -954,8 +966,7 @@ class JobStore:
                     summary = delta = None
                     if _s(target):
                         summary = tile_summary(acc)
-                        old = _s(old_summary)
-                        before = [float(x) for x in old.split()] if old else [0.0] * 4
+                        before = _summary_values(_s(old_summary))
                         delta = [new - was for new, was in zip(summary, before, strict=True)]
                     pipe.multi()
                     pipe.set(acc_key, acc.to_bytes())

@@ -160,7 +160,7 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
     after = store.get_job(job_id)
     assert after.target_error == 0.02
-    for name in ("err_sum", "root_sum", "quarter_sum", "err_pixels"):
+    for name in ("err_sum", "weight_sum", "err_pixels"):
         assert getattr(after, name) == pytest.approx(getattr(before, name), rel=1e-12), name
     assert after.expected_error == pytest.approx(before.expected_error, rel=1e-12)
     restored = store.r.hgetall(store.k("job", job_id, "tile_err"))
@@ -177,6 +177,41 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
     assert store.get_job(plain).target_error is None
     assert not store.r.exists(store.k("job", plain, "tile_err"))
+
+
+def test_a_tile_summary_of_the_earlier_rule_is_taken_back_out(store):
+    """A job with a target running across the upgrade: a tile whose stored summary is the earlier
+    rule's four numbers (Σ e, Σ √v, Σ v^¼, pixels), its error sum and pixels in the job's sums,
+    merges again under the new rule: the job's sums are then the new summary's, the old error
+    and pixels taken back out, no weight taken out (none was added)."""
+    import numpy as np
+
+    from renderer.film.adaptive import tile_summary
+    from renderer.film.buffer import SampleBuffer
+
+    rng = np.random.default_rng(3)
+    plan = Plan(16, 16, 64, 16, 8)  # one tile, passes of 8
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02)
+
+    def one_pass(p: int) -> None:
+        buf = SampleBuffer.empty(*plan.tile_rect(0))
+        x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
+        store.put_pass(job_id, 0, p, buf.to_bytes(), ttl=60)
+        assert store.merge_pass_buffer(job_id, 0, p)
+
+    one_pass(0)
+    job_key = store.k("job", job_id)
+    # what a worker of the earlier rule left: its summary, and the job's sums of it
+    store.r.hset(store.k("job", job_id, "tile_err"), "0", "0.5 12.0 7.0 256.0")
+    store.r.hset(job_key, mapping={"err_sum": 0.5, "weight_sum": 0.0, "err_pixels": 256})
+    one_pass(1)
+    merged = SampleBuffer.from_bytes(store.tile_buffer(job_id, 0))
+    e, weight, pixels = tile_summary(merged)
+    after = store.get_job(job_id)
+    assert (after.err_sum, after.weight_sum, after.err_pixels) == pytest.approx(
+        (e, weight, pixels), rel=1e-9)
 
 
 def test_listing_pages_and_filters_in_the_database(client, settings):

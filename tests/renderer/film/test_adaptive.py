@@ -21,6 +21,7 @@ from renderer.film.adaptive import (
     pass_counts,
     sample_to_target,
     sample_variance,
+    stopping_error,
     tile_converged,
     tile_summary,
 )
@@ -181,9 +182,7 @@ def test_allocation_is_the_least_that_meets_the_target():
     CAP = 10**7  # noqa: N806
 
     def error(v, n):
-        n = np.maximum(n, 1.0)
-        return float(np.sum(np.where(v > 0, v * (1 + adaptive.SMALL_SAMPLE_K / np.sqrt(n)) / n,
-                                     0.0))) / v.size
+        return float(np.sum(v / np.maximum(n, 1.0))) / v.size
 
     for scale_v, target, cost in ((1e-6, 0.3, None), (1.0, 1e-3, None), (1e3, 1e-2, None),
                                   (1.0, 0.01, "cost"), (1e-3, 0.05, "cost")):
@@ -319,6 +318,30 @@ def test_no_low_bias_on_heavy_tailed_pixels_and_the_own_sample_rule_has_it(monke
             assert z < -4, (values.mean(), truth, z)
 
 
+def test_the_frame_error_counts_a_pixels_own_rare_bright_sample():
+    """Rare bright samples (one in 10⁴, 224× the rest: 2 % of the mean) on a 32×32 frame: the
+    pilot shows about one in the whole frame, in one pixel. The frame's error is estimated from
+    each pixel's own samples, so that pixel's error is counted (the loop then takes samples
+    everywhere until it is diluted, its own count being its neighbours' to decide): on six
+    seeds at targets 0.1 and 0.03 the achieved relMSE against the truth is at most 1.1 × target
+    every time (measured at most 0.73), and the loop's final estimate, averaged over the seeds,
+    within 1.5× of the achieved error. Estimated from the neighbours only (the earlier rule), the
+    pixel holding the bright sample hid it, and every frame that had one stopped at the pilot
+    7–48× above its target."""
+    h = w = 32
+    for target in (0.1, 0.03):
+        achieved, estimated = [], []
+        for seed in range(6):
+            render_pass, truth = heavy_sampler(h, w, seed, p=1e-4, big=224.0)
+            buf = sample_to_target(render_pass, (h, w), target, 100_000)
+            mean = buf.sum[..., 0] / buf.count
+            achieved.append(np.mean((mean - truth) ** 2 / (truth**2 + EPSILON)))
+            estimated.append(stopping_error(buf))
+        assert max(achieved) <= 1.1 * target, (target, achieved)
+        assert 1 / 1.5 <= np.mean(estimated) / np.mean(achieved) <= 1.5, (target, estimated,
+                                                                            achieved)
+
+
 def test_the_loop_reaches_the_target_on_a_synthetic_frame():
     """Half the frame noisy, half nearly flat: the achieved relMSE against the known truth lies
     in [0.5, 1.1] × target, the noisy half gets more samples (√ of the variance ratio 400 would
@@ -367,33 +390,26 @@ def test_tile_rule_pilots_every_pixel_then_allocates():
     assert tile_converged(many, 0.01, 8192)
 
 
-def test_frame_scale_solves_the_corrected_error_of_the_summaries():
-    """Tiles summarised and summed: the frame's λ makes (1/P) Σ v (1 + K/√n) / n with
-    n = λ √v equal AIM × target, the same λ whatever the tiling."""
+def test_frame_scale_solves_the_error_of_the_summaries():
+    """Tiles summarised and summed: with n = λ √ṽ (ṽ the tile's floored neighbour estimate, as
+    pass_counts shapes with) the frame's λ makes (1/P) Σ s / n, s each pixel's own variance,
+    equal AIM × target, the same λ whatever the tiling; the summaries' error sum is the own
+    variances over the counts the tiles have."""
     rng = np.random.default_rng(6)
     samples = rng.exponential(1.0, (8, 8, 32)) * rng.uniform(0.2, 2.0, (8, 8, 1))
-    whole = synthetic(samples)
-    sums = np.zeros(4)
-    for ty in range(2):
-        for tx in range(2):
-            part = synthetic(samples[4 * ty:4 * ty + 4, 4 * tx:4 * tx + 4])
-            sums += tile_summary(part)
-    e_sum, root, quarter, pixels = sums
+    parts = [synthetic(samples[4 * ty:4 * ty + 4, 4 * tx:4 * tx + 4])
+             for ty in range(2) for tx in range(2)]
+    e_sum, weight, pixels = np.sum([tile_summary(part) for part in parts], axis=0)
     assert pixels == 64
-    lam = frame_scale(root, quarter, int(pixels), 0.01)
-    v = neighbour_variance(whole, floor=0.0)
-    # the summaries' own v (tile-local neighbourhoods) define the equation solved
-    tiles_v = np.block([[neighbour_variance(synthetic(samples[4 * ty:4 * ty + 4,
-                                                               4 * tx:4 * tx + 4]), floor=0.0)
-                         for tx in range(2)] for ty in range(2)])
-    n = lam * np.sqrt(tiles_v)
-    err = np.mean(tiles_v * (1 + adaptive.SMALL_SAMPLE_K / np.sqrt(n)) / n)
-    assert err == pytest.approx(AIM * 0.01, rel=1e-6)
-    assert np.all(np.isfinite(v))
-    # and the summary's error sum is the corrected estimate at the counts the tiles have
-    assert e_sum / pixels == pytest.approx(
-        np.mean(tiles_v * (1 + adaptive.SMALL_SAMPLE_K / np.sqrt(32)) / 32), rel=1e-9)
-    assert frame_scale(0.0, 0.0, 0, 0.01) == float("inf")
+    lam = frame_scale(weight, int(pixels), 0.01)
+    own = np.concatenate([sample_variance(part).ravel() for part in parts])
+    shape = np.concatenate([neighbour_variance(part).ravel() for part in parts])
+    assert np.mean(own / (lam * np.sqrt(shape))) == pytest.approx(AIM * 0.01, rel=1e-9)
+    assert e_sum / pixels == pytest.approx(np.mean(own / 32), rel=1e-9)
+    assert frame_scale(0.0, 0, 0.01) == float("inf")  # nothing known: every pixel its pass
+    flat = synthetic(np.ones((4, 4, PILOT)))
+    assert frame_scale(tile_summary(flat)[1], 16, 0.01) == 0.0  # nothing varies: no samples
+    assert not pass_counts(flat, 0.01, 256, 32, scale=0.0).any()
 
 
 # --------------------------------------------------------------------------------------------------
@@ -425,8 +441,8 @@ def test_render_tile_takes_per_pixel_counts():
 def test_a_render_with_a_target_meets_it(name):
     """Two chart-suite scenes (the wax sphere and the backlit jade slab, 64×48, ``volumetric``)
     against their committed Mitsuba references, targets 0.1, 0.03 and 0.01: the achieved relMSE
-    in [0.5, 1.1] × target (python -m bench.target_error measured 0.61–0.96 on these), the frame
-    mean within 2 %, every pixel at least the pilot, and the plan told once."""
+    in [0.5, 1.1] × target (python -m bench.target_error measured 0.72–0.87 on these, two
+    seeds), the frame mean within 2 %, every pixel at least the pilot, and the plan told once."""
     from bench.accuracy import suite, with_method
 
     scene, material = suite(quick=True)[name]
