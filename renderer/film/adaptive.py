@@ -336,9 +336,13 @@ def error_terms(buf: SampleBuffer) -> np.ndarray:
     relative variance (``sample_variance``) over its count, 0 below 2 samples (nothing known).
     Unbiased for the pixel's error where its count was fixed by other pixels' samples, as the
     allocation's are."""
-    v = sample_variance(buf)
+    return _error_terms(sample_variance(buf), buf.count)
+
+
+def _error_terms(v: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """``error_terms`` from a buffer's ``sample_variance`` already computed (the loop has it)."""
     with np.errstate(invalid="ignore", divide="ignore"):
-        return np.where(np.isfinite(v), v / np.maximum(buf.count, 1), 0.0)
+        return np.where(np.isfinite(v), v / np.maximum(count, 1), 0.0)
 
 
 def expected_error(buf: SampleBuffer) -> float:
@@ -458,7 +462,8 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
             progress(int(frame.count.sum()), int(frame.count.sum() + deficit.sum()))
         # Stop once the frame's estimate meets the aim (chasing the last few samples of a few
         # pixels would change the error by less than its own noise)
-        if stopping_error(frame) <= aim or not (deficit > 0).any():
+        # (stopping_error of the frame, from the variances this round already has)
+        if float(_error_terms(v_error, frame.count).mean()) <= aim or not (deficit > 0).any():
             break
         k = int(deficit.max())
         frame.add(render_pass(index, deficit.astype(np.int32)))
