@@ -936,7 +936,7 @@ def render_tile_packet(scene, x0: int, y0: int, width: int, height: int, sample_
     buf = SampleBuffer.empty(x0, y0, width, height)
     if not width or not height or not counts.any():
         return buf
-    prims = prim_columns(scene)
+    prims = scene.derived("prim_columns", prim_columns)
     eps = F32(EPS_REL * scene_scale(scene))
     light_prim = np.ascontiguousarray(S.light_prim, np.int64)
     light_cdf = np.ascontiguousarray(S.light_cdf, np.float64)

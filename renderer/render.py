@@ -61,9 +61,9 @@ def render_tile(
         from renderer.wavefront.gpu import render_tile_gpu
 
         return render_tile_gpu(scene, x0, y0, width, height, sample_start, sample_count, counts)
-    if kernel == "packet" and packet_unsupported(scene) is None:
+    if kernel == "packet" and scene.derived("packet_unsupported", packet_unsupported) is None:
         return render_tile_packet(scene, x0, y0, width, height, sample_start, counts)
-    if kernel == "wavefront" and unsupported(scene) is None:
+    if kernel == "wavefront" and scene.derived("wavefront_unsupported", unsupported) is None:
         return render_tile_wavefront(scene, x0, y0, width, height, sample_start, sample_count,
                                      counts)
     buf = SampleBuffer.empty(x0, y0, width, height)

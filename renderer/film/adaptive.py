@@ -45,8 +45,9 @@ had) did not follow from scene to scene.
 
 **Pilot, rounds, stop.** Every pixel first takes ``PILOT`` samples; before every pass the
 allocation is recomputed from all the samples so far, a round adding at most as much work as the
-frame has had; the render stops when the estimated error is at most ``AIM`` × target
-(``stopping_error``; calibrated by ``python -m bench.target_error``: docs/adaptive-sampling.md).
+frame has had; the render stops when the estimated error is within ``STOP_SLACK`` of ``AIM`` ×
+target (``stopping_error``; calibrated by ``python -m bench.target_error``:
+docs/adaptive-sampling.md).
 
 The farm uses the same rule on a tile's merged buffer (``pass_counts``), a pure function of it
 and of the frame's scale λ, which the merge keeps up to date from every tile's summary
@@ -79,6 +80,10 @@ FLOOR = 0.1
 BISECTIONS = 12
 # Halvings of [0, scale] for a round's budget (a round's size needs no finer grain)
 BUDGET_BISECTIONS = 12
+# The loop stops once the frame's estimated error is within STOP_SLACK of the aim
+# (sample_to_target): a round to close a smaller gap costs a pass and a round's bookkeeping and
+# changes the error by less than the estimate's own noise
+STOP_SLACK = 0.05
 # A sample's cost besides its path segments (the camera ray, the pixel's bookkeeping), in
 # segments (sample_cost)
 SEGMENT_OVERHEAD = 1.0
@@ -86,31 +91,38 @@ SEGMENT_OVERHEAD = 1.0
 
 @kernel
 def _window_sums_kernel(values, radius, rows, out):
-    """Σ of ``values`` (h, w, c) over each pixel's (2r+1)² window less the pixel itself (zero
-    outside the frame) into ``out`` (h, w, c); ``rows`` (h, w, c) is scratch. Separable (along
-    each row the window less its centre column, then down each column the full rows above and
-    below and the centre row less its centre: 4r additions a value, not (2r+1)² − 1) and without
-    a subtraction, so a pixel's own value never enters its sum, not even as a rounding residue:
-    a firefly's variance cannot leak into its own estimate or wipe out its neighbours' small
-    ones."""
+    """Σ of ``values`` (h, w, c), C-contiguous, over each pixel's (2r+1)² window less the pixel
+    itself (zero outside the frame) into ``out`` (h, w, c); ``rows`` (h, w, c) is scratch.
+    Separable (along each row the window less its centre column, then down each column the full
+    rows above and below and the centre row less its centre: 4r additions a value, not
+    (2r+1)² − 1) and without a subtraction, so a pixel's own value never enters its sum, not
+    even as a rounding residue: a firefly's variance cannot leak into its own estimate or wipe
+    out its neighbours' small ones. Each row is one run of w·c values, an offset at a time, so
+    the additions vectorise; every sum still adds its terms in window order."""
     h, w, channels = values.shape
+    n = w * channels
+    flat = values.reshape((h, n))
+    row_sums = rows.reshape((h, n))
+    sums = out.reshape((h, n))
     for y in range(h):
-        for x in range(w):
-            for c in range(channels):
-                total = 0.0
-                for xx in range(max(0, x - radius), min(w, x + radius + 1)):
-                    if xx != x:
-                        total += values[y, xx, c]
-                rows[y, x, c] = total
+        for j in range(n):
+            row_sums[y, j] = 0.0
+        for d in range(-radius, radius + 1):
+            if d != 0:
+                shift = d * channels
+                for j in range(max(0, -d) * channels, min(w, w - d) * channels):
+                    row_sums[y, j] += flat[y, j + shift]
     for y in range(h):
-        for x in range(w):
-            for c in range(channels):
-                total = 0.0
-                for yy in range(max(0, y - radius), min(h, y + radius + 1)):
-                    total += rows[yy, x, c]
-                    if yy != y:
-                        total += values[yy, x, c]
-                out[y, x, c] = total
+        for j in range(n):
+            sums[y, j] = 0.0
+        for yy in range(max(0, y - radius), min(h, y + radius + 1)):
+            if yy != y:
+                for j in range(n):
+                    sums[y, j] += row_sums[yy, j]
+                    sums[y, j] += flat[yy, j]
+            else:
+                for j in range(n):
+                    sums[y, j] += row_sums[yy, j]
 
 
 def _window_sums(values: np.ndarray, radius: int) -> np.ndarray:
@@ -147,30 +159,10 @@ def _moments(buf: SampleBuffer) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     return mean, s2, ok
 
 
-def sample_variance(buf: SampleBuffer) -> np.ndarray:
-    """Each pixel's per-sample relative variance from its own samples, v_p = mean_c s²_c /
-    (m̃_c² + ε), (h, w), NaN below 2 samples; m̃ the mean of its eight neighbours' means (its own
-    where it has none): what ``expected_error`` reports with.
-
-    Not the pixel's own mean in the denominator: a pixel whose few samples hold one bright outlier
-    has a large own mean, which would divide its large variance away (with its own mean the frame
-    estimate came out 2–13× low at 16 spp on the chart suite; with the neighbours', within
-    0.8–1.4× of the error against the reference at 16–1024 spp, conservative at low counts)."""
-    mean, s2, ok = _moments(buf)
-    around, k = _neighbour_mean(mean, ok)
-    denom = np.where((k > 0)[..., None], around, mean)
-    v = np.mean(s2 / (denom * denom + EPSILON), axis=-1)
-    return np.where(ok, v, np.nan)
-
-
 @kernel
-def _neighbour_variance_kernel(sums, sums_sq, count, radius, eps, moments, rows, window,
-                               out_v, out_k):
-    """``neighbour_variance`` before its fallback and floor, in one kernel instead of the dozen
-    numpy passes it took: each pixel's moments (``_moments``: its mean and s² per channel where
-    it has 2 samples, and 1), their sums over its window less itself (``_window_sums_kernel``),
-    then v = mean_c (Σs²/k) / ((Σm/k)² + eps) into ``out_v`` (NaN where no neighbour has
-    samples) and k into ``out_k``. ``moments``, ``rows`` and ``window`` (h, w, 7) are scratch."""
+def _pixel_moments(sums, sums_sq, count, moments):
+    """``_moments`` into ``moments`` (h, w, 7): each pixel's s² per channel (0–2), its mean
+    (3–5) and a 1 (6) where it has 2 samples, zeros where not."""
     h, w = count.shape
     for y in range(h):
         for x in range(w):
@@ -183,6 +175,59 @@ def _neighbour_variance_kernel(sums, sums_sq, count, radius, eps, moments, rows,
                     moments[y, x, c] = max(sums_sq[y, x, c] - n * m * m, 0.0) / (n - 1)
                     moments[y, x, 3 + c] = m
                 moments[y, x, 6] = 1.0
+
+
+@kernel
+def _sample_variance_kernel(sums, sums_sq, count, eps, moments, rows, window, out):
+    """``sample_variance`` in one kernel instead of the dozen numpy passes it took: each pixel's
+    moments (``_pixel_moments``), their sums over its 3×3 window less itself
+    (``_window_sums_kernel``), then v = mean_c s²_c / (m̃_c² + eps), m̃ the neighbours' mean,
+    into ``out`` (NaN below 2 samples). ``moments``, ``rows`` and ``window`` (h, w, 7) are
+    scratch."""
+    h, w = count.shape
+    _pixel_moments(sums, sums_sq, count, moments)
+    _window_sums_kernel(moments, 1, rows, window)
+    for y in range(h):
+        for x in range(w):
+            if count[y, x] < 2:
+                out[y, x] = np.nan
+                continue
+            k = window[y, x, 6]
+            v = 0.0
+            for c in range(3):
+                d = window[y, x, 3 + c] / k if k > 0.0 else moments[y, x, 3 + c]
+                v += moments[y, x, c] / (d * d + eps)
+            out[y, x] = v / 3.0
+
+
+def sample_variance(buf: SampleBuffer) -> np.ndarray:
+    """Each pixel's per-sample relative variance from its own samples, v_p = mean_c s²_c /
+    (m̃_c² + ε), (h, w), NaN below 2 samples; m̃ the mean of its eight neighbours' means (its own
+    where it has none): what ``expected_error`` reports with.
+
+    Not the pixel's own mean in the denominator: a pixel whose few samples hold one bright outlier
+    has a large own mean, which would divide its large variance away (with its own mean the frame
+    estimate came out 2–13× low at 16 spp on the chart suite; with the neighbours', within
+    0.8–1.4× of the error against the reference at 16–1024 spp, conservative at low counts)."""
+    h, w = buf.count.shape
+    out = np.empty((h, w))
+    _sample_variance_kernel(np.ascontiguousarray(buf.sum, np.float64),
+                            np.ascontiguousarray(buf.sum_sq, np.float64),
+                            np.ascontiguousarray(buf.count, np.int64), EPSILON,
+                            np.empty((h, w, 7)), np.empty((h, w, 7)), np.empty((h, w, 7)), out)
+    return out
+
+
+@kernel
+def _neighbour_variance_kernel(sums, sums_sq, count, radius, eps, moments, rows, window,
+                               out_v, out_k):
+    """``neighbour_variance`` before its fallback and floor, in one kernel instead of the dozen
+    numpy passes it took: each pixel's moments (``_pixel_moments``), their sums over its window
+    less itself (``_window_sums_kernel``), then v = mean_c (Σs²/k) / ((Σm/k)² + eps) into
+    ``out_v`` (NaN where no neighbour has samples) and k into ``out_k``. ``moments``, ``rows``
+    and ``window`` (h, w, 7) are scratch."""
+    h, w = count.shape
+    _pixel_moments(sums, sums_sq, count, moments)
     _window_sums_kernel(moments, radius, rows, window)
     for y in range(h):
         for x in range(w):
@@ -239,6 +284,17 @@ def _allocation_error(lam, root, lo, ve, cap):
     for i in range(root.shape[0]):
         n = min(max(math.ceil(lam * root[i]), lo[i]), cap)
         total += ve[i] / max(n, 1.0)
+    return total
+
+
+@kernel
+def _allocation_cost(lam, root, lo, c, cap):
+    """Σ c_p (n_p − lo_p) with n_p = clamp(⌈λ root_p⌉, lo_p, cap): the work the counts of scale
+    ``lam`` add (``allocate``'s budget, ~12 evaluations a round), in one pass."""
+    total = 0.0
+    for i in range(root.shape[0]):
+        n = min(max(math.ceil(lam * root[i]), lo[i]), cap)
+        total += c[i] * (n - lo[i])
     return total
 
 
@@ -304,11 +360,17 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
             else:
                 hi_lam = mid
         scale = hi_lam
-    if budget is not None and float(np.sum(c * (counts(scale) - lo))) > budget:
+    if budget is not None:
+        root_f, lo_f, c_f = root.ravel(), lo.ravel(), np.ascontiguousarray(c, np.float64).ravel()
+
+        def work(lam: float) -> float:
+            return _allocation_cost(lam, root_f, lo_f, c_f, float(cap))
+
+    if budget is not None and work(scale) > budget:
         lo_lam, hi_lam = 0.0, scale
         for _ in range(BUDGET_BISECTIONS):
             mid = 0.5 * (lo_lam + hi_lam)
-            if float(np.sum(c * (counts(mid) - lo))) > budget:
+            if work(mid) > budget:
                 hi_lam = mid
             else:
                 lo_lam = mid
@@ -431,11 +493,11 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
     samples [index, index + counts[p]) to each pixel p of a frame of ``shape`` (h, w): a pilot of
     ``PILOT`` samples a pixel, then rounds, each one pass of every pixel's deficit against the
     allocation (at most as much work, samples × cost, as the frame has had: the estimates improve
-    before more is committed on them), until the estimated frame error meets AIM × ``target``, no
-    pixel lacks a sample, or every pixel has ``spp``. Sample indices are never reused: a pixel that
-    sits out part of a round's index range has a gap, not a repeat. ``plan(mean_spp)`` is told the
-    pilot's allocation; ``progress(done, planned)`` after every pass; ``max_pass`` caps a pass's
-    samples a pixel."""
+    before more is committed on them), until the estimated frame error is within ``STOP_SLACK``
+    of AIM × ``target``, no pixel lacks a sample, or every pixel has ``spp``. Sample indices are
+    never reused: a pixel that sits out part of a round's index range has a gap, not a repeat.
+    ``plan(mean_spp)`` is told the pilot's allocation; ``progress(done, planned)`` after every
+    pass; ``max_pass`` caps a pass's samples a pixel."""
     h, w = shape
     frame = SampleBuffer.empty(0, 0, w, h)
     pilot = min(PILOT, spp)
@@ -460,10 +522,11 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
             deficit = np.minimum(deficit, max_pass)
         if progress is not None:
             progress(int(frame.count.sum()), int(frame.count.sum() + deficit.sum()))
-        # Stop once the frame's estimate meets the aim (chasing the last few samples of a few
-        # pixels would change the error by less than its own noise)
+        # Stop once the frame's estimate is within STOP_SLACK of the aim (chasing the last few
+        # samples of a few pixels would change the error by less than its own noise)
         # (stopping_error of the frame, from the variances this round already has)
-        if float(_error_terms(v_error, frame.count).mean()) <= aim or not (deficit > 0).any():
+        if (float(_error_terms(v_error, frame.count).mean()) <= aim * (1.0 + STOP_SLACK)
+                or not (deficit > 0).any()):
             break
         k = int(deficit.max())
         frame.add(render_pass(index, deficit.astype(np.int32)))

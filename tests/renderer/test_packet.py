@@ -197,6 +197,37 @@ def test_each_pixel_takes_its_own_count():
     np.testing.assert_allclose(buf.sum[counts == 3], three.sum[counts == 3], rtol=1e-12, atol=0)
 
 
+def test_a_scenes_coverage_and_columns_are_worked_out_once(monkeypatch):
+    """Every pass asks whether the packet kernel covers the scene and takes its primitive
+    columns: each is computed once for a compiled scene's arrays (not again each pass), and again
+    for a copy of the scene with other arrays; the passes' sums are unchanged."""
+    import dataclasses
+
+    import renderer.packet as packet
+    import renderer.render as render_module
+
+    calls = {"covers": 0, "columns": 0}
+
+    def counted(key, fn):
+        def wrapper(scene):
+            calls[key] += 1
+            return fn(scene)
+        return wrapper
+
+    monkeypatch.setattr(render_module, "packet_unsupported", counted("covers", unsupported))
+    monkeypatch.setattr(packet, "prim_columns", counted("columns", packet.prim_columns))
+    cs = compiled(cornell(8, 6, spp=4))
+    first = render_tile(cs, 0, 0, 8, 6, 0, 4, kernel="packet")
+    again = render_tile(cs, 0, 0, 8, 6, 0, 4, kernel="packet")
+    np.testing.assert_array_equal(first.sum, again.sum)
+    assert calls == {"covers": 1, "columns": 1}
+    flat = np.array(cs.arrays.prim_geo)
+    copy = dataclasses.replace(cs, arrays=cs.arrays._replace(prim_geo=flat))
+    np.testing.assert_array_equal(render_tile(copy, 0, 0, 8, 6, 0, 4, kernel="packet").sum,
+                                  first.sum)
+    assert calls == {"covers": 2, "columns": 2}
+
+
 def test_sin_cos_quarter_against_numpy():
     x = np.linspace(-math.pi / 4, math.pi / 4, 20001).astype(np.float32)
     s, c = np.vectorize(sin_cos_quarter.py_func)(x)
