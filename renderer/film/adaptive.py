@@ -505,29 +505,33 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
     index = pilot
     aim = AIM * target
     for _ in range(max_rounds):
-        # The counts are shaped by the neighbours' floored estimate (no pixel trusted to be
-        # noiseless on a few samples) and the error measured with each pixel's own variance,
-        # which did not shape its count
-        v = neighbour_variance(frame)
+        # Stop once the frame's estimated error (stopping_error: each pixel's own variance, which
+        # did not shape its count) is within STOP_SLACK of the aim (chasing the last few samples
+        # of a few pixels would change the error by less than its own noise); the estimates
+        # that shape the counts are needed only to go on (and for the pilot's plan)
         v_error = sample_variance(frame)
+        met = float(_error_terms(v_error, frame.count).mean()) <= aim * (1.0 + STOP_SLACK)
+        if met and plan is None:
+            break
+        # The counts are shaped by the neighbours' floored estimate (no pixel trusted to be
+        # noiseless on a few samples)
+        v = neighbour_variance(frame)
         cost = sample_cost(frame)
         if plan is not None:
             plan(float(allocate(v, aim, frame.count, spp, error_of=v_error, cost=cost).mean()))
             plan = None
+        if met:
+            break
         # (the round's budget: as much work again as the frame has had)
         work = float(np.sum(frame.count * (1.0 if cost is None else cost)))
         want = allocate(v, aim, frame.count, spp, budget=work, error_of=v_error, cost=cost)
         deficit = want - frame.count
         if max_pass is not None:
             deficit = np.minimum(deficit, max_pass)
+        if not (deficit > 0).any():
+            break
         if progress is not None:
             progress(int(frame.count.sum()), int(frame.count.sum() + deficit.sum()))
-        # Stop once the frame's estimate is within STOP_SLACK of the aim (chasing the last few
-        # samples of a few pixels would change the error by less than its own noise)
-        # (stopping_error of the frame, from the variances this round already has)
-        if (float(_error_terms(v_error, frame.count).mean()) <= aim * (1.0 + STOP_SLACK)
-                or not (deficit > 0).any()):
-            break
         k = int(deficit.max())
         frame.add(render_pass(index, deficit.astype(np.int32)))
         index += k
