@@ -522,6 +522,12 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
             plan = None
         if met:
             break
+        if index == pilot:
+            # The first round after the pilot gives every pixel the same count: 24 neighbours × 8
+            # samples do not yet tell which pixels need more where rare bright paths carry the
+            # image (a shape from them sent the round to where the pilot happened to see them,
+            # at more path segments a sample and no gain: docs/adaptive-sampling.md)
+            v, cost = np.ones_like(v), None
         # (the round's budget: as much work again as the frame has had)
         work = float(np.sum(frame.count * (1.0 if cost is None else cost)))
         want = allocate(v, aim, frame.count, spp, budget=work, error_of=v_error, cost=cost)

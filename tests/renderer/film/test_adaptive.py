@@ -398,6 +398,31 @@ def test_the_loop_reaches_the_target_on_a_synthetic_frame():
     assert buf.count.min() >= PILOT
 
 
+def test_the_first_round_after_the_pilot_is_uniform_and_the_later_ones_shaped():
+    """Half the frame noisy, half nearly flat, a target far off: the pilot, then a round that gives
+    every pixel the same count (the pilot's 8 samples do not yet shape the counts), then rounds
+    shaped by the neighbours' estimate, the noisy half taking more."""
+    h, w = 16, 32
+    scale = np.where(np.arange(w) < w // 2, 1.0, 0.05)[None, :].repeat(h, 0)
+    passes = []
+
+    def render_pass(index: int, counts: np.ndarray) -> SampleBuffer:
+        passes.append(counts.copy())
+
+        def draw(y: int, x: int, c: int) -> np.ndarray:
+            rng = np.random.default_rng([y * w + x, index])
+            return 1.0 + scale[y, x] * (rng.exponential(1.0, c) - 1.0)
+
+        return grey_pass(counts, draw)
+
+    sample_to_target(render_pass, (h, w), 0.0005, 100_000)
+    assert len(passes) >= 3
+    np.testing.assert_array_equal(passes[0], PILOT)
+    assert passes[1].min() == passes[1].max() == PILOT  # as much work again, evenly
+    later = sum(p.astype(np.int64) for p in passes[2:])
+    assert later[:, : w // 2].mean() > 2 * later[:, w // 2:].mean()
+
+
 def test_on_even_noise_the_loop_takes_no_round_to_close_a_gap_within_its_noise():
     """Even noise (every pixel's samples exponential, v ≈ 1) on a 32×32 frame, a target that needs
     ~14 samples a pixel: the pilot, one round to ~14 (at most the pilot's work again), and a stop
