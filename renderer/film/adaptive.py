@@ -45,7 +45,8 @@ had) did not follow from scene to scene.
 
 **Pilot, rounds, stop.** Every pixel first takes ``PILOT`` samples; before every pass the
 allocation is recomputed from all the samples so far, a round adding at most as much work as the
-frame has had; the render stops when the estimated error is within ``STOP_SLACK`` of ``AIM`` ×
+frame has had, the first round after the pilot evenly (every pixel the same count: the pilot's
+estimates do not yet shape the counts); the render stops when the estimated error is within ``STOP_SLACK`` of ``AIM`` ×
 target (``stopping_error``; calibrated by ``python -m bench.target_error``:
 docs/adaptive-sampling.md).
 
@@ -492,8 +493,9 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
     """The local renderer's loop, given ``render_pass(index, counts) -> SampleBuffer`` that adds
     samples [index, index + counts[p]) to each pixel p of a frame of ``shape`` (h, w): a pilot of
     ``PILOT`` samples a pixel, then rounds, each one pass of every pixel's deficit against the
-    allocation (at most as much work, samples × cost, as the frame has had: the estimates improve
-    before more is committed on them), until the estimated frame error is within ``STOP_SLACK``
+    allocation (the first of them even: every pixel the same count; at most as much work,
+    samples × cost, as the frame has had: the estimates improve before more is committed on
+    them), until the estimated frame error is within ``STOP_SLACK``
     of AIM × ``target``, no pixel lacks a sample, or every pixel has ``spp``. Sample indices are
     never reused: a pixel that sits out part of a round's index range has a gap, not a repeat.
     ``plan(mean_spp)`` is told the pilot's allocation; ``progress(done, planned)`` after every
