@@ -46,9 +46,9 @@ had) did not follow from scene to scene.
 **Pilot, rounds, stop.** Every pixel first takes ``PILOT`` samples; before every pass the
 allocation is recomputed from all the samples so far, a round adding at most as much work as the
 frame has had, the first round after the pilot evenly (every pixel the same count: the pilot's
-estimates do not yet shape the counts); the render stops when the estimated error is within ``STOP_SLACK`` of ``AIM`` ×
-target (``stopping_error``; calibrated by ``python -m bench.target_error``:
-docs/adaptive-sampling.md).
+estimates do not yet shape the counts); the render stops when the estimated error is within
+``STOP_SLACK`` of ``AIM`` × target (``stopping_error``; calibrated by ``python -m
+bench.target_error``: docs/adaptive-sampling.md).
 
 The farm uses the same rule on a tile's merged buffer (``pass_counts``), a pure function of it
 and of the frame's scale λ, which the merge keeps up to date from every tile's summary
