@@ -131,7 +131,10 @@ def main(argv: list[str] | None = None) -> int:
     for name in args.scenes:
         scene, material = all_scenes[name]
         ref = scene_reference(name, scene, material)
-        render_buffer(scene_at(scene, material, 1, None))  # warm the JIT
+        # Warm the JIT: the render kernel, and the adaptive loop's kernels (a --repeat 1 run's
+        # first target would otherwise load or compile them inside its time)
+        render_buffer(scene_at(scene, material, 1, None))
+        render_buffer(scene_at(scene, material, 24, 1e-4))
         ut, ue = [], []
         for spp in UNIFORM_SPP:
             t, e, _ = measured(scene, material, spp, None, ref, args.seeds, args.repeat)
