@@ -367,15 +367,15 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
         def work(lam: float) -> float:
             return _allocation_cost(lam, root_f, lo_f, c_f, float(cap))
 
-    if budget is not None and work(scale) > budget:
-        lo_lam, hi_lam = 0.0, scale
-        for _ in range(BUDGET_BISECTIONS):
-            mid = 0.5 * (lo_lam + hi_lam)
-            if work(mid) > budget:
-                hi_lam = mid
-            else:
-                lo_lam = mid
-        scale = lo_lam
+        if work(scale) > budget:
+            lo_lam, hi_lam = 0.0, scale
+            for _ in range(BUDGET_BISECTIONS):
+                mid = 0.5 * (lo_lam + hi_lam)
+                if work(mid) > budget:
+                    hi_lam = mid
+                else:
+                    lo_lam = mid
+            scale = lo_lam
     return counts(scale).astype(np.int64)
 
 
@@ -515,21 +515,22 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         met = float(_error_terms(v_error, frame.count).mean()) <= aim * (1.0 + STOP_SLACK)
         if met and plan is None:
             break
-        # The counts are shaped by the neighbours' floored estimate (no pixel trusted to be
-        # noiseless on a few samples)
-        v = neighbour_variance(frame)
-        cost = sample_cost(frame)
-        if plan is not None:
-            plan(float(allocate(v, aim, frame.count, spp, error_of=v_error, cost=cost).mean()))
-            plan = None
-        if met:
-            break
         if index == pilot:
+            if plan is not None:  # (only ever the pilot's: the shaped allocation's total)
+                plan(float(allocate(neighbour_variance(frame), aim, frame.count, spp,
+                                    error_of=v_error, cost=sample_cost(frame)).mean()))
+                plan = None
+            if met:
+                break
             # The first round after the pilot gives every pixel the same count: 24 neighbours × 8
             # samples do not yet tell which pixels need more where rare bright paths carry the
             # image (a shape from them sent the round to where the pilot happened to see them,
             # at more path segments a sample and no gain: docs/adaptive-sampling.md)
-            v, cost = np.ones_like(v), None
+            v, cost = np.ones(frame.count.shape), None
+        else:
+            # The counts are shaped by the neighbours' floored estimate (no pixel trusted to be
+            # noiseless on a few samples)
+            v, cost = neighbour_variance(frame), sample_cost(frame)
         # (the round's budget: as much work again as the frame has had)
         work = float(np.sum(frame.count * (1.0 if cost is None else cost)))
         want = allocate(v, aim, frame.count, spp, budget=work, error_of=v_error, cost=cost)
