@@ -299,6 +299,18 @@ def _allocation_cost(lam, root, lo, c, cap):
     return total
 
 
+def _bisect(lo: float, hi: float, below, steps: int) -> tuple[float, float]:
+    """[lo, hi] halved ``steps`` times towards where ``below(λ)`` turns false: the midpoint
+    becomes lo where it holds, hi where not (``allocate``'s scale and its round's budget)."""
+    for _ in range(steps):
+        mid = 0.5 * (lo + hi)
+        if below(mid):
+            lo = mid
+        else:
+            hi = mid
+    return lo, hi
+
+
 def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
              scale: float | None = None, budget: float | None = None,
              error_of: np.ndarray | None = None, cost: np.ndarray | None = None) -> np.ndarray:
@@ -353,14 +365,7 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
         else:
             while hi_lam > 1e-300 and error(0.5 * hi_lam) <= target:
                 hi_lam *= 0.5
-        lo_lam = 0.5 * hi_lam
-        for _ in range(BISECTIONS):
-            mid = 0.5 * (lo_lam + hi_lam)
-            if error(mid) > target:
-                lo_lam = mid
-            else:
-                hi_lam = mid
-        scale = hi_lam
+        scale = _bisect(0.5 * hi_lam, hi_lam, lambda lam: error(lam) > target, BISECTIONS)[1]
     if budget is not None:
         root_f, lo_f, c_f = root.ravel(), lo.ravel(), np.ascontiguousarray(c, np.float64).ravel()
 
@@ -368,14 +373,7 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
             return _allocation_cost(lam, root_f, lo_f, c_f, float(cap))
 
         if work(scale) > budget:
-            lo_lam, hi_lam = 0.0, scale
-            for _ in range(BUDGET_BISECTIONS):
-                mid = 0.5 * (lo_lam + hi_lam)
-                if work(mid) > budget:
-                    hi_lam = mid
-                else:
-                    lo_lam = mid
-            scale = lo_lam
+            scale = _bisect(0.0, scale, lambda lam: work(lam) <= budget, BUDGET_BISECTIONS)[0]
     return counts(scale).astype(np.int64)
 
 
