@@ -299,16 +299,51 @@ def _allocation_cost(lam, root, lo, c, cap):
     return total
 
 
-def _bisect(lo: float, hi: float, below, steps: int) -> tuple[float, float]:
-    """[lo, hi] halved ``steps`` times towards where ``below(λ)`` turns false: the midpoint
-    becomes lo where it holds, hi where not (``allocate``'s scale and its round's budget)."""
+@kernel
+def _solve_scale(root, lo, ve, cap, pixels, target, guess, min_root, steps):
+    """``allocate``'s scale, its ~20 evaluations of the error in one call: ``(0, 0.0)`` when the
+    samples each pixel has already meet ``target``; ``(1, λ)`` when the cap binds first (λ where
+    the pixel of least root > 0, ``min_root``, passes ``cap``: the cap everywhere needing
+    samples); else ``(2, λ)``, the least scale whose error (1/P) Σ v_p / n_p is at most
+    ``target``: bracketed within a factor 2 from ``guess`` (where it would be without the
+    clamps), then the bracket halved ``steps`` times. ``root``, ``lo``, ``ve``: the pixels that
+    add to the error (``_allocation_error``)."""
+    if _allocation_error(0.0, root, lo, ve, cap) / pixels <= target:
+        return 0, 0.0
+    hi = guess if math.isfinite(guess) and guess > 0.0 else 1.0
+    if _allocation_error(hi, root, lo, ve, cap) / pixels > target:
+        while _allocation_error(hi, root, lo, ve, cap) / pixels > target:
+            hi *= 2.0
+            if hi * min_root > cap:
+                return 1, hi
+    else:
+        while hi > 1e-300 and _allocation_error(0.5 * hi, root, lo, ve, cap) / pixels <= target:
+            hi *= 0.5
+    lo_lam = 0.5 * hi
     for _ in range(steps):
-        mid = 0.5 * (lo + hi)
-        if below(mid):
-            lo = mid
+        mid = 0.5 * (lo_lam + hi)
+        if _allocation_error(mid, root, lo, ve, cap) / pixels > target:
+            lo_lam = mid
         else:
             hi = mid
-    return lo, hi
+    return 2, hi
+
+
+@kernel
+def _solve_budget(root, lo, c, cap, budget, scale, steps):
+    """``allocate``'s scale cut to a round's ``budget``: ``scale`` if its counts add at most
+    ``budget`` of work (``_allocation_cost``), else [0, scale] halved ``steps`` times towards
+    the largest scale that does (its lower end)."""
+    if _allocation_cost(scale, root, lo, c, cap) <= budget:
+        return scale
+    lo_lam, hi = 0.0, scale
+    for _ in range(steps):
+        mid = 0.5 * (lo_lam + hi)
+        if _allocation_cost(mid, root, lo, c, cap) <= budget:
+            lo_lam = mid
+        else:
+            hi = mid
+    return lo_lam
 
 
 def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
@@ -342,38 +377,23 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
 
     if scale is None:
         # The error of a scale, over the pixels that add to it (on arrays cut to those pixels
-        # once)
-        pixels = v.size
+        # once), solved in one kernel: from where the scale would be without the clamps
+        # ((1/P) Σ v_p / (λ root_p) = target), bracketed within a factor 2, then halved
+        # BISECTIONS times
         live = ve > 0
         ve_l, root_l, lo_l = ve[live], root[live], lo[live]
-
-        def error(lam: float) -> float:
-            return _allocation_error(lam, root_l, lo_l, ve_l, float(cap)) / pixels
-
-        if error(0.0) <= target:
+        guess = float(np.sum(ve_l[root_l > 0] / root_l[root_l > 0])) / (v.size * target)
+        how, scale = _solve_scale(root_l, lo_l, ve_l, float(cap), float(v.size), float(target),
+                                  guess, float(root.min(initial=math.inf, where=v > 0)),
+                                  BISECTIONS)
+        if how == 0:
             return lo.astype(np.int64)
-        # Bracket the scale within a factor 2, from where it would be without the clamps
-        # ((1/P) Σ v_p / (λ root_p) = target), then halve the bracket
-        # BISECTIONS times
-        guess = float(np.sum(ve_l[root_l > 0] / root_l[root_l > 0])) / (pixels * target)
-        hi_lam = guess if math.isfinite(guess) and guess > 0 else 1.0
-        if error(hi_lam) > target:
-            while error(hi_lam) > target:
-                hi_lam *= 2.0
-                if hi_lam * float(root.min(initial=math.inf, where=v > 0)) > cap:
-                    return counts(hi_lam).astype(np.int64)  # the cap everywhere needing samples
-        else:
-            while hi_lam > 1e-300 and error(0.5 * hi_lam) <= target:
-                hi_lam *= 0.5
-        scale = _bisect(0.5 * hi_lam, hi_lam, lambda lam: error(lam) > target, BISECTIONS)[1]
+        if how == 1:
+            return counts(scale).astype(np.int64)  # the cap everywhere needing samples
     if budget is not None:
-        root_f, lo_f, c_f = root.ravel(), lo.ravel(), np.ascontiguousarray(c, np.float64).ravel()
-
-        def work(lam: float) -> float:
-            return _allocation_cost(lam, root_f, lo_f, c_f, float(cap))
-
-        if work(scale) > budget:
-            scale = _bisect(0.0, scale, lambda lam: work(lam) <= budget, BUDGET_BISECTIONS)[0]
+        scale = _solve_budget(root.ravel(), lo.ravel(),
+                              np.ascontiguousarray(c, np.float64).ravel(), float(cap),
+                              float(budget), float(scale), BUDGET_BISECTIONS)
     return counts(scale).astype(np.int64)
 
 

@@ -67,12 +67,13 @@ def test_the_warm_up_loads_the_adaptive_rules_kernels():
     """A worker's warm-up also loads (or compiles) the kernels of render.target_error's rule, so
     a pool process's first pass of a job with a target does not pay for them. In a fresh
     process: after warm_up_kernels the two that a worker calls (through pass_counts and
-    tile_summary) have a signature, compiled or loaded from the cache. (The window sums they
-    call are linked into them, so a load from the cache leaves that dispatcher empty.)"""
+    tile_summary) have a signature, compiled or loaded from the cache. (The window sums and the
+    allocation's error they call are linked into them, so a load from the cache leaves those
+    dispatchers empty.)"""
     code = ("from worker import runtime; runtime.warm_up_kernels(); "
             "from renderer.film import adaptive as a; "
             "print(all(k.signatures for k in (a._neighbour_variance_kernel, "
-            "a._allocation_error)))")
+            "a._solve_scale)))")
     out = subprocess.run([sys.executable, "-c", code], cwd=ROOT, capture_output=True, text=True,
                          timeout=600)
     assert out.returncode == 0, out.stderr[-2000:]
