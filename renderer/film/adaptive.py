@@ -51,8 +51,8 @@ estimates do not yet shape the counts); the render stops when the estimated erro
 bench.target_error``: docs/adaptive-sampling.md).
 
 The farm uses the same rule on a tile's merged buffer (``pass_counts``), a pure function of it
-and of the frame's scale λ, which the merge keeps up to date from every tile's summary
-(``tile_summary``, ``frame_scale``).
+and of the frame's scale λ and estimated error, which the merge keeps up to date from every
+tile's summary (``tile_summary``, ``frame_scale``), and stops as the loop does.
 """
 
 from __future__ import annotations
@@ -469,15 +469,21 @@ def frame_scale(weight_sum: float, pixels: int, target: float) -> float:
 
 
 def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
-                scale: float | None = None) -> np.ndarray:
+                scale: float | None = None, frame_error: float | None = None) -> np.ndarray:
     """The farm's rule, a pure function of a tile's merged buffer (and the frame's ``scale``,
-    ``frame_scale`` of the job's tile summaries, when known): the samples each pixel takes of the
-    next pass of ``pass_samples``, (h, w) int32. Every pixel until it has ``PILOT``; then each
-    its deficit against ``allocate`` (the tile's floored neighbour variances at the frame's
-    scale, or aiming the tile alone at AIM × target without one), at most the pass."""
+    ``frame_scale`` of the job's tile summaries, and its estimated error, their error sum over
+    their pixels, when known): the samples each pixel takes of the next pass of
+    ``pass_samples``, (h, w) int32. Every pixel until it has ``PILOT``; then nothing once the
+    frame's estimated error is within ``STOP_SLACK`` of AIM × target (the local loop's stop:
+    the frame's λ counts every pixel at its share, a pixel that already has more too, so the
+    counts alone would go on past the aim); else each pixel its deficit against ``allocate``
+    (the tile's floored neighbour variances at the frame's scale, or aiming the tile alone at
+    AIM × target without one), at most the pass."""
     count = buf.count
     if int(count.min(initial=PILOT)) < PILOT:
         want = np.full(count.shape, cap, np.int64)
+    elif frame_error is not None and frame_error <= AIM * target * (1.0 + STOP_SLACK):
+        return np.zeros(count.shape, np.int32)
     else:
         v = neighbour_variance(buf)
         if scale is not None and math.isfinite(scale):
@@ -487,10 +493,10 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     return np.clip(want - count, 0, pass_samples).astype(np.int32)
 
 
-def tile_converged(buf: SampleBuffer, target: float, cap: int,
-                   scale: float | None = None) -> bool:
+def tile_converged(buf: SampleBuffer, target: float, cap: int, scale: float | None = None,
+                   frame_error: float | None = None) -> bool:
     """A tile is done when no pixel takes samples of another pass (``pass_counts``)."""
-    return not bool(pass_counts(buf, target, cap, cap, scale).any())
+    return not bool(pass_counts(buf, target, cap, cap, scale, frame_error).any())
 
 
 def warm_up() -> None:

@@ -126,8 +126,9 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
                     pass_samples: int) -> np.ndarray | None:
     """Adaptive sampling: the samples each pixel of the tile takes of this pass (``(h, w)``
     int32), a pure rule of the tile's merged buffer and the frame's scale from the job's tile
-    summaries (``renderer.film.adaptive.pass_counts``, ``frame_scale``); None before the tile's
-    first merge (every pixel takes the whole pass)."""
+    summaries (``renderer.film.adaptive.pass_counts``, ``frame_scale``), nothing once the
+    frames' estimated error from them (``JobMeta.expected_error``) is within the rule's slack of
+    its aim; None before the tile's first merge (every pixel takes the whole pass)."""
     data = store.tile_buffer(meta.id, tile)
     if data is None:
         return None
@@ -136,7 +137,7 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
         # Every pixel of the frames has an estimate: the frame-wide allocation
         scale = frame_scale(meta.weight_sum, meta.err_pixels, target_error)
     return pass_counts(SampleBuffer.from_bytes(data), target_error, meta.plan.spp,
-                       pass_samples, scale)
+                       pass_samples, scale, meta.expected_error)
 
 
 def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],

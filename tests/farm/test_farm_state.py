@@ -515,3 +515,38 @@ def test_converged_tiles_are_asked_again_once_no_tile_renders(store, noise, aske
         assert job.status == "done" and job.tasks_merged == plan.n_tasks
         assert store.tile_states(job_id) == {0: "done", 1: "done"}
         assert store.is_merged(job_id, 0, plan.n_passes - 1)
+
+
+def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(store):
+    """The farm's stop (services.farm.passes.adaptive_counts): once every pixel has an estimate,
+    a tile takes no samples when the frame's estimated error from the job's tile summaries
+    (JobMeta.expected_error) is within the rule's slack of AIM × target, though the frame's
+    scale alone would still give it samples; with a target that estimate does not yet reach,
+    the tile takes samples."""
+    import numpy as np
+
+    from renderer.film.adaptive import AIM, STOP_SLACK
+    from renderer.film.buffer import SampleBuffer
+    from services.farm.passes import adaptive_counts
+
+    rng = np.random.default_rng(4)
+    plan = Plan(32, 16, 4096, 16, 32)  # 2 tiles x passes of 32
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.01)
+    for t in range(2):
+        buf = SampleBuffer.empty(*plan.tile_rect(t))
+        x = rng.exponential(1.0, size=(32,) + buf.sum.shape)
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 32
+        store.put_pass(job_id, t, 0, buf.to_bytes(), ttl=60)
+        assert store.merge_pass_buffer(job_id, t, 0)
+    meta = store.get_job(job_id)
+    estimate = meta.expected_error
+    assert estimate is not None
+    # a target whose aim the estimate is just within the slack of: nothing to add anywhere
+    reached = estimate / (AIM * (1.0 + 0.5 * STOP_SLACK))
+    assert not adaptive_counts(store, meta, 0, reached, 1).any()
+    # the frame's scale alone would still have given the tile samples (the same summaries but
+    # an error sum far above the aim)
+    assert adaptive_counts(store, dataclasses.replace(meta, err_sum=1e9), 0, reached, 1).any()
+    # a target the estimate does not reach: samples
+    assert adaptive_counts(store, meta, 0, estimate / (AIM * 2.0), 1).any()

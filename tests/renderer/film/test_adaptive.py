@@ -14,6 +14,7 @@ from renderer.film.adaptive import (
     AIM,
     EPSILON,
     PILOT,
+    STOP_SLACK,
     allocate,
     expected_error,
     frame_scale,
@@ -470,6 +471,26 @@ def test_tile_rule_pilots_every_pixel_then_allocates():
     many = synthetic(rng.exponential(1.0, (4, 4, 4096)))
     assert expected_error(many) < AIM * 0.01
     assert tile_converged(many, 0.01, 8192)
+
+
+def test_tile_rule_stops_when_the_frames_error_is_within_the_slack_of_its_aim():
+    """The farm's tile rule stops as the local loop does: once the frame's estimated error (the
+    job's tile summaries) is within STOP_SLACK of AIM × target, no pixel takes samples, whatever
+    the frame's scale asks of the tile (its λ counts a pixel that already has more than its
+    share as if it had its share); above it, the counts are those without the frame's error.
+    In the pilot every pixel still takes its pass."""
+    rng = np.random.default_rng(12)
+    noisy = synthetic(rng.exponential(1.0, (6, 6, 32)))
+    aim = AIM * 0.01
+    shaped = pass_counts(noisy, 0.01, 4096, 64, scale=200.0)
+    assert shaped.any()
+    assert not pass_counts(noisy, 0.01, 4096, 64, 200.0, aim * (1.0 + STOP_SLACK)).any()
+    assert not tile_converged(noisy, 0.01, 4096, 200.0, aim * (1.0 + 2.0 * STOP_SLACK))
+    assert tile_converged(noisy, 0.01, 4096, 200.0, 0.5 * aim)
+    np.testing.assert_array_equal(
+        pass_counts(noisy, 0.01, 4096, 64, 200.0, aim * (1.0 + 2.0 * STOP_SLACK)), shaped)
+    pilot = synthetic(rng.exponential(1.0, (6, 6, PILOT - 1)))
+    np.testing.assert_array_equal(pass_counts(pilot, 0.01, 4096, 8, 200.0, 0.0), 8)
 
 
 def test_frame_scale_solves_the_error_of_the_summaries():
