@@ -62,7 +62,7 @@ import math
 import numpy as np
 
 from renderer.film.buffer import SampleBuffer
-from renderer.jit import kernel
+from renderer.jit import inline_kernel, kernel
 
 EPSILON = 0.01
 # Samples every pixel takes before any allocation (the pilot); the variance estimates of the
@@ -276,6 +276,13 @@ def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndar
     return np.maximum(v, (FLOOR if floor is None else floor) * float(v.mean()))
 
 
+@inline_kernel
+def _clamped_count(lam, root, lo, cap):
+    """A pixel's count at scale ``lam``: clamp(⌈λ root⌉, lo, cap), what ``allocate``'s counts
+    give it (the error and the work of a scale, ``_allocation_error``, ``_allocation_cost``)."""
+    return min(max(math.ceil(lam * root), lo), cap)
+
+
 @kernel
 def _allocation_error(lam, root, lo, ve, cap):
     """Σ v_p / n_p with n_p = clamp(⌈λ root_p⌉, lo_p, cap), at least 1: P × the expected frame
@@ -283,8 +290,7 @@ def _allocation_error(lam, root, lo, ve, cap):
     in one pass."""
     total = 0.0
     for i in range(root.shape[0]):
-        n = min(max(math.ceil(lam * root[i]), lo[i]), cap)
-        total += ve[i] / max(n, 1.0)
+        total += ve[i] / max(_clamped_count(lam, root[i], lo[i], cap), 1.0)
     return total
 
 
@@ -294,8 +300,7 @@ def _allocation_cost(lam, root, lo, c, cap):
     ``lam`` add (``allocate``'s budget, ~12 evaluations a round), in one pass."""
     total = 0.0
     for i in range(root.shape[0]):
-        n = min(max(math.ceil(lam * root[i]), lo[i]), cap)
-        total += c[i] * (n - lo[i])
+        total += c[i] * (_clamped_count(lam, root[i], lo[i], cap) - lo[i])
     return total
 
 
