@@ -542,15 +542,13 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         # that shape the counts are needed only to go on (and for the pilot's plan)
         v_error = sample_variance(frame)
         met = float(_error_terms(v_error, frame.count).mean()) <= aim * (1.0 + STOP_SLACK)
-        if met and plan is None:
+        if plan is not None:  # (the first round's, after the pilot: the shaped allocation's total)
+            plan(float(allocate(neighbour_variance(frame), aim, frame.count, spp,
+                                error_of=v_error, cost=sample_cost(frame)).mean()))
+            plan = None
+        if met:
             break
         if index == pilot:
-            if plan is not None:  # (only ever the pilot's: the shaped allocation's total)
-                plan(float(allocate(neighbour_variance(frame), aim, frame.count, spp,
-                                    error_of=v_error, cost=sample_cost(frame)).mean()))
-                plan = None
-            if met:
-                break
             # The first round after the pilot gives every pixel the same count: 24 neighbours × 8
             # samples do not yet tell which pixels need more where rare bright paths carry the
             # image (a shape from them sent the round to where the pilot happened to see them,
