@@ -673,21 +673,24 @@ def test_worker_cut_off_mid_task(own_redis, nodes, prefix, cornell):
     node B (on Redis directly) renders and merges it, and the job completes while A's task is
     still blocked. Then the partition heals and A's pass, held in flight all along, reaches Redis
     late; it is dropped as merged already (by A's own merge when its task goes on, or by the
-    sweeper) instead of being counted a second time, and no pass buffer is left behind."""
+    sweeper) instead of being counted a second time, and no pass buffer is left behind.
+
+    B starts once A is cut: with both nodes on the queue from the start, a busy machine could let
+    B render every pass before A, behind the proxy, came to its second."""
     proxy = Partition(own_redis.port, PUT_PASS, n=2)
     store = JobStore.from_url(own_redis.url, prefix)
     try:
         node_a = nodes.start(1, redis_url=proxy.url)
         nodes.wait_warm(store, node_a, 1)
-        node_b = nodes.start(1)
-        nodes.wait_warm(store, node_b, 1)
-        # 4 tiles x 16 passes = 64 tasks, of 16 K paths each: long enough (~3 ms on the packet
-        # kernel) that A, behind the proxy, takes a second pass before B has rendered the rest
+        # 4 tiles x 16 passes = 64 tasks, of 16 K paths each (~3 ms on the packet kernel)
         scene = _scene(cornell, 32, 32, 1024)
         with _api(own_redis.url, prefix) as api:
             job_id = _submit(api, scene, 16, 64)
             n_tasks = store.get_job(job_id).plan.n_tasks
             assert proxy.cut_done.wait(TIMEOUT), nodes.logs()
+            assert store.get_job(job_id).tasks_merged == 1  # A's first pass, and no other yet
+            node_b = nodes.start(1)
+            nodes.wait_warm(store, node_b, 1)
             match = PUT_PASS.search(proxy.trigger)
             tile, pass_index = int(match[1]), int(match[2])
             assert _finished(store, job_id) == "done", nodes.logs()
