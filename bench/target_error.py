@@ -198,7 +198,14 @@ def oracle(names: list[str], all_scenes: dict) -> int:
       fixed before the samples it weighs, as any allocation's is, from 4× the samples (roughly
       the best such a shape can do; unaveraged, the independent map's own noise made it worse);
     - "estimator": the shape the renderer can know, √(ṽ/c̃) from the 1024-spp render's
-      neighbours (renderer.film.adaptive: 5×5 leave-one-out, floored)."""
+      neighbours (renderer.film.adaptive: 5×5 leave-one-out, floored).
+
+    Two more columns price the estimator's shape in measured time instead of path segments
+    (``timed_cost``: c_p is the pixel's segments a sample times its 8×8 tile's seconds a
+    segment): "est., timed", the renderer's shape so priced; "timed shape", the shape made
+    with that measured cost in place of c̃ (√(ṽ/(c̃ t)), t the tile's seconds a segment). Their
+    difference is what an allocation that knew each pixel's time could gain over the path
+    segments' count."""
     from renderer.film.adaptive import neighbour_variance, sample_cost
     from renderer.render import render_buffer
     from renderer.scene import load_scene
@@ -214,8 +221,8 @@ def oracle(names: list[str], all_scenes: dict) -> int:
     def ratio(v: np.ndarray, c: np.ndarray, shape: np.ndarray) -> float:
         return float((c * shape).mean() * (v / shape).mean() / (v.mean() * c.mean()))
 
-    print(f"{'scene':<22} {'same run':>9} {'independent':>12} {'estimator':>10}   "
-          "(time / uniform time at equal error)")
+    print(f"{'scene':<22} {'same run':>9} {'independent':>12} {'estimator':>10} "
+          f"{'est., timed':>12} {'timed shape':>12}   (time / uniform time at equal error)")
     for name in names:
         scene, material = all_scenes[name]
         ref = scene_reference(name, scene, material)
@@ -226,10 +233,46 @@ def oracle(names: list[str], all_scenes: dict) -> int:
         shape = np.sqrt(_box3(v2) / _box3(c2))
         shape = np.maximum(shape, 1e-12 * shape.max())  # no pixel left without samples
         same = np.sqrt(v * c).mean() ** 2 / (v.mean() * c.mean())
+        nv, nc = neighbour_variance(buf), sample_cost(buf)
+        per_segment = timed_cost(scene_at(scene, material, 32, None))
+        timed = (c - 1.0) * per_segment  # seconds a sample
         print(f"{name:<22} {same:>9.2f} {ratio(v, c, shape):>12.2f} "
-              f"{ratio(v, c, np.sqrt(neighbour_variance(buf) / sample_cost(buf))):>10.2f}",
-              flush=True)
+              f"{ratio(v, c, np.sqrt(nv / nc)):>10.2f} "
+              f"{ratio(v, timed, np.sqrt(nv / nc)):>12.2f} "
+              f"{ratio(v, timed, np.sqrt(nv / (nc * per_segment))):>12.2f}", flush=True)
     return 0
+
+
+def timed_cost(data: dict, tile: int = 8) -> np.ndarray:
+    """Each pixel's seconds a path segment, measured: the frame rendered uniformly in tiles of
+    ``tile`` px, one thread, each tile's wall time (best of two) over its path segments; (h, w),
+    every pixel of a tile the tile's figure."""
+    import numba
+
+    from renderer.render import render_tile
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    cs = compile_scene(load_scene(data))
+    threads = numba.get_num_threads()
+    numba.set_num_threads(1)
+    out = np.zeros((cs.height, cs.width))
+    try:
+        render_tile(cs, 0, 0, 1, 1, 0, 1)  # the kernel loaded before any tile is timed
+        for y in range(0, cs.height, tile):
+            for x in range(0, cs.width, tile):
+                w, h = min(tile, cs.width - x), min(tile, cs.height - y)
+                best, segments = np.inf, 1
+                for _ in range(2):
+                    start = time.perf_counter()
+                    buf = render_tile(cs, x, y, w, h, 0, cs.spp)
+                    best = min(best, time.perf_counter() - start)
+                    assert buf.segments is not None
+                    segments = max(int(buf.segments.sum()), 1)
+                out[y:y + h, x:x + w] = best / segments
+    finally:
+        numba.set_num_threads(threads)
+    return out
 
 
 def farm(names: list[str], all_scenes: dict, targets: list[float]) -> int:
