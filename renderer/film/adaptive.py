@@ -276,6 +276,12 @@ def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndar
     return np.maximum(v, (FLOOR if floor is None else floor) * float(v.mean()))
 
 
+def aim_reached(error: float, target: float) -> bool:
+    """The stop of the local loop and of the farm's tile rule: the frame's estimated error is
+    within ``STOP_SLACK`` of AIM × ``target``."""
+    return error <= AIM * target * (1.0 + STOP_SLACK)
+
+
 @inline_kernel
 def _clamped_count(lam, root, lo, cap):
     """A pixel's count at scale ``lam``: clamp(⌈λ root⌉, lo, cap), what ``allocate``'s counts
@@ -487,7 +493,7 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     count = buf.count
     if int(count.min(initial=PILOT)) < PILOT:
         want = np.full(count.shape, cap, np.int64)
-    elif frame_error is not None and frame_error <= AIM * target * (1.0 + STOP_SLACK):
+    elif frame_error is not None and aim_reached(frame_error, target):
         return np.zeros(count.shape, np.int32)
     else:
         v = neighbour_variance(buf)
@@ -541,7 +547,7 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         # of a few pixels would change the error by less than its own noise); the estimates
         # that shape the counts are needed only to go on (and for the pilot's plan)
         v_error = sample_variance(frame)
-        met = float(_error_terms(v_error, frame.count).mean()) <= aim * (1.0 + STOP_SLACK)
+        met = aim_reached(float(_error_terms(v_error, frame.count).mean()), target)
         if plan is not None:  # (the first round's, after the pilot: the shaped allocation's total)
             plan(float(allocate(neighbour_variance(frame), aim, frame.count, spp,
                                 error_of=v_error, cost=sample_cost(frame)).mean()))

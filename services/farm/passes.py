@@ -127,7 +127,7 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
     """Adaptive sampling: the samples each pixel of the tile takes of this pass (``(h, w)``
     int32), a pure rule of the tile's merged buffer and the frame's scale from the job's tile
     summaries (``renderer.film.adaptive.pass_counts``, ``frame_scale``), nothing once the
-    frames' estimated error from them (``JobMeta.expected_error``) is within the rule's slack of
+    frame's estimated error from them (``JobMeta.expected_error``) is within the rule's slack of
     its aim; None before the tile's first merge (every pixel takes the whole pass)."""
     data = store.tile_buffer(meta.id, tile)
     if data is None:
