@@ -2,7 +2,7 @@
 time at the same error, per scene and target.
 
     .venv/bin/python -m bench.target_error [--scenes ...] [--targets 0.1 0.03 ...] [--seeds K]
-                                           [--out CSV] [--chart PNG]
+                                           [--even] [--out CSV] [--chart PNG]
 
 The scenes: the chart suite (``bench.accuracy.suite``: wax sphere, backlit slab, concave torus,
 thin shell, spheres at albedo 0.5/0.9/0.99, 64×48, the translucent material ``volumetric``,
@@ -17,7 +17,8 @@ The error is the chart suite's frame relMSE, mean((x − ref)²/(ref² + 0.01)),
 
 Each scene is rendered uniformly at 4, 8, 16, 64 … 4096 spp and with each target (``render.spp``
 8192, which no target here reaches); wall time of the whole ``render_buffer`` call (the allocation's
-bookkeeping included), best of ``--repeat`` after a warm-up. With ``--seeds K`` every run is
+bookkeeping included), best of ``--repeat`` after a warm-up (of more where that many took less
+than a quarter second). With ``--seeds K`` every run is
 made with K seeds and its error and time are the means over them (one seed's error is noisy
 where rare bright paths carry much of the image). "uniform s" is the uniform time at the target
 run's achieved error, interpolated on the uniform log–log curve (slope −1 beyond its ends; the
@@ -25,7 +26,11 @@ runs at 4 and 8 spp put a frame of a few milliseconds, where a target run takes 
 spp or a little more, between measured points: extrapolated down from 16 spp, time ∝ spp
 shrinks the fixed cost of a render too, and uniform sampling looked faster than it is);
 "time ratio" is the target run's time over it (below 1: the target run was faster at equal
-error). "error/target" should lie in [0.5, 1.1].
+error). "error/target" should lie in [0.5, 1.1]. ``--even`` runs each target a second time with
+every round even, uniform sampling with the loop's pilot, rounds and stop (its frame is the
+uniform render at its final count, sample for sample): "even ratio" is its time over uniform
+sampling's at its error, the cost of the loop's structure alone, and "shape gain" the time
+ratio over it, what the shape of the counts gains at equal error (below 1: it gains).
 """
 
 from __future__ import annotations
@@ -43,6 +48,9 @@ from bench.accuracy import ROOT, _loglog, reference, rel_mse, suite, with_method
 UNIFORM_SPP = (4, 8, 16, 64, 256, 1024, 4096)
 TARGETS = (0.1, 0.03, 0.01, 0.003, 0.002)
 CAP = 8192
+# timed(): runs of a render are repeated until they have taken this long in all, at most so many
+SHORT = 0.25
+MOST_RUNS = 25
 # outside the chart suite, references in tests/data
 EXTRA = ("glass_sphere", "caustic_floor", "cornell_box")
 
@@ -81,27 +89,35 @@ def scene_reference(name: str, scene: dict, material: str | None) -> np.ndarray:
 
 
 def measured(scene: dict, material: str | None, spp: int, target: float | None,
-             ref: np.ndarray, seeds: int, repeat: int) -> tuple[float, float, float]:
+             ref: np.ndarray, seeds: int, repeat: int,
+             even: bool = False) -> tuple[float, float, float]:
     """(wall time, relMSE, mean spp), each the mean over the seeds 7, 8, … (``seeds`` of them):
-    one seed's error is noisy where rare bright paths carry much of the image."""
-    runs = [timed(scene_at(scene, material, spp, target, 7 + k), repeat) for k in range(seeds)]
+    one seed's error is noisy where rare bright paths carry much of the image. ``even``: the
+    target loop with every round even (``render_buffer``'s ``even``)."""
+    runs = [timed(scene_at(scene, material, spp, target, 7 + k), repeat, even)
+            for k in range(seeds)]
     return (float(np.mean([t for t, _, _ in runs])),
             float(np.mean([rel_mse(img, ref) for _, img, _ in runs])),
             float(np.mean([n for _, _, n in runs])))
 
 
-def timed(data: dict, repeat: int) -> tuple[float, np.ndarray, float]:
-    """(best wall time, image, mean spp)."""
+def timed(data: dict, repeat: int, even: bool = False) -> tuple[float, np.ndarray, float]:
+    """(best wall time, image, mean spp): the best of ``repeat`` runs, and of more while they
+    have taken less than ``SHORT`` seconds in all (at most ``MOST_RUNS``): a frame of
+    milliseconds is otherwise at the mercy of one slow run (the diffuse Cornell box's 8-spp
+    pilot, the same work in both, measured 1.29 and 1.03× uniform sampling's time in one run
+    of the bench at ``--repeat 1``)."""
     from renderer.render import render_buffer
     from renderer.scene import load_scene
     from renderer.scene.compile import compile_scene
 
     cs = compile_scene(load_scene(data))
-    best = np.inf
-    for _ in range(repeat):
+    best, spent, runs = np.inf, 0.0, 0
+    while runs < repeat or (spent < SHORT and runs < MOST_RUNS):
         t = time.perf_counter()
-        buf = render_buffer(cs)
-        best = min(best, time.perf_counter() - t)
+        buf = render_buffer(cs, even=even)
+        took = time.perf_counter() - t
+        best, spent, runs = min(best, took), spent + took, runs + 1
     return best, buf.mean().astype(np.float64), float(buf.count.mean())
 
 
@@ -121,6 +137,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--farm", action="store_true",
                         help="the farm's rule instead: each scene and target as a job on an "
                              "embedded farm (2 worker processes, tiles of 16 px)")
+    parser.add_argument("--even", action="store_true",
+                        help="also run each target with every round even (uniform sampling "
+                             "with the loop's rounds and stop) and print what the shape gains")
     args = parser.parse_args(argv)
     if args.oracle:
         return oracle(args.scenes, all_scenes)
@@ -130,7 +149,9 @@ def main(argv: list[str] | None = None) -> int:
 
     rows = []
     print(f"{'scene':<20} {'target':>7} {'mean spp':>8} {'seconds':>8} {'relMSE':>9} "
-          f"{'err/target':>10} {'uniform s':>9} {'time ratio':>10}", flush=True)
+          f"{'err/target':>10} {'uniform s':>9} {'time ratio':>10}"
+          + (f" {'even spp':>8} {'even ratio':>10} {'shape gain':>10}" if args.even else ""),
+          flush=True)
     for name in args.scenes:
         scene, material = all_scenes[name]
         ref = scene_reference(name, scene, material)
@@ -153,14 +174,34 @@ def main(argv: list[str] | None = None) -> int:
             rows.append({"scene": name, "mode": "target", "target": target,
                          "mean_spp": mean_spp, "seconds": t, "rel_mse": e, "ratio": e / target,
                          "uniform_seconds": t_uniform, "time_ratio": t / t_uniform})
-            print(f"{name:<20} {target:>7} {mean_spp:>8.0f} {t:>8.3f} {e:>9.5f} "
-                  f"{e / target:>10.2f} {t_uniform:>9.3f} {t / t_uniform:>10.2f}", flush=True)
+            line = (f"{name:<20} {target:>7} {mean_spp:>8.0f} {t:>8.3f} {e:>9.5f} "
+                    f"{e / target:>10.2f} {t_uniform:>9.3f} {t / t_uniform:>10.2f}")
+            if args.even:
+                # The same loop with every round even: its time over uniform sampling's is the
+                # cost of the rounds and the stop alone; the rule's ratio over it, what the
+                # shape of the counts gains at equal error
+                te, ee, spp_even = measured(scene, material, CAP, target, ref, args.seeds,
+                                            args.repeat, even=True)
+                even_ratio = te / _loglog(ee, np.array(ue), np.array(ut))
+                rows.append({"scene": name, "mode": "even", "target": target,
+                             "mean_spp": spp_even, "seconds": te, "rel_mse": ee,
+                             "ratio": ee / target, "uniform_seconds": te / even_ratio,
+                             "time_ratio": even_ratio})
+                line += (f" {spp_even:>8.0f} {even_ratio:>10.2f} "
+                         f"{t / t_uniform / even_ratio:>10.2f}")
+            print(line, flush=True)
     target_rows = [r for r in rows if r["mode"] == "target"]
     ratios = np.array([r["ratio"] for r in target_rows])
     times = np.array([r["time_ratio"] for r in target_rows])
     print(f"error/target {ratios.min():.2f}–{ratios.max():.2f} "
           f"({np.mean((ratios >= 0.5) & (ratios <= 1.1)):.0%} in [0.5, 1.1]); "
           f"time/uniform {times.min():.2f}–{times.max():.2f} (median {np.median(times):.2f})")
+    if args.even:
+        even = np.array([r["time_ratio"] for r in rows if r["mode"] == "even"])
+        gain = times / even
+        print(f"even rounds' time/uniform {even.min():.2f}–{even.max():.2f} (median "
+              f"{np.median(even):.2f}); shape gain {gain.min():.2f}–{gain.max():.2f} (median "
+              f"{np.median(gain):.2f}, {np.sum(gain > 1)} of {gain.size} above 1)")
     if args.out is not None:
         with open(args.out, "w", newline="") as f:
             writer = csv.DictWriter(f, fieldnames=list(rows[0]))

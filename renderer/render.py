@@ -96,6 +96,7 @@ def render_buffer(
     progress: Callable[[int, int, float], None] | None = None,
     kernel: str = "packet",
     plan: Callable[[float], None] | None = None,
+    even: bool = False,
 ) -> SampleBuffer:
     """Render a whole frame in passes of ``pass_spp`` samples per pixel.
 
@@ -103,7 +104,8 @@ def render_buffer(
     samples × pixels), which is what the CLI's progress bar shows. With the scene's
     ``render.target_error`` (the frame's expected relMSE, ``renderer.film.adaptive``) a pilot
     is followed by passes to the pixels whose allocation exceeds what they have, each pixel at
-    most ``spp`` samples; ``plan(mean_spp)`` is told the pilot's allocation. ``kernel``: see
+    most ``spp`` samples; ``plan(mean_spp)`` is told the pilot's allocation; ``even`` makes
+    every pass give every pixel the same count (``sample_to_target``). ``kernel``: see
     ``render_tile``.
     """
     cs = _as_compiled(scene)
@@ -125,7 +127,7 @@ def render_buffer(
                 progress(done, planned, time.perf_counter() - start)
 
         return sample_to_target(render_pass, (cs.height, cs.width), cs.target_error, spp,
-                                plan=plan, progress=report, max_pass=pass_spp)
+                                plan=plan, progress=report, max_pass=pass_spp, even=even)
     done = 0
     while done < spp:
         n = min(pass_spp, spp - done)

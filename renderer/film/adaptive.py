@@ -524,7 +524,7 @@ def warm_up() -> None:
 
 def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: int,
                      plan=None, progress=None, max_pass: int | None = None,
-                     max_rounds: int = 64) -> SampleBuffer:
+                     max_rounds: int = 64, even: bool = False) -> SampleBuffer:
     """The local renderer's loop, given ``render_pass(index, counts) -> SampleBuffer`` that adds
     samples [index, index + counts[p]) to each pixel p of a frame of ``shape`` (h, w): a pilot of
     ``PILOT`` samples a pixel, then rounds, each one pass of every pixel's deficit against the
@@ -534,7 +534,9 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
     of AIM × ``target``, no pixel lacks a sample, or every pixel has ``spp``. Sample indices are
     never reused: a pixel that sits out part of a round's index range has a gap, not a repeat.
     ``plan(mean_spp)`` is told the pilot's allocation; ``progress(done, planned)`` after every
-    pass; ``max_pass`` caps a pass's samples a pixel."""
+    pass; ``max_pass`` caps a pass's samples a pixel. ``even``: every round gives every pixel
+    the same count (uniform sampling with the loop's rounds and stop; what the shape of the
+    counts gains is measured against it, ``python -m bench.target_error --even``)."""
     h, w = shape
     frame = SampleBuffer.empty(0, 0, w, h)
     pilot = min(PILOT, spp)
@@ -548,17 +550,20 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         # that shape the counts are needed only to go on (and for the pilot's plan)
         v_error = sample_variance(frame)
         met = aim_reached(float(_error_terms(v_error, frame.count).mean()), target)
-        if plan is not None:  # (the first round's, after the pilot: the shaped allocation's total)
-            plan(float(allocate(neighbour_variance(frame), aim, frame.count, spp,
-                                error_of=v_error, cost=sample_cost(frame)).mean()))
+        if plan is not None:  # (the first round's, after the pilot: the allocation's total)
+            shape, shape_cost = ((np.ones(frame.count.shape), None) if even else
+                                 (neighbour_variance(frame), sample_cost(frame)))
+            plan(float(allocate(shape, aim, frame.count, spp, error_of=v_error,
+                                cost=shape_cost).mean()))
             plan = None
         if met:
             break
-        if index == pilot:
+        if index == pilot or even:
             # The first round after the pilot gives every pixel the same count: 24 neighbours × 8
             # samples do not yet tell which pixels need more where rare bright paths carry the
             # image (a shape from them sent the round to where the pilot happened to see them,
-            # at more path segments a sample and no gain: docs/adaptive-sampling.md)
+            # at more path segments a sample and no gain: docs/adaptive-sampling.md); with
+            # ``even``, every round does
             v, cost = np.ones(frame.count.shape), None
         else:
             # The counts are shaped by the neighbours' floored estimate (no pixel trusted to be

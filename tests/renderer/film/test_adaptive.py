@@ -399,13 +399,12 @@ def test_the_loop_reaches_the_target_on_a_synthetic_frame():
     assert buf.count.min() >= PILOT
 
 
-def test_the_first_round_after_the_pilot_is_uniform_and_the_later_ones_shaped():
-    """Half the frame noisy, half nearly flat, a target far off: the pilot, then a round that gives
-    every pixel the same count (the pilot's 8 samples do not yet shape the counts), then rounds
-    shaped by the neighbours' estimate, the noisy half taking more."""
-    h, w = 16, 32
+def half_noisy(even: bool = False, target: float = 0.0005,
+               h: int = 16, w: int = 32) -> tuple[list[np.ndarray], SampleBuffer]:
+    """The loop on a frame whose left half is noisy and right half nearly flat: each pass's
+    counts, and the frame."""
     scale = np.where(np.arange(w) < w // 2, 1.0, 0.05)[None, :].repeat(h, 0)
-    passes = []
+    passes: list[np.ndarray] = []
 
     def render_pass(index: int, counts: np.ndarray) -> SampleBuffer:
         passes.append(counts.copy())
@@ -416,12 +415,48 @@ def test_the_first_round_after_the_pilot_is_uniform_and_the_later_ones_shaped():
 
         return grey_pass(counts, draw)
 
-    sample_to_target(render_pass, (h, w), 0.0005, 100_000)
+    return passes, sample_to_target(render_pass, (h, w), target, 100_000, even=even)
+
+
+def test_the_first_round_after_the_pilot_is_uniform_and_the_later_ones_shaped():
+    """Half the frame noisy, half nearly flat, a target far off: the pilot, then a round that gives
+    every pixel the same count (the pilot's 8 samples do not yet shape the counts), then rounds
+    shaped by the neighbours' estimate, the noisy half taking more."""
+    passes, _ = half_noisy()
+    w = passes[0].shape[1]
     assert len(passes) >= 3
     np.testing.assert_array_equal(passes[0], PILOT)
     assert passes[1].min() == passes[1].max() == PILOT  # as much work again, evenly
     later = sum(p.astype(np.int64) for p in passes[2:])
     assert later[:, : w // 2].mean() > 2 * later[:, w // 2:].mean()
+
+
+def test_even_rounds_give_every_pixel_the_same_count_and_stop_as_the_rule_does():
+    """``even``: the same frame, every pass one count for all pixels (where the shaped rule's
+    later rounds give the noisy half more, above), and the loop stops at the same estimate: the
+    frame's error from the pixels' own samples within the slack of the aim."""
+    target = 0.0005
+    passes, buf = half_noisy(even=True, target=target)
+    assert len(passes) >= 3
+    assert all(p.min() == p.max() for p in passes), [(p.min(), p.max()) for p in passes]
+    assert buf.count.min() == buf.count.max()
+    assert stopping_error(buf) <= AIM * target * (1 + STOP_SLACK)
+
+
+def test_even_rounds_render_the_uniform_frame_of_their_count():
+    """On a scene, the even loop's frame is the uniform render at its final count, sample for
+    sample (a pass renders indices [index, index + count) of every pixel, so rounds of one count
+    each add up to the uniform range)."""
+    data = json.loads((ROOT / "examples" / "cornell_box.json").read_text())
+    data["film"] = {"width": 24, "height": 16}
+    data["render"].update(spp=4096, seed=3, target_error=0.005)
+    buf = render_buffer(load_scene(data), even=True)
+    n = int(buf.count[0, 0])
+    assert n > PILOT and (buf.count == n).all()
+    data["render"].update(spp=n, target_error=None)
+    uniform = render_buffer(load_scene(data))
+    np.testing.assert_array_equal(buf.sum, uniform.sum)
+    np.testing.assert_array_equal(buf.count, uniform.count)
 
 
 def test_on_even_noise_the_loop_takes_no_round_to_close_a_gap_within_its_noise():
