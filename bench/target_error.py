@@ -246,7 +246,13 @@ def oracle(names: list[str], all_scenes: dict) -> int:
     segment): "est., timed", the renderer's shape so priced; "timed shape", the shape made
     with that measured cost in place of c̃ (√(ṽ/(c̃ t)), t the tile's seconds a segment). Their
     difference is what an allocation that knew each pixel's time could gain over the path
-    segments' count."""
+    segments' count.
+
+    The last column, "predicted @32", is what the rule's own estimates say the shape would gain
+    when it decides a round's counts: ``predicted_gain`` of ṽ and c̃·t from a uniform 32-spp
+    render (the loop's frame after the pilot and its even round), the range over the seeds 7–10.
+    A rule that shaped only where its estimates predict a gain would need this column to follow
+    "est., timed"."""
     from renderer.film.adaptive import neighbour_variance, sample_cost
     from renderer.render import render_buffer
     from renderer.scene import load_scene
@@ -263,7 +269,8 @@ def oracle(names: list[str], all_scenes: dict) -> int:
         return float((c * shape).mean() * (v / shape).mean() / (v.mean() * c.mean()))
 
     print(f"{'scene':<22} {'same run':>9} {'independent':>12} {'estimator':>10} "
-          f"{'est., timed':>12} {'timed shape':>12}   (time / uniform time at equal error)")
+          f"{'est., timed':>12} {'timed shape':>12} {'predicted @32':>14}"
+          "   (time / uniform time at equal error)")
     for name in names:
         scene, material = all_scenes[name]
         ref = scene_reference(name, scene, material)
@@ -277,11 +284,24 @@ def oracle(names: list[str], all_scenes: dict) -> int:
         nv, nc = neighbour_variance(buf), sample_cost(buf)
         per_segment = timed_cost(scene_at(scene, material, 32, None))
         timed = (c - 1.0) * per_segment  # seconds a sample
+        predicted = []
+        for seed in (7, 8, 9, 10):
+            early = render_buffer(load_scene(scene_at(scene, material, 32, None, seed)))
+            predicted.append(predicted_gain(neighbour_variance(early),
+                                            (sample_cost(early) - 1.0) * per_segment))
         print(f"{name:<22} {same:>9.2f} {ratio(v, c, shape):>12.2f} "
               f"{ratio(v, c, np.sqrt(nv / nc)):>10.2f} "
               f"{ratio(v, timed, np.sqrt(nv / nc)):>12.2f} "
-              f"{ratio(v, timed, np.sqrt(nv / (nc * per_segment))):>12.2f}", flush=True)
+              f"{ratio(v, timed, np.sqrt(nv / (nc * per_segment))):>12.2f} "
+              f"{f'{min(predicted):.2f}–{max(predicted):.2f}':>14}", flush=True)
     return 0
+
+
+def predicted_gain(v: np.ndarray, c: np.ndarray) -> float:
+    """The time to a frame error with counts n ∝ √(v/c), over uniform sampling's, were v each
+    pixel's true variance and c its cost a sample: mean(√(v c))² / (mean(v)·mean(c)), at most 1
+    (Cauchy–Schwarz), 1 where v ∝ c (then the best counts are even)."""
+    return float(np.sqrt(v * c).mean() ** 2 / (v.mean() * c.mean()))
 
 
 def timed_cost(data: dict, tile: int = 8) -> np.ndarray:
