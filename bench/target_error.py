@@ -18,10 +18,10 @@ The error is the chart suite's frame relMSE, mean((x − ref)²/(ref² + 0.01)),
 Each scene is rendered uniformly at 4, 8, 16, 64 … 4096 spp and with each target (``render.spp``
 8192, which no target here reaches); wall time of the whole ``render_buffer`` call (the allocation's
 bookkeeping included), best of ``--repeat`` after a warm-up (of more where that many took less
-than a quarter second). With ``--seeds K`` every run is
-made with K seeds and its error and time are the means over them (one seed's error is noisy
-where rare bright paths carry much of the image). "uniform s" is the uniform time at the target
-run's achieved error, interpolated on the uniform log–log curve (slope −1 beyond its ends; the
+than a quarter second). With ``--seeds K`` every run is made with K seeds and its error and time
+are the means over them (one seed's error is noisy where rare bright paths carry much of the
+image). "uniform s" is the uniform time at the target run's achieved error, interpolated on the
+uniform log–log curve (slope −1 beyond its ends; the
 runs at 4 and 8 spp put a frame of a few milliseconds, where a target run takes the pilot's 8
 spp or a little more, between measured points: extrapolated down from 16 spp, time ∝ spp
 shrinks the fixed cost of a render too, and uniform sampling looked faster than it is);

@@ -551,10 +551,10 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         v_error = sample_variance(frame)
         met = aim_reached(float(_error_terms(v_error, frame.count).mean()), target)
         if plan is not None:  # (the first round's, after the pilot: the allocation's total)
-            shape, shape_cost = ((np.ones(frame.count.shape), None) if even else
+            plan_v, plan_cost = ((np.ones(frame.count.shape), None) if even else
                                  (neighbour_variance(frame), sample_cost(frame)))
-            plan(float(allocate(shape, aim, frame.count, spp, error_of=v_error,
-                                cost=shape_cost).mean()))
+            plan(float(allocate(plan_v, aim, frame.count, spp, error_of=v_error,
+                                cost=plan_cost).mean()))
             plan = None
         if met:
             break

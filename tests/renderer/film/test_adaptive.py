@@ -450,9 +450,11 @@ def test_even_rounds_render_the_uniform_frame_of_their_count():
     data = json.loads((ROOT / "examples" / "cornell_box.json").read_text())
     data["film"] = {"width": 24, "height": 16}
     data["render"].update(spp=4096, seed=3, target_error=0.005)
-    buf = render_buffer(load_scene(data), even=True)
+    planned: list[float] = []
+    buf = render_buffer(load_scene(data), even=True, plan=planned.append)
     n = int(buf.count[0, 0])
     assert n > PILOT and (buf.count == n).all()
+    assert len(planned) == 1 and planned[0] >= PILOT  # the even allocation's plan
     data["render"].update(spp=n, target_error=None)
     uniform = render_buffer(load_scene(data))
     np.testing.assert_array_equal(buf.sum, uniform.sum)
