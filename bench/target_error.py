@@ -182,10 +182,11 @@ def main(argv: list[str] | None = None) -> int:
                 # shape of the counts gains at equal error
                 te, ee, spp_even = measured(scene, material, CAP, target, ref, args.seeds,
                                             args.repeat, even=True)
-                even_ratio = te / _loglog(ee, np.array(ue), np.array(ut))
+                te_uniform = _loglog(ee, np.array(ue), np.array(ut))
+                even_ratio = te / te_uniform
                 rows.append({"scene": name, "mode": "even", "target": target,
                              "mean_spp": spp_even, "seconds": te, "rel_mse": ee,
-                             "ratio": ee / target, "uniform_seconds": te / even_ratio,
+                             "ratio": ee / target, "uniform_seconds": te_uniform,
                              "time_ratio": even_ratio})
                 line += (f" {spp_even:>8.0f} {even_ratio:>10.2f} "
                          f"{t / t_uniform / even_ratio:>10.2f}")
