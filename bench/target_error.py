@@ -3,6 +3,7 @@ time at the same error, per scene and target.
 
     .venv/bin/python -m bench.target_error [--scenes ...] [--targets 0.1 0.03 ...] [--seeds K]
                                            [--even] [--out CSV] [--chart PNG]
+    .venv/bin/python -m bench.target_error --overhead [--scenes ...] [--runs N]
 
 The scenes: the chart suite (``bench.accuracy.suite``: wax sphere, backlit slab, concave torus,
 thin shell, spheres at albedo 0.5/0.9/0.99, 64×48, the translucent material ``volumetric``,
@@ -31,6 +32,8 @@ every round even, uniform sampling with the loop's pilot, rounds and stop (its f
 uniform render at its final count, sample for sample): "even ratio" is its time over uniform
 sampling's at its error, the cost of the loop's structure alone, and "shape gain" the time
 ratio over it, what the shape of the counts gains at equal error (below 1: it gains).
+``--overhead`` times the loop's passes and its bookkeeping apart, against its samples rendered
+in one pass (``overhead``).
 """
 
 from __future__ import annotations
@@ -53,6 +56,8 @@ SHORT = 0.25
 MOST_RUNS = 25
 # outside the chart suite, references in tests/data
 EXTRA = ("glass_sphere", "caustic_floor", "cornell_box")
+# overhead(): each loop and its one-pass render timed as the best of so many runs
+OVERHEAD_RUNS = 30
 
 
 def scenes() -> dict[str, tuple[dict, str | None]]:
@@ -128,6 +133,8 @@ def main(argv: list[str] | None = None) -> int:
                         choices=list(all_scenes))
     parser.add_argument("--targets", nargs="+", type=float, default=list(TARGETS))
     parser.add_argument("--repeat", type=int, default=2)
+    parser.add_argument("--runs", type=int, default=OVERHEAD_RUNS,
+                        help="--overhead: the best of this many runs")
     parser.add_argument("--seeds", type=int, default=1,
                         help="average each run's error and time over this many seeds (7, 8, …)")
     parser.add_argument("--out", type=Path, default=None, help="write the rows to this CSV")
@@ -137,6 +144,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--farm", action="store_true",
                         help="the farm's rule instead: each scene and target as a job on an "
                              "embedded farm (2 worker processes, tiles of 16 px)")
+    parser.add_argument("--overhead", action="store_true",
+                        help="time the target loop's passes and its bookkeeping apart instead, "
+                             "against its samples rendered in one pass")
     parser.add_argument("--even", action="store_true",
                         help="also run each target with every round even (uniform sampling "
                              "with the loop's rounds and stop) and print what the shape gains")
@@ -145,6 +155,9 @@ def main(argv: list[str] | None = None) -> int:
         return oracle(args.scenes, all_scenes)
     if args.farm:
         return farm(args.scenes, all_scenes, args.targets)
+    if args.overhead:
+        overhead(args.scenes, all_scenes, args.targets, args.runs)
+        return 0
     from renderer.render import render_buffer
 
     rows = []
@@ -335,6 +348,71 @@ def timed_cost(data: dict, tile: int = 8) -> np.ndarray:
     finally:
         numba.set_num_threads(threads)
     return out
+
+
+def overhead(names: list[str], all_scenes: dict, targets: list[float],
+             runs: int = OVERHEAD_RUNS) -> list[dict]:
+    """What the target loop costs besides its samples (``--overhead``), per scene, target and
+    mode (the rule, and its even variant): ``render_buffer`` timed whole, the best of ``runs``,
+    and within that run the time spent in its passes (``render_tile`` calls); "book ms", the
+    rest, is the loop's bookkeeping (the estimates, the allocation, the stop). "one pass ms" is
+    the same counts (the loop's final count of every pixel) rendered in one pass, the best of
+    ``runs``: "loop / one pass" is the loop's structure, its rounds and their bookkeeping, at
+    equal samples (the rule's rounds leave gaps in a pixel's indices, so its one pass renders
+    as many samples, not the same ones). Returns the rows it prints."""
+    import renderer.render as render_module
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    real = render_module.render_tile
+    in_passes = [0.0, 0]
+
+    def timed_tile(*args, **kwargs):
+        start = time.perf_counter()
+        try:
+            return real(*args, **kwargs)
+        finally:
+            in_passes[0] += time.perf_counter() - start
+            in_passes[1] += 1
+
+    rows = []
+    print(f"{'scene':<20} {'target':>7} {'mode':>5} {'passes':>6} {'mean spp':>8} "
+          f"{'loop ms':>8} {'passes ms':>9} {'book ms':>8} {'one pass ms':>11} "
+          f"{'loop / one pass':>15}", flush=True)
+    for name in names:
+        scene, material = all_scenes[name]
+        for target in targets:
+            cs = compile_scene(load_scene(scene_at(scene, material, CAP, target)))
+            for mode in ("rule", "even"):
+                # (the loop's final counts, and the kernels loaded)
+                counts = render_module.render_buffer(cs, even=mode == "even").count
+                counts = counts.astype(np.int32)
+                best, one = (np.inf, 0.0, 0), np.inf
+                for _ in range(runs):
+                    # The loop and its one pass in turns, so that both see the machine alike
+                    in_passes[:] = [0.0, 0]
+                    render_module.render_tile = timed_tile
+                    try:
+                        start = time.perf_counter()
+                        buf = render_module.render_buffer(cs, even=mode == "even")
+                        took = time.perf_counter() - start
+                    finally:
+                        render_module.render_tile = real
+                    if took < best[0]:
+                        best = (took, in_passes[0], in_passes[1])
+                    start = time.perf_counter()
+                    real(cs, 0, 0, cs.width, cs.height, 0, int(counts.max()), counts)
+                    one = min(one, time.perf_counter() - start)
+                took, passes_s, passes = best
+                row = {"scene": name, "target": target, "mode": mode, "passes": passes,
+                       "mean_spp": float(buf.count.mean()), "loop_ms": 1e3 * took,
+                       "passes_ms": 1e3 * passes_s, "book_ms": 1e3 * (took - passes_s),
+                       "one_pass_ms": 1e3 * one, "structure": took / one}
+                rows.append(row)
+                print(f"{name:<20} {target:>7} {mode:>5} {passes:>6} {row['mean_spp']:>8.1f} "
+                      f"{row['loop_ms']:>8.2f} {row['passes_ms']:>9.2f} {row['book_ms']:>8.2f} "
+                      f"{row['one_pass_ms']:>11.2f} {row['structure']:>15.2f}", flush=True)
+    return rows
 
 
 def farm(names: list[str], all_scenes: dict, targets: list[float]) -> int:
