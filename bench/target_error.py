@@ -267,7 +267,7 @@ def oracle(names: list[str], all_scenes: dict) -> int:
     render (the loop's frame after the pilot and its even round), the range over the seeds 7–10.
     A rule that shaped only where its estimates predict a gain would need this column to follow
     "est., timed"."""
-    from renderer.film.adaptive import neighbour_variance, sample_cost
+    from renderer.film.adaptive import shape_estimates
     from renderer.render import render_buffer
     from renderer.scene import load_scene
 
@@ -295,14 +295,16 @@ def oracle(names: list[str], all_scenes: dict) -> int:
         shape = np.sqrt(_box3(v2) / _box3(c2))
         shape = np.maximum(shape, 1e-12 * shape.max())  # no pixel left without samples
         same = np.sqrt(v * c).mean() ** 2 / (v.mean() * c.mean())
-        nv, nc = neighbour_variance(buf), sample_cost(buf)
+        nv, nc = shape_estimates(buf)
+        assert nc is not None
         per_segment = timed_cost(scene_at(scene, material, 32, None))
         timed = (c - 1.0) * per_segment  # seconds a sample
         predicted = []
         for seed in (7, 8, 9, 10):
             early = render_buffer(load_scene(scene_at(scene, material, 32, None, seed)))
-            predicted.append(predicted_gain(neighbour_variance(early),
-                                            (sample_cost(early) - 1.0) * per_segment))
+            ev, ec = shape_estimates(early)
+            assert ec is not None
+            predicted.append(predicted_gain(ev, (ec - 1.0) * per_segment))
         print(f"{name:<22} {same:>9.2f} {ratio(v, c, shape):>12.2f} "
               f"{ratio(v, c, np.sqrt(nv / nc)):>10.2f} "
               f"{ratio(v, timed, np.sqrt(nv / nc)):>12.2f} "

@@ -126,28 +126,6 @@ def _window_sums_kernel(values, radius, rows, out):
                     sums[y, j] += row_sums[yy, j]
 
 
-def _window_sums(values: np.ndarray, radius: int) -> np.ndarray:
-    """``_window_sums_kernel`` for an array (h, w, ...) of any trailing shape."""
-    h, w = values.shape[:2]
-    flat = np.ascontiguousarray(values, np.float64).reshape(h, w, -1)
-    out = np.empty_like(flat)
-    _window_sums_kernel(flat, radius, np.empty_like(flat), out)
-    return out.reshape(values.shape)
-
-
-def _neighbour_mean(values: np.ndarray, ok: np.ndarray,
-                    radius: int = 1) -> tuple[np.ndarray, np.ndarray]:
-    """The mean of ``values`` (h, w, ...) over each pixel's neighbours within ``radius`` (a
-    (2r+1)² window) where ``ok`` (h, w), never the pixel itself; and how many counted, (h, w)."""
-    extra = values.shape[2:]
-    vals = np.where(ok.reshape(ok.shape + (1,) * len(extra)), values, 0.0)
-    total = _window_sums(vals, radius)
-    weight = _window_sums(ok.astype(np.float64), radius)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        mean = total / weight.reshape(weight.shape + (1,) * len(extra))
-    return mean, weight
-
-
 def _moments(buf: SampleBuffer) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Per pixel: the mean (h, w, 3), the per-sample variance s² (h, w, 3), and whether the pixel
     has at least 2 samples (h, w)."""
@@ -179,24 +157,28 @@ def _pixel_moments(sums, sums_sq, count, moments):
 
 
 @kernel
-def _sample_variance_kernel(sums, sums_sq, count, eps, moments, rows, window, out):
+def _sample_variance_kernel(sums, sums_sq, count, eps, moments, means, rows, window, out):
     """``sample_variance`` in one kernel instead of the dozen numpy passes it took: each pixel's
-    moments (``_pixel_moments``), their sums over its 3×3 window less itself
-    (``_window_sums_kernel``), then v = mean_c s²_c / (m̃_c² + eps), m̃ the neighbours' mean,
-    into ``out`` (NaN below 2 samples). ``moments``, ``rows`` and ``window`` (h, w, 7) are
-    scratch."""
+    moments (``_pixel_moments``), the sums of their means and flags over its 3×3 window less
+    itself (``_window_sums_kernel`` of the four, not the variances it does not need), then
+    v = mean_c s²_c / (m̃_c² + eps), m̃ the neighbours' mean, into ``out`` (NaN below 2 samples).
+    ``moments`` (h, w, 7), ``means``, ``rows`` and ``window`` (h, w, 4) are scratch."""
     h, w = count.shape
     _pixel_moments(sums, sums_sq, count, moments)
-    _window_sums_kernel(moments, 1, rows, window)
+    for y in range(h):
+        for x in range(w):
+            for c in range(4):
+                means[y, x, c] = moments[y, x, 3 + c]
+    _window_sums_kernel(means, 1, rows, window)
     for y in range(h):
         for x in range(w):
             if count[y, x] < 2:
                 out[y, x] = np.nan
                 continue
-            k = window[y, x, 6]
+            k = window[y, x, 3]
             v = 0.0
             for c in range(3):
-                d = window[y, x, 3 + c] / k if k > 0.0 else moments[y, x, 3 + c]
+                d = window[y, x, c] / k if k > 0.0 else moments[y, x, 3 + c]
                 v += moments[y, x, c] / (d * d + eps)
             out[y, x] = v / 3.0
 
@@ -215,20 +197,29 @@ def sample_variance(buf: SampleBuffer) -> np.ndarray:
     _sample_variance_kernel(np.ascontiguousarray(buf.sum, np.float64),
                             np.ascontiguousarray(buf.sum_sq, np.float64),
                             np.ascontiguousarray(buf.count, np.int64), EPSILON,
-                            np.empty((h, w, 7)), np.empty((h, w, 7)), np.empty((h, w, 7)), out)
+                            np.empty((h, w, 7)), np.empty((h, w, 4)), np.empty((h, w, 4)),
+                            np.empty((h, w, 4)), out)
     return out
 
 
 @kernel
-def _neighbour_variance_kernel(sums, sums_sq, count, radius, eps, moments, rows, window,
-                               out_v, out_k):
-    """``neighbour_variance`` before its fallback and floor, in one kernel instead of the dozen
-    numpy passes it took: each pixel's moments (``_pixel_moments``), their sums over its window
-    less itself (``_window_sums_kernel``), then v = mean_c (Σs²/k) / ((Σm/k)² + eps) into
-    ``out_v`` (NaN where no neighbour has samples) and k into ``out_k``. ``moments``, ``rows``
-    and ``window`` (h, w, 7) are scratch."""
+def _neighbour_variance_kernel(sums, sums_sq, count, segments, radius, eps, moments, rows,
+                               window, out_v, out_k, out_cost, out_ck):
+    """``shape_estimates`` before their fallbacks and floor, in one kernel instead of the dozen
+    numpy passes each took: each pixel's moments (``_pixel_moments``), its path segments a
+    sample and a 1 where it has a sample (channels 7, 8; ``segments`` zeros where the buffer has
+    none), their sums over its window less itself (``_window_sums_kernel``), then v = mean_c
+    (Σs²/k) / ((Σm/k)² + eps) into ``out_v`` (NaN where no neighbour has 2 samples) and k into
+    ``out_k``, and the neighbours' mean segments a sample into ``out_cost`` (NaN where none has
+    a sample) and their number into ``out_ck``. ``moments``, ``rows`` and ``window`` (h, w, 9)
+    are scratch."""
     h, w = count.shape
     _pixel_moments(sums, sums_sq, count, moments)
+    for y in range(h):
+        for x in range(w):
+            n = count[y, x]
+            moments[y, x, 7] = segments[y, x] / n if n > 0 else 0.0
+            moments[y, x, 8] = 1.0 if n > 0 else 0.0
     _window_sums_kernel(moments, radius, rows, window)
     for y in range(h):
         for x in range(w):
@@ -242,6 +233,43 @@ def _neighbour_variance_kernel(sums, sums_sq, count, radius, eps, moments, rows,
                 out_v[y, x] = v / 3.0
             else:
                 out_v[y, x] = np.nan
+            kc = window[y, x, 8]
+            out_ck[y, x] = kc
+            out_cost[y, x] = window[y, x, 7] / kc if kc > 0.0 else np.nan
+
+
+def shape_estimates(buf: SampleBuffer,
+                    floor: float | None = None) -> tuple[np.ndarray, np.ndarray | None]:
+    """What shapes a round's counts, both from each pixel's neighbours in one pass over the
+    buffer: ``neighbour_variance`` and ``sample_cost`` (None where the buffer carries no
+    segments)."""
+    h, w = buf.count.shape
+    v, k = np.empty((h, w)), np.empty((h, w))
+    per, kc = np.empty((h, w)), np.empty((h, w))
+    moments = np.empty((h, w, 9))
+    has_segments = buf.segments is not None and bool(buf.segments.any())
+    _neighbour_variance_kernel(np.ascontiguousarray(buf.sum, np.float64),
+                               np.ascontiguousarray(buf.sum_sq, np.float64),
+                               np.ascontiguousarray(buf.count, np.int64),
+                               np.ascontiguousarray(buf.segments, np.int64) if has_segments
+                               else np.zeros((h, w), np.int64), RADIUS, EPSILON,
+                               moments, np.empty((h, w, 9)), np.empty((h, w, 9)), v, k, per, kc)
+    cost = None
+    if has_segments:
+        sampled = moments[..., 8] > 0
+        fallback = float(moments[..., 7][sampled].mean()) if sampled.any() else 1.0
+        cost = SEGMENT_OVERHEAD + np.where(kc > 0, per, fallback)
+    ok = moments[..., 6] > 0
+    if not ok.any():
+        return np.full(ok.shape, math.nan), cost
+    has = k > 0
+    if has.any():
+        fallback = float(v[has].mean())
+    else:
+        mean, s2, _ = _moments(buf)
+        fallback = float(np.mean(s2[ok] / (mean[ok] ** 2 + EPSILON)))
+    v = np.where(has, v, fallback)
+    return np.maximum(v, (FLOOR if floor is None else floor) * float(v.mean())), cost
 
 
 def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndarray:
@@ -256,24 +284,7 @@ def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndar
     The pooling and the floor are there because a few samples of heavy-tailed radiance (a path
     that is bright once in hundreds) mostly show no variance at all: on the chart suite a 16-sample
     pilot pooled over 3×3 and trusted as is left the frame 1.5–2× above its target."""
-    ok = buf.count >= 2
-    if not ok.any():
-        return np.full(ok.shape, math.nan)
-    h, w = ok.shape
-    v, k = np.empty((h, w)), np.empty((h, w))
-    _neighbour_variance_kernel(np.ascontiguousarray(buf.sum, np.float64),
-                               np.ascontiguousarray(buf.sum_sq, np.float64),
-                               np.ascontiguousarray(buf.count, np.int64), RADIUS, EPSILON,
-                               np.empty((h, w, 7)), np.empty((h, w, 7)), np.empty((h, w, 7)),
-                               v, k)
-    has = k > 0
-    if has.any():
-        fallback = float(v[has].mean())
-    else:
-        mean, s2, _ = _moments(buf)
-        fallback = float(np.mean(s2[ok] / (mean[ok] ** 2 + EPSILON)))
-    v = np.where(has, v, fallback)
-    return np.maximum(v, (FLOOR if floor is None else floor) * float(v.mean()))
+    return shape_estimates(buf, floor)[0]
 
 
 def aim_reached(error: float, target: float) -> bool:
@@ -357,6 +368,25 @@ def _solve_budget(root, lo, c, cap, budget, scale, steps):
     return lo_lam
 
 
+def _even_count(error_sum: float, pixels: int, target: float, have: int, cap: int,
+                budget: float | None) -> int:
+    """``allocate``'s count when every pixel is alike (the same v, the same count ``have``, no
+    cost): ``have`` if it meets the target ((1/P) Σ ve / have ≤ target), else the least n with
+    error_sum / (P n) ≤ target, at most ``cap``, and with ``budget`` at most have + ⌊budget / P⌋
+    (P × the samples added within the budget)."""
+    if error_sum / (pixels * max(have, 1)) <= target:
+        return have
+    n = max(math.ceil(error_sum / (pixels * target)), 1)
+    while n > 1 and error_sum / (pixels * (n - 1)) <= target:
+        n -= 1  # (the least such n, whatever the rounding of the division above)
+    while error_sum / (pixels * n) > target:
+        n += 1
+    n = min(max(n, have), cap)
+    if budget is not None:
+        n = min(n, have + max(int(budget // pixels), 0))
+    return n
+
+
 def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
              scale: float | None = None, budget: float | None = None,
              error_of: np.ndarray | None = None, cost: np.ndarray | None = None) -> np.ndarray:
@@ -386,6 +416,14 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
     def counts(lam: float) -> np.ndarray:
         return np.clip(np.ceil(lam * root), lo, cap)
 
+    if (scale is None and cost is None and v.size and root.min() > 0
+            and root.min() == root.max() and lo.min() == lo.max()):
+        # Every pixel alike (an even round: v uniform, every pixel the same count so far): the
+        # counts are one n for all, the least whose error (1/P) Σ ve_p / n meets the target,
+        # at most the cap, and at most the budget's share of a pixel; in closed form, not by the
+        # solve's bisection (its answer, to the sample)
+        return np.full(v.shape, _even_count(float(ve.sum()), v.size, target, int(lo.flat[0]),
+                                            cap, budget), np.int64)
     if scale is None:
         # The error of a scale, over the pixels that add to it (on arrays cut to those pixels
         # once), solved in one kernel: from where the scale would be without the clamps
@@ -410,17 +448,11 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
 
 def sample_cost(buf: SampleBuffer) -> np.ndarray | None:
     """Each pixel's cost of one sample, in path segments (rays traced to the closest surface):
-    ``SEGMENT_OVERHEAD`` plus the mean segments a sample of its 5×5 neighbours took (never its
-    own: a path's length may go with its radiance); None where the buffer carries no segments (a
-    farm buffer read back, the wavefront kernel's)."""
-    if buf.segments is None or not buf.segments.any():
-        return None
-    ok = buf.count > 0
-    with np.errstate(invalid="ignore", divide="ignore"):
-        per = np.where(ok, buf.segments / np.maximum(buf.count, 1), 0.0)
-    around, k = _neighbour_mean(per, ok, RADIUS)
-    fallback = float(per[ok].mean()) if ok.any() else 1.0
-    return SEGMENT_OVERHEAD + np.where(k > 0, around, fallback)
+    ``SEGMENT_OVERHEAD`` plus the mean segments a sample of its 5×5 neighbours that have samples
+    took (never its own: a path's length may go with its radiance; the buffer's mean where none
+    has); None where the buffer carries no segments (a farm buffer read back, the wavefront
+    kernel's)."""
+    return shape_estimates(buf)[1]
 
 
 def error_terms(buf: SampleBuffer) -> np.ndarray:
@@ -552,7 +584,7 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         met = aim_reached(float(_error_terms(v_error, frame.count).mean()), target)
         if plan is not None:  # (the first round's, after the pilot: the allocation's total)
             plan_v, plan_cost = ((np.ones(frame.count.shape), None) if even else
-                                 (neighbour_variance(frame), sample_cost(frame)))
+                                 shape_estimates(frame))
             plan(float(allocate(plan_v, aim, frame.count, spp, error_of=v_error,
                                 cost=plan_cost).mean()))
             plan = None
@@ -568,7 +600,7 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         else:
             # The counts are shaped by the neighbours' floored estimate (no pixel trusted to be
             # noiseless on a few samples)
-            v, cost = neighbour_variance(frame), sample_cost(frame)
+            v, cost = shape_estimates(frame)
         # (the round's budget: as much work again as the frame has had)
         work = float(np.sum(frame.count * (1.0 if cost is None else cost)))
         want = allocate(v, aim, frame.count, spp, budget=work, error_of=v_error, cost=cost)

@@ -100,6 +100,26 @@ def test_neighbour_variance_never_reads_the_pixel_itself():
     assert sample_variance(synthetic(other))[4, 4] != sample_variance(synthetic(samples))[4, 4]
 
 
+def neighbour_mean(values: np.ndarray, ok: np.ndarray,
+                   radius: int = 1) -> tuple[np.ndarray, np.ndarray]:
+    """The mean of ``values`` (h, w, ...) over each pixel's neighbours within ``radius`` (a
+    (2r+1)² window) where ``ok`` (h, w), never the pixel itself, and how many counted, (h, w):
+    by the estimates' window sums (``_window_sums_kernel``), for the definitions below."""
+
+    def window_sums(a: np.ndarray) -> np.ndarray:
+        flat = np.ascontiguousarray(a, np.float64).reshape(a.shape[0], a.shape[1], -1)
+        out = np.empty_like(flat)
+        adaptive._window_sums_kernel(flat, radius, np.empty_like(flat), out)
+        return out.reshape(a.shape)
+
+    extra = values.shape[2:]
+    total = window_sums(np.where(ok.reshape(ok.shape + (1,) * len(extra)), values, 0.0))
+    weight = window_sums(ok.astype(np.float64))
+    with np.errstate(invalid="ignore", divide="ignore"):
+        mean = total / weight.reshape(weight.shape + (1,) * len(extra))
+    return mean, weight
+
+
 def test_neighbour_means_are_the_windows_less_the_pixel():
     """The separable window sums against the window read pixel by pixel: every shape down to
     1×1, both radii, masked pixels left out, values of 30 orders of magnitude (a firefly beside
@@ -110,7 +130,7 @@ def test_neighbour_means_are_the_windows_less_the_pixel():
             values = rng.lognormal(0.0, 1.0, shape + (3,)) * 10.0 ** rng.integers(
                 -15, 15, shape + (1,))
             ok = rng.random(shape) > 0.2
-            mean, weight = adaptive._neighbour_mean(values, ok, radius)
+            mean, weight = neighbour_mean(values, ok, radius)
             h, w = shape
             for y in range(h):
                 for x in range(w):
@@ -143,7 +163,7 @@ def mixed_buffer(rng: np.random.Generator, shape: tuple[int, int]) -> SampleBuff
 def test_neighbour_variance_is_its_definition():
     """The one-pass kernel against the estimate written out in numpy: per pixel with 2 samples
     its mean and s² (``_moments``), their means over the 5×5 window less the pixel
-    (``_neighbour_mean``), v = mean_c s̄² / (m̄² + ε); pixels with and without samples mixed,
+    (``neighbour_mean``), v = mean_c s̄² / (m̄² + ε); pixels with and without samples mixed,
     radiance over 16 orders of magnitude, frames down to 1×1 and one row."""
     rng = np.random.default_rng(13)
     for shape in ((1, 1), (1, 7), (3, 2), (16, 12)):
@@ -152,8 +172,8 @@ def test_neighbour_variance_is_its_definition():
         if not ok.any():
             assert np.isnan(neighbour_variance(buf)).all()
             continue
-        s2_around, k = adaptive._neighbour_mean(s2, ok, adaptive.RADIUS)
-        m_around, _ = adaptive._neighbour_mean(mean, ok, adaptive.RADIUS)
+        s2_around, k = neighbour_mean(s2, ok, adaptive.RADIUS)
+        m_around, _ = neighbour_mean(mean, ok, adaptive.RADIUS)
         with np.errstate(invalid="ignore"):
             v = np.mean(s2_around / (m_around**2 + EPSILON), axis=-1)
         fallback = v[k > 0].mean() if (k > 0).any() else np.mean(s2[ok] / (mean[ok]**2 + EPSILON))
@@ -166,17 +186,39 @@ def test_neighbour_variance_is_its_definition():
 def test_sample_variance_is_its_definition():
     """The one-pass kernel against the estimate written out in numpy: per pixel with 2 samples
     its mean and s² (``_moments``), the mean of its 3×3 neighbours' means less itself
-    (``_neighbour_mean``; its own where no neighbour has 2 samples), v = mean_c s² / (m̃² + ε),
+    (``neighbour_mean``; its own where no neighbour has 2 samples), v = mean_c s² / (m̃² + ε),
     NaN below 2 samples; pixels with and without samples mixed, radiance over 16 orders of
     magnitude, frames down to 1×1 and one row."""
     rng = np.random.default_rng(17)
     for shape in ((1, 1), (1, 7), (3, 2), (16, 12)):
         buf = mixed_buffer(rng, shape)
         mean, s2, ok = adaptive._moments(buf)
-        around, k = adaptive._neighbour_mean(mean, ok)
+        around, k = neighbour_mean(mean, ok)
         denom = np.where((k > 0)[..., None], around, mean)
         v = np.where(ok, np.mean(s2 / (denom * denom + EPSILON), axis=-1), np.nan)
         np.testing.assert_allclose(sample_variance(buf), v, rtol=1e-12)
+
+
+def test_sample_cost_is_its_definition():
+    """The cost from the shared kernel against it written out in numpy: each pixel with a sample
+    its segments a sample, their mean over the 5×5 window less the pixel where a neighbour has a
+    sample (``neighbour_mean``), the buffer's mean where none has, plus ``SEGMENT_OVERHEAD``;
+    and what ``shape_estimates`` returns beside the variance. None without segments."""
+    rng = np.random.default_rng(19)
+    for shape in ((1, 1), (1, 7), (3, 2), (16, 12)):
+        buf = mixed_buffer(rng, shape)
+        assert adaptive.sample_cost(buf) is None
+        buf.segments = buf.count * rng.integers(1, 12, shape)
+        if not buf.segments.any():
+            continue
+        ok = buf.count > 0
+        per = np.where(ok, buf.segments / np.maximum(buf.count, 1), 0.0)
+        around, k = neighbour_mean(per, ok, adaptive.RADIUS)
+        cost = adaptive.SEGMENT_OVERHEAD + np.where(k > 0, around, per[ok].mean())
+        np.testing.assert_allclose(adaptive.sample_cost(buf), cost, rtol=1e-12)
+        v, c = adaptive.shape_estimates(buf)
+        np.testing.assert_allclose(c, cost, rtol=1e-12)
+        np.testing.assert_array_equal(v, neighbour_variance(buf))
 
 
 # --------------------------------------------------------------------------------------------------
@@ -262,6 +304,39 @@ def test_allocation_budget_limits_a_round():
     assert 0.9 * 200.0 <= float(np.sum(c * (part - have))) <= 200.0
 
 
+def test_an_even_allocation_is_the_least_uniform_count_that_meets_the_target():
+    """Every pixel alike (the same v and count: an even round): one count for all, the least n
+    whose error (1/P) Σ ve_p / n meets the target, at most the cap and the budget's share of a
+    pixel; found by brute force here, and the same as the general solve gives (the same problem,
+    with every cost 1)."""
+    rng = np.random.default_rng(23)
+    for trial in range(40):
+        shape = (int(rng.integers(1, 9)), int(rng.integers(1, 9)))
+        ve = rng.exponential(1.0, shape) * 10.0 ** rng.uniform(-3, 1)
+        have = int(rng.integers(1, 64))
+        target = float(10.0 ** rng.uniform(-4, 0))
+        cap = int(rng.integers(have, 4096))
+        budget = None if trial % 2 else float(rng.uniform(0, 4000)) * ve.size
+        n = have
+        while n < cap and ve.mean() / n > target:
+            n += 1
+        if budget is not None:
+            n = min(n, have + int(budget // ve.size))
+        ones, counts = np.ones(shape), np.full(shape, have)
+        got = allocate(ones, target, counts, cap, budget=budget, error_of=ve)
+        np.testing.assert_array_equal(got, n, err_msg=str(trial))
+        general = allocate(ones, target, counts, cap, budget=budget, error_of=ve,
+                           cost=np.ones(shape))
+        assert np.abs(general - got).max() <= (1 if budget is not None else 0), trial
+    # 6.9 / (3 × 0.0046) rounds up past 500, whose ceiling is one sample too many: 6.9 / (3 ×
+    # 500) is the target, in floats
+    ones = np.ones((1, 3))
+    assert 6.9 / (3 * 500) <= 0.0046
+    np.testing.assert_array_equal(
+        allocate(ones, 0.0046, ones.astype(np.int64), 1000, error_of=np.array([[6.9, 0, 0]])),
+        500)
+
+
 def test_allocation_is_a_pure_function():
     rng = np.random.default_rng(4)
     v = rng.exponential(1.0, (8, 8))
@@ -334,7 +409,7 @@ def test_no_low_bias_on_heavy_tailed_pixels_and_the_own_sample_rule_has_it(monke
             s2 = np.maximum(buf.sum_sq[..., 0] - n * mean**2, 0) / (n - 1)
             return s2 / (mean**2 + EPSILON)
 
-        m.setattr(adaptive, "neighbour_variance", own)
+        m.setattr(adaptive, "shape_estimates", lambda buf: (own(buf), None))
         for seed in range(8):
             render_pass, truth = heavy_sampler(h, w, seed)
             buf = sample_to_target(render_pass, (h, w), 0.05, 4096)
