@@ -4,6 +4,7 @@ time at the same error, per scene and target.
     .venv/bin/python -m bench.target_error [--scenes ...] [--targets 0.1 0.03 ...] [--seeds K]
                                            [--even] [--out CSV] [--chart PNG]
     .venv/bin/python -m bench.target_error --overhead [--scenes ...] [--runs N]
+    .venv/bin/python -m bench.target_error --radius [--scenes ...]
 
 The scenes: the chart suite (``bench.accuracy.suite``: wax sphere, backlit slab, concave torus,
 thin shell, spheres at albedo 0.5/0.9/0.99, 64×48, the translucent material ``volumetric``,
@@ -33,7 +34,8 @@ uniform render at its final count, sample for sample): "even ratio" is its time 
 sampling's at its error, the cost of the loop's structure alone, and "shape gain" the time
 ratio over it, what the shape of the counts gains at equal error (below 1: it gains).
 ``--overhead`` times the loop's passes and its bookkeeping apart, against its samples rendered
-in one pass (``overhead``).
+in one pass (``overhead``); ``--radius`` what the shape of the counts gains from each window
+radius of its estimates at a few samples a pixel (``radius_table``).
 """
 
 from __future__ import annotations
@@ -144,6 +146,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--farm", action="store_true",
                         help="the farm's rule instead: each scene and target as a job on an "
                              "embedded farm (2 worker processes, tiles of 16 px)")
+    parser.add_argument("--radius", action="store_true",
+                        help="print what the shape from each window radius gains, by samples "
+                             "a pixel, against the true variance, instead")
     parser.add_argument("--overhead", action="store_true",
                         help="time the target loop's passes and its bookkeeping apart instead, "
                              "against its samples rendered in one pass")
@@ -155,6 +160,9 @@ def main(argv: list[str] | None = None) -> int:
         return oracle(args.scenes, all_scenes)
     if args.farm:
         return farm(args.scenes, all_scenes, args.targets)
+    if args.radius:
+        radius_table(args.scenes, all_scenes)
+        return 0
     if args.overhead:
         overhead(args.scenes, all_scenes, args.targets, args.runs)
         return 0
@@ -311,6 +319,55 @@ def oracle(names: list[str], all_scenes: dict) -> int:
               f"{ratio(v, timed, np.sqrt(nv / (nc * per_segment))):>12.2f} "
               f"{f'{min(predicted):.2f}–{max(predicted):.2f}':>14}", flush=True)
     return 0
+
+
+RADIUS_SPP = (16, 32, 64, 256)
+RADII = (1, 2, 4, 6, 8, 12)
+
+
+def radius_table(names: list[str], all_scenes: dict, spps: tuple[int, ...] = RADIUS_SPP,
+                 radii: tuple[int, ...] = RADII, seeds: tuple[int, ...] = (7, 8)) -> list[dict]:
+    """What the shape of the counts gains from the estimates of a window of each radius, at a few
+    samples a pixel: for a uniform render at each of ``spps`` (seeds ``seeds``), the shape
+    s = √(ṽ/c̃) of ``shape_estimates`` at each radius, priced as ``oracle`` prices a shape
+    (the time to a frame error over uniform sampling's, mean(c s)·mean(v / s) / (mean(c)·mean(v)),
+    v a uniform 1024-spp render's relative variance against the reference and c its path
+    segments a sample times its tile's measured seconds a segment, ``timed_cost``), the mean
+    over the seeds; below 1 the shape gains. "rule" is the radius ``window_radius`` takes at
+    that count. Returns the rows it prints."""
+    from renderer.film.adaptive import shape_estimates, window_radius
+    from renderer.render import render_buffer
+    from renderer.scene import load_scene
+
+    rows = []
+    print(f"{'scene':<22} {'spp':>5} {'rule':>5} " + " ".join(f"{f'r={r}':>7}" for r in radii)
+          + "   (time / uniform time at equal error)")
+    for name in names:
+        scene, material = all_scenes[name]
+        ref = scene_reference(name, scene, material)
+        truth = render_buffer(load_scene(scene_at(scene, material, 1024, None)))
+        n = truth.count[..., None]
+        mean = truth.sum / n
+        v = np.mean((truth.sum_sq - n * mean * mean) / (n - 1) / (ref**2 + 0.01), axis=-1)
+        per_segment = timed_cost(scene_at(scene, material, 32, None))
+        assert truth.segments is not None
+        c = truth.segments / truth.count * per_segment
+        for spp in spps:
+            gains: dict[int, list[float]] = {r: [] for r in radii}
+            for seed in seeds:
+                early = render_buffer(load_scene(scene_at(scene, material, spp, None, seed)))
+                for r in radii:
+                    ev, ec = shape_estimates(early, radius=r)
+                    assert ec is not None
+                    shape = np.sqrt(ev / ((ec - 1.0) * per_segment))
+                    gains[r].append(float((c * shape).mean() * (v / shape).mean()
+                                          / (v.mean() * c.mean())))
+            row = {"scene": name, "spp": spp, "rule": window_radius(early.count),
+                   **{f"r{r}": float(np.mean(gains[r])) for r in radii}}
+            rows.append(row)
+            print(f"{name:<22} {spp:>5} {row['rule']:>5} "
+                  + " ".join(f"{row[f'r{r}']:>7.3f}" for r in radii), flush=True)
+    return rows
 
 
 def predicted_gain(v: np.ndarray, c: np.ndarray) -> float:
