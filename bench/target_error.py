@@ -333,14 +333,14 @@ def radius_table(names: list[str], all_scenes: dict, spps: tuple[int, ...] = RAD
     (the time to a frame error over uniform sampling's, mean(c s)·mean(v / s) / (mean(c)·mean(v)),
     v a uniform 1024-spp render's relative variance against the reference and c its path
     segments a sample times its tile's measured seconds a segment, ``timed_cost``), the mean
-    over the seeds; below 1 the shape gains. "rule" is the radius ``window_radius`` takes at
-    that count. Returns the rows it prints."""
-    from renderer.film.adaptive import shape_estimates, window_radius
+    over the seeds; below 1 the shape gains. The rule's window is 5×5, radius ``RADIUS`` = 2.
+    Returns the rows it prints."""
+    from renderer.film.adaptive import shape_estimates
     from renderer.render import render_buffer
     from renderer.scene import load_scene
 
     rows = []
-    print(f"{'scene':<22} {'spp':>5} {'rule':>5} " + " ".join(f"{f'r={r}':>7}" for r in radii)
+    print(f"{'scene':<22} {'spp':>5} " + " ".join(f"{f'r={r}':>7}" for r in radii)
           + "   (time / uniform time at equal error)")
     for name in names:
         scene, material = all_scenes[name]
@@ -362,10 +362,10 @@ def radius_table(names: list[str], all_scenes: dict, spps: tuple[int, ...] = RAD
                     shape = np.sqrt(ev / ((ec - 1.0) * per_segment))
                     gains[r].append(float((c * shape).mean() * (v / shape).mean()
                                           / (v.mean() * c.mean())))
-            row = {"scene": name, "spp": spp, "rule": window_radius(early.count),
+            row = {"scene": name, "spp": spp,
                    **{f"r{r}": float(np.mean(gains[r])) for r in radii}}
             rows.append(row)
-            print(f"{name:<22} {spp:>5} {row['rule']:>5} "
+            print(f"{name:<22} {spp:>5} "
                   + " ".join(f"{row[f'r{r}']:>7.3f}" for r in radii), flush=True)
     return rows
 

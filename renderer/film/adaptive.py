@@ -24,9 +24,8 @@ by bisection: E is monotone in it). The earlier rule (every pixel below the targ
 n_p ∝ v_p) spent most samples on the noisiest pixels and overshot the target 3–25×.
 
 **No low bias.** A pixel's own samples never decide how many samples it gets: the ``v_p`` and
-``c_p`` that shape the counts are estimated from the other pixels of its neighbourhood (a
-window of 17×17 at 16 samples a pixel narrowing to 5×5 as samples grow, ``window_radius``;
-``neighbour_variance``, ``sample_cost``), so n_p is independent of the samples averaged into I_p
+``c_p`` that shape the counts are estimated from the other 24 pixels of its 5×5 neighbourhood
+(``neighbour_variance``, ``sample_cost``), so n_p is independent of the samples averaged into I_p
 and the mean of a number of independent samples fixed by other pixels' samples stays unbiased.
 Stopping each pixel on its own variance biases heavy-tailed pixels low (a pixel whose rare bright
 path has not come yet looks converged and stops with it missing): measured 1.4–3.8 % low on the
@@ -67,20 +66,14 @@ from renderer.jit import inline_kernel, kernel
 
 EPSILON = 0.01
 # Samples every pixel takes before any allocation (the pilot); the variance estimates of the
-# first allocation pool the window's neighbours × PILOT samples.
+# first allocation pool 24 neighbours × PILOT samples.
 PILOT = 8
 # The allocation aims at AIM × target: achieved/target measured over the chart suite and the
 # targets 0.1 … 0.002 (python -m bench.target_error; docs/adaptive-sampling.md).
 AIM = 0.8
-# The neighbourhood of the estimates that shape the counts, a (2r+1)² window without the pixel
-# (shape_estimates), narrows as the samples grow: 2r + 1 = WINDOW_SCALE · n^(−1/4), n the
-# buffer's mean samples a pixel, r within [MIN_RADIUS, MAX_RADIUS] (window_radius): r = 8 at 16
-# spp, 6 at 64, 4 at 256, 2 from ~2000. Fitted to the window that shapes best in measured time
-# against the true variance (python -m bench.target_error --radius; docs/adaptive-sampling.md)
-WINDOW_SCALE = 34.0
-MIN_RADIUS = 2
-MAX_RADIUS = 8
-# The variance estimate's floor (a fraction of the buffer's mean variance): neighbour_variance
+# The variance estimate's neighbourhood (a (2·RADIUS+1)² window without the pixel) and its floor
+# (a fraction of the buffer's mean variance): neighbour_variance.
+RADIUS = 2
 FLOOR = 0.1
 # Halvings of the allocation's scale once bracketed within a factor 2: the scale to 2⁻¹³ of
 # itself, so no pixel's count is more than ~n/8000 above the least that meets the target (one
@@ -245,23 +238,11 @@ def _neighbour_variance_kernel(sums, sums_sq, count, segments, radius, eps, mome
             out_cost[y, x] = window[y, x, 7] / kc if kc > 0.0 else np.nan
 
 
-def window_radius(count: np.ndarray) -> int:
-    """The radius of the window the counts are shaped from, for a buffer of these ``count``s:
-    2r + 1 = ``WINDOW_SCALE`` · n^(−1/4) rounded, n the mean count of the pixels with samples,
-    within [``MIN_RADIUS``, ``MAX_RADIUS``]. A few samples a pixel need many neighbours' to tell
-    the variance's shape from its estimate's noise; more samples, fewer, and a window that
-    follows the image's detail."""
-    sampled = count[count > 0]
-    n = float(sampled.mean()) if sampled.size else 1.0
-    r = round((WINDOW_SCALE * n ** -0.25 - 1.0) / 2.0)
-    return int(min(MAX_RADIUS, max(MIN_RADIUS, r)))
-
-
 def shape_estimates(buf: SampleBuffer, floor: float | None = None,
-                    radius: int | None = None) -> tuple[np.ndarray, np.ndarray | None]:
-    """What shapes a round's counts, both from each pixel's neighbours within ``radius``
-    (default ``window_radius`` of the buffer's counts) in one pass over the buffer:
-    ``neighbour_variance`` and ``sample_cost`` (None where the buffer carries no segments)."""
+                    radius: int = RADIUS) -> tuple[np.ndarray, np.ndarray | None]:
+    """What shapes a round's counts, both from each pixel's neighbours within ``radius`` (a
+    (2r+1)² window less the pixel) in one pass over the buffer: ``neighbour_variance`` and
+    ``sample_cost`` (None where the buffer carries no segments)."""
     h, w = buf.count.shape
     v, k = np.empty((h, w)), np.empty((h, w))
     per, kc = np.empty((h, w)), np.empty((h, w))
@@ -271,8 +252,7 @@ def shape_estimates(buf: SampleBuffer, floor: float | None = None,
                                np.ascontiguousarray(buf.sum_sq, np.float64),
                                np.ascontiguousarray(buf.count, np.int64),
                                np.ascontiguousarray(buf.segments, np.int64) if has_segments
-                               else np.zeros((h, w), np.int64),
-                               window_radius(buf.count) if radius is None else radius, EPSILON,
+                               else np.zeros((h, w), np.int64), radius, EPSILON,
                                moments, np.empty((h, w, 9)), np.empty((h, w, 9)), v, k, per, kc)
     cost = None
     if has_segments:
@@ -292,23 +272,19 @@ def shape_estimates(buf: SampleBuffer, floor: float | None = None,
     return np.maximum(v, (FLOOR if floor is None else floor) * float(v.mean())), cost
 
 
-def neighbour_variance(buf: SampleBuffer, floor: float | None = None,
-                       radius: int | None = None) -> np.ndarray:
+def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndarray:
     """The allocation's estimate of every pixel's v_p from its neighbours' samples only: over the
-    pixels q of its (2r+1)² neighbourhood but itself that have samples (r = ``radius``, default
-    ``window_radius`` of the buffer's counts: 17×17 at 16 samples a pixel, 5×5 from ~2000),
-    mean_c [mean_q s²_qc] / (M_c² + ε) with M the mean of their means; at least ``floor``
-    (default ``FLOOR``) × the buffer's mean estimate.
+    pixels q of its 5×5 neighbourhood but itself that have samples, mean_c [mean_q s²_qc] /
+    (M_c² + ε) with M the mean of their means; at least ``floor`` (default ``FLOOR``) × the
+    buffer's mean estimate.
     A pixel without such neighbours (a 1×1 tile) takes the buffer's mean; NaN if nothing has
     samples. No term holds the pixel's own samples (the floor and the fallback hold them as one
     of all the buffer's pixels).
 
     The pooling and the floor are there because a few samples of heavy-tailed radiance (a path
     that is bright once in hundreds) mostly show no variance at all: on the chart suite a 16-sample
-    pilot pooled over 3×3 and trusted as is left the frame 1.5–2× above its target; and a 5×5
-    window at 16–32 samples a pixel shaped the counts worse than none, 1.2–1.7× uniform
-    sampling's time to an error on the chart suite, where a 17×17 one gains (``window_radius``)."""
-    return shape_estimates(buf, floor, radius)[0]
+    pilot pooled over 3×3 and trusted as is left the frame 1.5–2× above its target."""
+    return shape_estimates(buf, floor)[0]
 
 
 def aim_reached(error: float, target: float) -> bool:
@@ -472,10 +448,10 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
 
 def sample_cost(buf: SampleBuffer) -> np.ndarray | None:
     """Each pixel's cost of one sample, in path segments (rays traced to the closest surface):
-    ``SEGMENT_OVERHEAD`` plus the mean segments a sample of its neighbours (``shape_estimates``'
-    window) that have samples took (never its own: a path's length may go with its radiance;
-    the buffer's mean where none has); None where the buffer carries no segments (a farm buffer
-    read back, the wavefront kernel's)."""
+    ``SEGMENT_OVERHEAD`` plus the mean segments a sample of its 5×5 neighbours that have samples
+    took (never its own: a path's length may go with its radiance; the buffer's mean where none
+    has); None where the buffer carries no segments (a farm buffer read back, the wavefront
+    kernel's)."""
     return shape_estimates(buf)[1]
 
 
@@ -615,11 +591,11 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         if met:
             break
         if index == pilot or even:
-            # The first round after the pilot gives every pixel the same count: the pilot's 8
-            # samples a pixel do not yet tell which pixels need more where rare bright paths
-            # carry the image (a shape from them sent the round to where the pilot happened to
-            # see them, at more path segments a sample and no gain: docs/adaptive-sampling.md);
-            # with ``even``, every round does
+            # The first round after the pilot gives every pixel the same count: 24 neighbours × 8
+            # samples do not yet tell which pixels need more where rare bright paths carry the
+            # image (a shape from them sent the round to where the pilot happened to see them,
+            # at more path segments a sample and no gain: docs/adaptive-sampling.md); with
+            # ``even``, every round does
             v, cost = np.ones(frame.count.shape), None
         else:
             # The counts are shaped by the neighbours' floored estimate (no pixel trusted to be
