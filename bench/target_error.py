@@ -246,6 +246,26 @@ def _box3(a: np.ndarray) -> np.ndarray:
     return total / count
 
 
+def variance_and_cost(data: dict, ref: np.ndarray):
+    """A uniform render of ``data``: (its buffer, each pixel's per-sample relative variance
+    against the reference ``ref``, (h, w), and its cost a sample in path segments + 1)."""
+    from renderer.render import render_buffer
+    from renderer.scene import load_scene
+
+    buf = render_buffer(load_scene(data))
+    n = buf.count[..., None]
+    mean = buf.sum / n
+    s2 = (buf.sum_sq - n * mean * mean) / (n - 1)
+    assert buf.segments is not None
+    return buf, np.mean(s2 / (ref**2 + 0.01), axis=-1), buf.segments / buf.count + 1.0
+
+
+def shape_price(v: np.ndarray, c: np.ndarray, shape: np.ndarray) -> float:
+    """The time to a frame error with counts n_p ∝ shape_p over uniform sampling's, for per-sample
+    variances ``v`` and costs ``c``: mean(c s)·mean(v / s) / (mean(c)·mean(v))."""
+    return float((c * shape).mean() * (v / shape).mean() / (v.mean() * c.mean()))
+
+
 def oracle(names: list[str], all_scenes: dict) -> int:
     """What per-pixel allocation can gain, from a uniform 1024-spp render, the reference, and a
     second, independent render at 4096 spp. For a shape s_p of the counts (n_p ∝ s_p) the time
@@ -279,17 +299,7 @@ def oracle(names: list[str], all_scenes: dict) -> int:
     from renderer.render import render_buffer
     from renderer.scene import load_scene
 
-    def variance_and_cost(data: dict, ref: np.ndarray):
-        buf = render_buffer(load_scene(data))
-        n = buf.count[..., None]
-        mean = buf.sum / n
-        s2 = (buf.sum_sq - n * mean * mean) / (n - 1)
-        assert buf.segments is not None
-        return buf, np.mean(s2 / (ref**2 + 0.01), axis=-1), buf.segments / buf.count + 1.0
-
-    def ratio(v: np.ndarray, c: np.ndarray, shape: np.ndarray) -> float:
-        return float((c * shape).mean() * (v / shape).mean() / (v.mean() * c.mean()))
-
+    ratio = shape_price
     print(f"{'scene':<22} {'same run':>9} {'independent':>12} {'estimator':>10} "
           f"{'est., timed':>12} {'timed shape':>12} {'predicted @32':>14}"
           "   (time / uniform time at equal error)")
@@ -345,13 +355,9 @@ def radius_table(names: list[str], all_scenes: dict, spps: tuple[int, ...] = RAD
     for name in names:
         scene, material = all_scenes[name]
         ref = scene_reference(name, scene, material)
-        truth = render_buffer(load_scene(scene_at(scene, material, 1024, None)))
-        n = truth.count[..., None]
-        mean = truth.sum / n
-        v = np.mean((truth.sum_sq - n * mean * mean) / (n - 1) / (ref**2 + 0.01), axis=-1)
+        _, v, segments = variance_and_cost(scene_at(scene, material, 1024, None), ref)
         per_segment = timed_cost(scene_at(scene, material, 32, None))
-        assert truth.segments is not None
-        c = truth.segments / truth.count * per_segment
+        c = (segments - 1.0) * per_segment
         for spp in spps:
             gains: dict[int, list[float]] = {r: [] for r in radii}
             for seed in seeds:
@@ -360,8 +366,7 @@ def radius_table(names: list[str], all_scenes: dict, spps: tuple[int, ...] = RAD
                     ev, ec = shape_estimates(early, radius=r)
                     assert ec is not None
                     shape = np.sqrt(ev / ((ec - 1.0) * per_segment))
-                    gains[r].append(float((c * shape).mean() * (v / shape).mean()
-                                          / (v.mean() * c.mean())))
+                    gains[r].append(shape_price(v, c, shape))
             row = {"scene": name, "spp": spp,
                    **{f"r{r}": float(np.mean(gains[r])) for r in radii}}
             rows.append(row)
