@@ -131,12 +131,16 @@ def timed(data: dict, repeat: int, even: bool = False) -> tuple[float, np.ndarra
 def main(argv: list[str] | None = None) -> int:
     all_scenes = scenes()
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--scenes", nargs="+", default=list(all_scenes),
-                        choices=list(all_scenes))
-    parser.add_argument("--targets", nargs="+", type=float, default=list(TARGETS))
+    parser.add_argument("--scenes", nargs="+", default=None, choices=list(all_scenes),
+                        help="default all; with --replay all but the wax sphere at 160×120 "
+                             "(its replay holds about 10 GB)")
+    parser.add_argument("--targets", nargs="+", type=float, default=None,
+                        help=f"default {' '.join(map(str, TARGETS))}; with --replay "
+                             f"{' '.join(map(str, REPLAY_TARGETS))}")
     parser.add_argument("--repeat", type=int, default=2)
-    parser.add_argument("--runs", type=int, default=OVERHEAD_RUNS,
-                        help="--overhead: the best of this many runs")
+    parser.add_argument("--runs", type=int, default=None,
+                        help=f"--overhead: the best of this many runs ({OVERHEAD_RUNS}); "
+                             f"--replay: the loop's runs on a scene's stash ({REPLAY_RUNS})")
     parser.add_argument("--seeds", type=int, default=1,
                         help="average each run's error and time over this many seeds (7, 8, …)")
     parser.add_argument("--out", type=Path, default=None, help="write the rows to this CSV")
@@ -152,10 +156,22 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--overhead", action="store_true",
                         help="time the target loop's passes and its bookkeeping apart instead, "
                              "against its samples rendered in one pass")
+    parser.add_argument("--replay", action="store_true",
+                        help="run the loop on draws from a stash of each scene's samples "
+                             "instead: its error and its cost counted, without timing noise")
     parser.add_argument("--even", action="store_true",
                         help="also run each target with every round even (uniform sampling "
                              "with the loop's rounds and stop) and print what the shape gains")
     args = parser.parse_args(argv)
+    if args.replay:
+        names = args.scenes or [n for n in all_scenes if n != "wax_cornell_160x120"]
+        rows = replay(names, all_scenes, args.targets or list(REPLAY_TARGETS),
+                      args.runs or REPLAY_RUNS)
+        if args.out is not None:
+            _write_csv(rows, args.out)
+        return 0
+    args.scenes = args.scenes or list(all_scenes)
+    args.targets = args.targets or list(TARGETS)
     if args.oracle:
         return oracle(args.scenes, all_scenes)
     if args.farm:
@@ -164,7 +180,7 @@ def main(argv: list[str] | None = None) -> int:
         radius_table(args.scenes, all_scenes)
         return 0
     if args.overhead:
-        overhead(args.scenes, all_scenes, args.targets, args.runs)
+        overhead(args.scenes, all_scenes, args.targets, args.runs or OVERHEAD_RUNS)
         return 0
     from renderer.render import render_buffer
 
@@ -225,13 +241,17 @@ def main(argv: list[str] | None = None) -> int:
               f"{np.median(even):.2f}); shape gain {gain.min():.2f}–{gain.max():.2f} (median "
               f"{np.median(gain):.2f}, {np.sum(gain > 1)} of {gain.size} above 1)")
     if args.out is not None:
-        with open(args.out, "w", newline="") as f:
-            writer = csv.DictWriter(f, fieldnames=list(rows[0]))
-            writer.writeheader()
-            writer.writerows(rows)
+        _write_csv(rows, args.out)
     if args.chart is not None:
         chart(target_rows, args.chart)
     return 0
+
+
+def _write_csv(rows: list[dict], path: Path) -> None:
+    with open(path, "w", newline="") as f:
+        writer = csv.DictWriter(f, fieldnames=list(rows[0]))
+        writer.writeheader()
+        writer.writerows(rows)
 
 
 def _box3(a: np.ndarray) -> np.ndarray:
@@ -476,6 +496,158 @@ def overhead(names: list[str], all_scenes: dict, targets: list[float],
                 print(f"{name:<20} {target:>7} {mode:>5} {passes:>6} {row['mean_spp']:>8.1f} "
                       f"{row['loop_ms']:>8.2f} {row['passes_ms']:>9.2f} {row['book_ms']:>8.2f} "
                       f"{row['one_pass_ms']:>11.2f} {row['structure']:>15.2f}", flush=True)
+    return rows
+
+
+# replay(): the stash's samples a pixel, the loop's draws from it (with replacement) a pixel, runs
+REPLAY_SAMPLES = 2048
+REPLAY_DRAWS = 3 * REPLAY_SAMPLES
+REPLAY_RUNS = 16
+REPLAY_TARGETS = (0.1, 0.03, 0.01)
+
+
+def stash(data: dict, samples: int) -> tuple[np.ndarray, np.ndarray]:
+    """Every sample of a uniform render of ``data``, one by one: (its radiance, (samples, h, w,
+    3) float32, and its path segments, (samples, h, w) float32), sample k of each pixel being
+    the one ``render_tile`` gives at index k."""
+    from renderer.render import render_tile
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    cs = compile_scene(load_scene(data))
+    h, w = cs.height, cs.width
+    radiance = np.zeros((samples, h, w, 3), np.float32)
+    segments = np.zeros((samples, h, w), np.float32)
+    for k in range(samples):
+        buf = render_tile(cs, 0, 0, w, h, k, 1)
+        assert buf.segments is not None
+        radiance[k], segments[k] = buf.sum, buf.segments
+    return radiance, segments
+
+
+class StashReplay:
+    """A ``render_pass`` for ``sample_to_target`` that renders nothing: each pixel's samples are
+    drawn from the stash's samples of that pixel, uniformly and with replacement (the stash is
+    then exactly the distribution sampled, its mean the converged image), ``draws`` of them a
+    pixel at most, in an order fixed by ``rng``; a pass hands each pixel the next ``counts[p]``
+    of its draws. The loop's decisions are the renderer's own (they see only the buffers)."""
+
+    def __init__(self, radiance: np.ndarray, segments: np.ndarray, rng: np.random.Generator,
+                 draws: int = REPLAY_DRAWS):
+        samples, h, w, _ = radiance.shape
+        pick = rng.integers(0, samples, size=(draws, h, w))
+
+        def running(a: np.ndarray) -> np.ndarray:
+            out = np.zeros((draws + 1,) + a.shape[1:])
+            np.cumsum(a, axis=0, out=out[1:])
+            return out
+
+        drawn = np.take_along_axis(radiance, pick[..., None], axis=0).astype(np.float64)
+        self._sum, self._sum_sq = running(drawn), running(drawn * drawn)
+        del drawn
+        self._segments = running(np.take_along_axis(segments, pick, axis=0))
+        self.used = np.zeros((h, w), np.int64)
+        self.draws = draws
+        self._rows, self._cols = np.indices((h, w))
+
+    def __call__(self, index: int, counts: np.ndarray):
+        from renderer.film.buffer import SampleBuffer
+
+        start, end = self.used, self.used + counts
+        if (end > self.draws).any():
+            raise ValueError(f"a pixel asked for more than the replay's {self.draws} draws")
+        at = (self._rows, self._cols)
+        buf = SampleBuffer.empty(0, 0, counts.shape[1], counts.shape[0])
+        buf.sum[:] = self._sum[(end,) + at] - self._sum[(start,) + at]
+        buf.sum_sq[:] = self._sum_sq[(end,) + at] - self._sum_sq[(start,) + at]
+        buf.segments[:] = np.rint(self._segments[(end,) + at]
+                                  - self._segments[(start,) + at]).astype(np.int64)
+        buf.count[:] = counts
+        self.used = end
+        return buf
+
+
+def stash_truth(radiance: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(the stash's mean, (h, w, 3), and each pixel's per-sample relative variance, (h, w)): the
+    converged image and the variance of the distribution a replay samples (its population
+    variance, over the squared mean plus 0.01, averaged over the channels)."""
+    mean = radiance.mean(axis=0, dtype=np.float64)
+    var = radiance.var(axis=0, dtype=np.float64)
+    return mean, (var / (mean * mean + 0.01)).mean(axis=-1)
+
+
+def replay(names: list[str], all_scenes: dict, targets: list[float] = REPLAY_TARGETS,
+           runs: int = REPLAY_RUNS, samples: int = REPLAY_SAMPLES,
+           draws: int = REPLAY_DRAWS) -> list[dict]:
+    """The target loop without timing noise (``--replay``): per scene, a stash of ``samples``
+    samples a pixel (``stash``, seed 7), and the loop (the rule, and its even variant) run
+    ``runs`` times on draws from it (``StashReplay``, seeds 0, 1, …), each at every target.
+    Its error is measured against the stash's mean (the replay's converged image), its cost
+    counted, not timed: in path segments + 1 a sample (the cost the rule weighs), and in
+    seconds (each pixel's segments times its 8×8 tile's measured seconds a segment,
+    ``timed_cost``, measured once). Uniform sampling in the same world reaches an error e at
+    n = mean(v) / e samples a pixel exactly (v the stash's per-sample relative variance: its
+    draws are independent), so "segments ratio" and "time ratio" are the loop's mean cost over
+    runs times its mean error, over mean(v) times uniform sampling's cost a sample a pixel:
+    its cost over uniform sampling's at equal error; after "±", the spread of each run's own
+    time ratio (its cost times its error) over √runs, a standard error: the loop's samples vary
+    from run to run, and with them its counts and its stop. "shape gain" is the rule's time
+    ratio over its even variant's. "priced/t" is the error its counts are priced at, mean(v / n)
+    over the target (the mean over runs), as ``oracle`` and ``radius_table`` price a shape. The
+    loop's error is not that, for its stop is read from the samples' own noise: a run whose
+    samples happen to lie close to their means stops sooner, at less error than its counts are
+    priced at.
+    Returns the rows it prints."""
+    from renderer.film.adaptive import sample_to_target
+
+    rows = []
+    print(f"{'scene':<20} {'target':>7} {'mode':>5} {'mean spp':>8} {'err/target':>10} "
+          f"{'priced/t':>10} {'segments ratio':>14} {'time ratio':>15} {'shape gain':>10}",
+          flush=True)
+    for name in names:
+        scene, material = all_scenes[name]
+        radiance, segments = stash(scene_at(scene, material, samples, None), samples)
+        mean, v = stash_truth(radiance)
+        per_segment = timed_cost(scene_at(scene, material, 32, None))
+        mean_segments = segments.mean(axis=0, dtype=np.float64)
+        costs = {"segments": mean_segments + 1.0, "seconds": mean_segments * per_segment}
+        runs_of: dict[tuple, list] = {}
+        for run in range(runs):
+            source = StashReplay(radiance, segments, np.random.default_rng(run), draws)
+            for target in targets:
+                for mode in ("rule", "even"):
+                    source.used[:] = 0
+                    buf = sample_to_target(source, v.shape, target, draws,
+                                           even=mode == "even")
+                    n = buf.count.astype(np.float64)
+                    x = buf.sum / n[..., None]
+                    error = float(((x - mean) ** 2 / (mean * mean + 0.01)).mean())
+                    runs_of.setdefault((target, mode), []).append(
+                        (error, float((v / n).mean()), n.mean(),
+                         *(float((c * n).sum()) for c in costs.values())))
+            del source
+        for target in targets:
+            ratios = {}
+            for mode in ("rule", "even"):
+                per_run = np.array(runs_of[(target, mode)])
+                error, priced, spp, *spent = per_run.mean(axis=0)
+                ratio = [cost * error / (v.mean() * c.sum())
+                         for cost, c in zip(spent, costs.values(), strict=True)]
+                # (the spread of each run's own time ratio, over √runs)
+                spread = float(np.std(per_run[:, 0] * per_run[:, 4])
+                               / (v.mean() * costs["seconds"].sum() * np.sqrt(len(per_run))))
+                ratios[mode] = ratio[1]
+                row = {"scene": name, "target": target, "mode": mode, "mean_spp": spp,
+                       "ratio": error / target, "priced_ratio": priced / target,
+                       "segments_ratio": ratio[0],
+                       "time_ratio": ratio[1], "time_ratio_se": spread,
+                       "shape_gain": ratios["rule"] / ratio[1] if mode == "even" else ""}
+                rows.append(row)
+                gain = f"{row['shape_gain']:>10.3f}" if mode == "even" else ""
+                print(f"{name:<20} {target:>7} {mode:>5} {spp:>8.0f} {row['ratio']:>10.2f} "
+                      f"{row['priced_ratio']:>10.2f} {row['segments_ratio']:>14.3f} "
+                      f"{row['time_ratio']:>7.3f} ± {spread:.3f} {gain}",
+                      flush=True)
     return rows
 
 
