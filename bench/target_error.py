@@ -594,9 +594,9 @@ def replay(names: list[str], all_scenes: dict, targets: list[float] = REPLAY_TAR
     from run to run, and with them its counts and its stop. "shape gain" is the rule's time
     ratio over its even variant's. "priced/t" is the error its counts are priced at, mean(v / n)
     over the target (the mean over runs), as ``oracle`` and ``radius_table`` price a shape. The
-    loop's error is not that, for its stop is read from the samples' own noise: a run whose
-    samples happen to lie close to their means stops sooner, at less error than its counts are
-    priced at.
+    loop's error can be below it: its counts go together with the samples it drew (its rounds
+    and its stop read them), where fresh draws at the same counts would reach the priced error
+    (docs/adaptive-sampling.md).
     Returns the rows it prints."""
     from renderer.film.adaptive import sample_to_target
 
