@@ -620,8 +620,7 @@ def replay(names: list[str], all_scenes: dict, targets: list[float] = REPLAY_TAR
                     buf = sample_to_target(source, v.shape, target, draws,
                                            even=mode == "even")
                     n = buf.count.astype(np.float64)
-                    x = buf.sum / n[..., None]
-                    error = float(((x - mean) ** 2 / (mean * mean + 0.01)).mean())
+                    error = rel_mse(buf.sum / n[..., None], mean)
                     runs_of.setdefault((target, mode), []).append(
                         (error, float((v / n).mean()), n.mean(),
                          *(float((c * n).sum()) for c in costs.values())))
@@ -633,8 +632,9 @@ def replay(names: list[str], all_scenes: dict, targets: list[float] = REPLAY_TAR
                 error, priced, spp, *spent = per_run.mean(axis=0)
                 ratio = [cost * error / (v.mean() * c.sum())
                          for cost, c in zip(spent, costs.values(), strict=True)]
-                # (the spread of each run's own time ratio, over √runs)
-                spread = float(np.std(per_run[:, 0] * per_run[:, 4])
+                # (the spread of each run's own time ratio, over √runs: its error times its
+                # cost in seconds, the first and last of its figures)
+                spread = float(np.std(per_run[:, 0] * per_run[:, -1])
                                / (v.mean() * costs["seconds"].sum() * np.sqrt(len(per_run))))
                 ratios[mode] = ratio[1]
                 row = {"scene": name, "target": target, "mode": mode, "mean_spp": spp,
