@@ -514,49 +514,6 @@ def frame_scale(weight_sum: float, pixels: int, target: float) -> float:
     return max(weight_sum, 0.0) / (pixels * AIM * target)
 
 
-def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
-                scale: float | None = None, frame_error: float | None = None) -> np.ndarray:
-    """The farm's rule, a pure function of a tile's merged buffer (and the frame's ``scale``,
-    ``frame_scale`` of the job's tile summaries, and its estimated error, their error sum over
-    their pixels, when known): the samples each pixel takes of the next pass of
-    ``pass_samples``, (h, w) int32. Every pixel until it has ``PILOT``; then nothing once the
-    frame's estimated error is within ``STOP_SLACK`` of AIM × target (the local loop's stop:
-    the frame's λ counts every pixel at its share, a pixel that already has more too, so the
-    counts alone would go on past the aim); else each pixel its deficit against ``allocate``
-    (the tile's floored neighbour variances at the frame's scale, or aiming the tile alone at
-    AIM × target without one), at most the pass."""
-    count = buf.count
-    if int(count.min(initial=PILOT)) < PILOT:
-        want = np.full(count.shape, cap, np.int64)
-    elif frame_error is not None and aim_reached(frame_error, target):
-        return np.zeros(count.shape, np.int32)
-    else:
-        v = neighbour_variance(buf)
-        if scale is not None and math.isfinite(scale):
-            want = allocate(v, AIM * target, count, cap, scale=scale)
-        else:
-            want = allocate(v, AIM * target, count, cap, error_of=sample_variance(buf))
-    return np.clip(want - count, 0, pass_samples).astype(np.int32)
-
-
-def tile_converged(buf: SampleBuffer, target: float, cap: int, scale: float | None = None,
-                   frame_error: float | None = None) -> bool:
-    """A tile is done when no pixel takes samples of another pass (``pass_counts``)."""
-    return not bool(pass_counts(buf, target, cap, cap, scale, frame_error).any())
-
-
-def warm_up() -> None:
-    """Load (or compile) the kernels of the rule on a 4×4 frame of 8 samples a pixel, so that a
-    farm worker's first pass of a job with a target does not pay for them (its warm-up calls
-    this: ``worker.runtime.warm_up_kernels``)."""
-    buf = SampleBuffer.empty(0, 0, 4, 4)
-    buf.count[:] = PILOT
-    buf.sum[:] = np.arange(16, dtype=np.float64).reshape(4, 4, 1)
-    buf.sum_sq[:] = 2.0 * buf.sum * buf.sum + 1.0
-    pass_counts(buf, 0.01, 64, 8)
-    tile_summary(buf)
-
-
 def least_scale(ve: np.ndarray, have: np.ndarray, root: np.ndarray, target: float) -> float:
     """The least λ ≥ 0 at which counts n_p = max(have_p, λ root_p), not rounded to whole
     samples, give (1/P) Σ ve_p / n_p ≤ ``target``: 0 where the counts each pixel has already
@@ -572,6 +529,7 @@ def least_scale(ve: np.ndarray, have: np.ndarray, root: np.ndarray, target: floa
     interval's solution λ = S / (P·target − F) is tried and the one inside its interval taken
     (the error falls with λ, so there is one)."""
     ve, have, root = (np.asarray(a, np.float64).ravel() for a in (ve, have, root))
+    ve = np.where(np.isfinite(ve), np.maximum(ve, 0.0), 0.0)  # (NaN, below 2 samples: nothing)
     with np.errstate(divide="ignore", invalid="ignore"):
         fixed = np.where(ve > 0, ve / have, 0.0)  # (inf where a pixel with error has no sample)
         t = np.where(root > 0, have / root, np.inf)
@@ -622,6 +580,64 @@ def shape_pays(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have
             return False
         work.append(float(np.sum(c * (np.maximum(have, lam * shape) - have))))
     return work[0] < work[1]
+
+
+def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
+                scale: float | None = None, frame_error: float | None = None) -> np.ndarray:
+    """The farm's rule, a pure function of a tile's merged buffer (and the frame's ``scale``,
+    ``frame_scale`` of the job's tile summaries, and its estimated error, their error sum over
+    their pixels, when known): the samples each pixel takes of the next pass of
+    ``pass_samples``, (h, w) int32. Every pixel until it has ``PILOT``; then nothing once the
+    frame's estimated error is within ``STOP_SLACK`` of AIM × target (the local loop's stop:
+    the frame's λ counts every pixel at its share, a pixel that already has more too, so the
+    counts alone would go on past the aim); else each pixel its deficit against ``allocate``
+    (the tile's floored neighbour variances at the frame's scale, or aiming the tile alone at
+    AIM × target without one), at most the pass; or, where the loop's gate (``shape_pays``)
+    finds that shape no cheaper than even counts at the same error of the tile (priced by its
+    pixels' own variances), every pixel its deficit against the one count that reaches it."""
+    count = buf.count
+    if int(count.min(initial=PILOT)) < PILOT:
+        want = np.full(count.shape, cap, np.int64)
+    elif frame_error is not None and aim_reached(frame_error, target):
+        return np.zeros(count.shape, np.int32)
+    else:
+        v = neighbour_variance(buf)
+        own = sample_variance(buf)
+        if scale is not None and math.isfinite(scale):
+            want = allocate(v, AIM * target, count, cap, scale=scale)
+            # the tile's share of the frame's aim: its error, as its pixels' own variances price
+            # it, at the frame's scale (the counts unrounded, as the gate compares them)
+            with np.errstate(invalid="ignore"):
+                shaped = np.maximum(count, scale * np.sqrt(np.maximum(v, 0.0)))
+            aim = float(np.mean(np.where(np.isfinite(own), own, 0.0) / shaped))
+        else:
+            want = allocate(v, AIM * target, count, cap, error_of=own)
+            aim = AIM * target
+        if aim > 0 and not shape_pays(v, None, own, count, aim):
+            # The local loop's gate: even counts where the shape, priced by each pixel's own
+            # variance, would not reach the tile's aim with fewer samples
+            m = least_scale(own, count, np.ones(count.shape), aim)
+            if math.isfinite(m):
+                want = np.clip(np.ceil(m), count, cap).astype(np.int64)
+    return np.clip(want - count, 0, pass_samples).astype(np.int32)
+
+
+def tile_converged(buf: SampleBuffer, target: float, cap: int, scale: float | None = None,
+                   frame_error: float | None = None) -> bool:
+    """A tile is done when no pixel takes samples of another pass (``pass_counts``)."""
+    return not bool(pass_counts(buf, target, cap, cap, scale, frame_error).any())
+
+
+def warm_up() -> None:
+    """Load (or compile) the kernels of the rule on a 4×4 frame of 8 samples a pixel, so that a
+    farm worker's first pass of a job with a target does not pay for them (its warm-up calls
+    this: ``worker.runtime.warm_up_kernels``)."""
+    buf = SampleBuffer.empty(0, 0, 4, 4)
+    buf.count[:] = PILOT
+    buf.sum[:] = np.arange(16, dtype=np.float64).reshape(4, 4, 1)
+    buf.sum_sq[:] = 2.0 * buf.sum * buf.sum + 1.0
+    pass_counts(buf, 0.01, 64, 8)
+    tile_summary(buf)
 
 
 def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: int,
