@@ -514,41 +514,65 @@ def frame_scale(weight_sum: float, pixels: int, target: float) -> float:
     return max(weight_sum, 0.0) / (pixels * AIM * target)
 
 
+@kernel
+def _least_scale_kernel(ve, have, root, t, order, target, tail):
+    """``least_scale`` on 1-D float64 arrays, ``ve`` finite and ≥ 0, given t = have / root (inf
+    where root is 0) and ``order``, an argsort of t; ``tail`` (n + 1) is scratch. Two passes."""
+    n = ve.size
+    total = 0.0
+    for i in range(n):
+        total += ve[i] / have[i] if ve[i] > 0.0 else 0.0  # (inf: error and no sample)
+    goal = n * target
+    if total <= goal:
+        return 0.0
+    # tail[k]: Σ ve/have over the pixels order[k], order[k + 1], … (not scaled)
+    tail[n] = 0.0
+    for k in range(n - 1, -1, -1):
+        i = order[k]
+        tail[k] = tail[k + 1] + (ve[i] / have[i] if ve[i] > 0.0 else 0.0)
+    head = 0.0  # Σ ve/root over the pixels order[0 … k] (scaled)
+    for k in range(n):
+        i = order[k]
+        if root[i] > 0.0:
+            head += ve[i] / root[i]
+        rest = tail[k + 1]
+        if goal > rest:
+            lam = head / (goal - rest)
+            upper = t[order[k + 1]] if k + 1 < n else np.inf
+            # (the relative slack takes a solution on an interval's end as inside it)
+            if t[i] * (1.0 - 1e-12) <= lam <= upper * (1.0 + 1e-12):
+                return lam
+    return np.inf
+
+
 def least_scale(ve: np.ndarray, have: np.ndarray, root: np.ndarray, target: float) -> float:
     """The least λ ≥ 0 at which counts n_p = max(have_p, λ root_p), not rounded to whole
-    samples, give (1/P) Σ ve_p / n_p ≤ ``target``: 0 where the counts each pixel has already
-    meet it, inf where no λ does (a pixel with error, no samples and root 0). ``shape_pays``
-    compares two shapes' work at it, unrounded: rounded, even counts (one whole count for every
-    pixel) overshoot by half a sample a pixel on average, a few per cent of a round at tens of
-    samples a pixel, which a shape's scale, finer than a sample, does not, and that alone made
-    the shape look cheaper on even noise.
+    samples, give (1/P) Σ ve_p / n_p ≤ ``target`` (ve NaN, below 2 samples, adding nothing):
+    0 where the counts each pixel has already meet it, inf where no λ does (a pixel with error,
+    no samples and root 0). ``shape_pays`` compares two shapes' work at it, unrounded: rounded,
+    even counts (one whole count for every pixel) overshoot by half a sample a pixel on
+    average, a few per cent of a round at tens of samples a pixel, which a shape's scale, finer
+    than a sample, does not, and that alone made the shape look cheaper on even noise.
 
-    Exact, in one sort: with the pixels ordered by t_p = have_p / root_p (where λ root_p passes
-    what the pixel has), for λ between two consecutive t the error is (F + S/λ)/P, F the sum of
-    ve/have over the pixels not yet scaled and S that of ve/root over those scaled; each
-    interval's solution λ = S / (P·target − F) is tried and the one inside its interval taken
-    (the error falls with λ, so there is one)."""
-    ve, have, root = (np.asarray(a, np.float64).ravel() for a in (ve, have, root))
-    ve = np.where(np.isfinite(ve), np.maximum(ve, 0.0), 0.0)  # (NaN, below 2 samples: nothing)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        fixed = np.where(ve > 0, ve / have, 0.0)  # (inf where a pixel with error has no sample)
-        t = np.where(root > 0, have / root, np.inf)
-        scaled = np.where(root > 0, ve / root, 0.0)
-    order = np.argsort(t, kind="stable")
-    t, fixed, scaled = t[order], fixed[order], scaled[order]
-    goal = ve.size * target
-    # F[k]: the pixels k, k + 1, … not scaled; S[k]: the pixels before k scaled
-    tail = np.concatenate((np.cumsum(fixed[::-1])[::-1], [0.0]))
-    head = np.concatenate(([0.0], np.cumsum(scaled)))
-    if tail[0] <= goal:
-        return 0.0
-    with np.errstate(divide="ignore", invalid="ignore"):
-        lam = np.where(goal > tail[1:], head[1:] / (goal - tail[1:]), np.inf)
-    # lam[k - 1] solves interval k, (t[k - 1], t[k]] (t[P] = inf), where pixels 0 … k − 1 are
-    # scaled; the relative slack takes a solution on an interval's end as inside it
-    above = np.concatenate((t[1:], [np.inf]))
-    inside = np.flatnonzero((lam >= t * (1 - 1e-12)) & (lam <= above * (1 + 1e-12)))
-    return float(lam[inside[0]]) if inside.size else math.inf
+    Exact, in one sort (numpy's; the rest in ``_least_scale_kernel``): with the pixels ordered
+    by t_p = have_p / root_p (where λ root_p passes what the pixel has), for λ between two
+    consecutive t the error is (F + S/λ)/P, F the sum of ve/have over the pixels not yet
+    scaled and S that of ve/root over those scaled; each interval's solution
+    λ = S / (P·target − F) is tried in turn and the first inside its interval taken (the error
+    falls with λ, so there is one). Where every pixel has the same count and root (even counts
+    after an even round), in closed form."""
+    ve, have, root = (np.ascontiguousarray(a, np.float64).ravel() for a in (ve, have, root))
+    ve = np.where(np.isfinite(ve), np.maximum(ve, 0.0), 0.0)
+    if ve.size and root[0] > 0 and have[0] > 0 and root.min() == root.max() \
+            and have.min() == have.max():
+        error_sum = float(ve.sum())
+        if error_sum <= ve.size * target * have[0]:
+            return 0.0
+        return error_sum / (ve.size * target * root[0])
+    with np.errstate(divide="ignore"):
+        t = np.where(root > 0, have / np.where(root > 0, root, 1.0), np.inf)
+    return float(_least_scale_kernel(ve, have, root, t, np.argsort(t), float(target),
+                                     np.empty(ve.size + 1)))
 
 
 def shape_pays(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have: np.ndarray,
