@@ -575,6 +575,25 @@ def least_scale(ve: np.ndarray, have: np.ndarray, root: np.ndarray, target: floa
                                      np.empty(ve.size + 1)))
 
 
+@kernel
+def _gate_work(ve, have, root, c, t, order, order_even, target, ones, tail):
+    """``shape_pays``' two works in one call: the shaped counts' (``root``, its t = have/root
+    and ``order``, an argsort of t) and the even counts' (root 1, t = have, ``order_even`` an
+    argsort of ``have``), each at its ``least_scale`` for ``target``: Σ c_p (max(have_p,
+    λ root_p) − have_p). inf where no scale reaches the target. ``ones`` (n) holds 1s,
+    ``tail`` (n + 1) is scratch."""
+    lam = _least_scale_kernel(ve, have, root, t, order, target, tail)
+    lam_even = _least_scale_kernel(ve, have, ones, have, order_even, target, tail)
+    if not (math.isfinite(lam) and math.isfinite(lam_even)):
+        return np.inf, np.inf
+    work = 0.0
+    work_even = 0.0
+    for i in range(ve.size):
+        work += c[i] * (max(have[i], lam * root[i]) - have[i])
+        work_even += c[i] * (max(have[i], lam_even) - have[i])
+    return work, work_even
+
+
 def shape_pays(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have: np.ndarray,
                aim: float) -> bool:
     """Whether a round's counts should be shaped: the loop's gate. True when the shaped counts
@@ -591,19 +610,23 @@ def shape_pays(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have
     noisier the estimate: the rule's own estimates at 32 spp predict a 0.74-0.77 gain on the
     shell and 0.66-0.69 on the Cornell box, where the shape gains at most 0.97 and nothing
     (docs/adaptive-sampling.md, ``--oracle``). The cap (``render.spp``) is left out of both."""
-    have = np.asarray(have, np.float64)
-    v = np.where(np.isfinite(v), np.maximum(v, 0.0), 0.0)
-    ve = np.where(np.isfinite(v_error), np.maximum(v_error, 0.0), 0.0)
-    c = np.ones(v.shape) if cost is None else np.maximum(np.asarray(cost, np.float64), 1e-9)
-    root = np.sqrt(v / c)
-    even = np.ones(v.shape)
-    work = []
-    for shape in (root, even):
-        lam = least_scale(ve, have, shape, aim)
-        if not math.isfinite(lam):
-            return False
-        work.append(float(np.sum(c * (np.maximum(have, lam * shape) - have))))
-    return work[0] < work[1]
+    counts = np.asarray(have).ravel()
+    n = counts.size
+    have_f = counts.astype(np.float64)
+    ve = np.ascontiguousarray(v_error, np.float64).ravel()
+    ve = np.where(np.isfinite(ve), np.maximum(ve, 0.0), 0.0)
+    v = np.ascontiguousarray(v, np.float64).ravel()
+    c = (np.ones(n) if cost is None
+         else np.maximum(np.ascontiguousarray(cost, np.float64).ravel(), 1e-9))
+    root = np.sqrt(np.where(np.isfinite(v), np.maximum(v, 0.0), 0.0) / c)
+    with np.errstate(divide="ignore"):
+        t = np.where(root > 0, have_f / np.where(root > 0, root, 1.0), np.inf)
+    # (the even counts' order: by count, none needed where every pixel has the same)
+    order_even = (np.arange(n) if n == 0 or counts.min() == counts.max()
+                  else np.argsort(counts, kind="stable"))
+    work, work_even = _gate_work(ve, have_f, root, c, t, np.argsort(t), order_even,
+                                 float(aim), np.ones(n), np.empty(n + 1))
+    return bool(work < work_even)
 
 
 def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,

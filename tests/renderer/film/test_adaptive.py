@@ -616,6 +616,16 @@ def test_shape_pays_prices_both_shapes_with_the_pixels_own_variance():
     assert shape_pays(uneven, None, uneven, have, 0.01)
     assert not shape_pays(uneven, uneven, uneven, have, 0.01)
     assert not shape_pays(np.ones((h, w)), None, np.ones((h, w)), have, 0.01)
+    # its one kernel (both scales, both works) against the definition, on random frames
+    for _ in range(100):
+        v, ve, cost = (rng.lognormal(0.0, 1.0, (8, 8)) for _ in range(3))
+        counts = rng.integers(8, 40, (8, 8)) if rng.random() < 0.7 else np.full((8, 8), 16)
+        aim = float(rng.uniform(0.005, 0.2))
+        root = np.sqrt(v / cost)
+        work = [float(np.sum(cost * (np.maximum(counts, least_scale(ve, counts, r, aim) * r)
+                                     - counts)))
+                for r in (root, np.ones((8, 8)))]
+        assert shape_pays(v, cost, ve, counts, aim) == (work[0] < work[1])
 
 
 def test_on_even_noise_every_round_is_even():
