@@ -559,16 +559,9 @@ def least_scale(ve: np.ndarray, have: np.ndarray, root: np.ndarray, target: floa
     consecutive t the error is (F + S/λ)/P, F the sum of ve/have over the pixels not yet
     scaled and S that of ve/root over those scaled; each interval's solution
     λ = S / (P·target − F) is tried in turn and the first inside its interval taken (the error
-    falls with λ, so there is one). Where every pixel has the same count and root (even counts
-    after an even round), in closed form."""
+    falls with λ, so there is one)."""
     ve, have, root = (np.ascontiguousarray(a, np.float64).ravel() for a in (ve, have, root))
     ve = np.where(np.isfinite(ve), np.maximum(ve, 0.0), 0.0)
-    if ve.size and root[0] > 0 and have[0] > 0 and root.min() == root.max() \
-            and have.min() == have.max():
-        error_sum = float(ve.sum())
-        if error_sum <= ve.size * target * have[0]:
-            return 0.0
-        return error_sum / (ve.size * target * root[0])
     with np.errstate(divide="ignore"):
         t = np.where(root > 0, have / np.where(root > 0, root, 1.0), np.inf)
     return float(_least_scale_kernel(ve, have, root, t, np.argsort(t), float(target),
@@ -577,21 +570,21 @@ def least_scale(ve: np.ndarray, have: np.ndarray, root: np.ndarray, target: floa
 
 @kernel
 def _gate_work(ve, have, root, c, t, order, order_even, target, ones, tail):
-    """``shape_pays``' two works in one call: the shaped counts' (``root``, its t = have/root
-    and ``order``, an argsort of t) and the even counts' (root 1, t = have, ``order_even`` an
+    """``_gate``'s two works in one call: the shaped counts' (``root``, its t = have/root and
+    ``order``, an argsort of t) and the even counts' (root 1, t = have, ``order_even`` an
     argsort of ``have``), each at its ``least_scale`` for ``target``: Σ c_p (max(have_p,
-    λ root_p) − have_p). inf where no scale reaches the target. ``ones`` (n) holds 1s,
-    ``tail`` (n + 1) is scratch."""
+    λ root_p) − have_p), both inf where either scale is; and the even counts' scale, the one
+    count they bring every pixel to. ``ones`` (n) holds 1s, ``tail`` (n + 1) is scratch."""
     lam = _least_scale_kernel(ve, have, root, t, order, target, tail)
     lam_even = _least_scale_kernel(ve, have, ones, have, order_even, target, tail)
     if not (math.isfinite(lam) and math.isfinite(lam_even)):
-        return np.inf, np.inf
+        return np.inf, np.inf, lam_even
     work = 0.0
     work_even = 0.0
     for i in range(ve.size):
         work += c[i] * (max(have[i], lam * root[i]) - have[i])
         work_even += c[i] * (max(have[i], lam_even) - have[i])
-    return work, work_even
+    return work, work_even, lam_even
 
 
 def shape_pays(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have: np.ndarray,
@@ -610,6 +603,14 @@ def shape_pays(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have
     noisier the estimate: the rule's own estimates at 32 spp predict a 0.74-0.77 gain on the
     shell and 0.66-0.69 on the Cornell box, where the shape gains at most 0.97 and nothing
     (docs/adaptive-sampling.md, ``--oracle``). The cap (``render.spp``) is left out of both."""
+    return _gate(v, cost, v_error, have, aim)[0]
+
+
+def _gate(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have: np.ndarray,
+          aim: float) -> tuple[bool, float]:
+    """``shape_pays``' verdict, and the one count the even counts bring every pixel to (their
+    ``least_scale``; inf where none reaches the aim), which the farm's tile rule takes when the
+    shape does not pay."""
     counts = np.asarray(have).ravel()
     n = counts.size
     have_f = counts.astype(np.float64)
@@ -624,9 +625,9 @@ def shape_pays(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have
     # (the even counts' order: by count, none needed where every pixel has the same)
     order_even = (np.arange(n) if n == 0 or counts.min() == counts.max()
                   else np.argsort(counts, kind="stable"))
-    work, work_even = _gate_work(ve, have_f, root, c, t, np.argsort(t), order_even,
-                                 float(aim), np.ones(n), np.empty(n + 1))
-    return bool(work < work_even)
+    work, work_even, even_scale = _gate_work(ve, have_f, root, c, t, np.argsort(t), order_even,
+                                             float(aim), np.ones(n), np.empty(n + 1))
+    return bool(work < work_even), float(even_scale)
 
 
 def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
@@ -660,11 +661,11 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
         else:
             want = allocate(v, AIM * target, count, cap, error_of=own)
             aim = AIM * target
-        if aim > 0 and not shape_pays(v, None, own, count, aim):
+        if aim > 0:
             # The local loop's gate: even counts where the shape, priced by each pixel's own
             # variance, would not reach the tile's aim with fewer samples
-            m = least_scale(own, count, np.ones(count.shape), aim)
-            if math.isfinite(m):
+            pays, m = _gate(v, None, own, count, aim)
+            if not pays and math.isfinite(m):
                 want = np.clip(np.ceil(m), count, cap).astype(np.int64)
     return np.clip(want - count, 0, pass_samples).astype(np.int32)
 

@@ -590,7 +590,7 @@ def test_least_scale_is_the_least_unrounded_scale_that_meets_the_target():
         else:
             assert error(lam) == pytest.approx(target, rel=1e-9)
             assert error(lam * (1 - 1e-6)) > target
-    # every pixel the same count and root (the even counts after an even round): closed form
+    # every pixel the same count and root (the even counts after an even round)
     ve = rng.exponential(1.0, 64)
     for have, root, target in ((16.0, 1.0, 0.01), (16.0, 2.0, 0.01), (16.0, 1.0, 0.5)):
         lam = least_scale(ve, np.full(64, have), np.full(64, root), target)
