@@ -98,6 +98,12 @@ export function renderJob(view, jobId) {
     return `/api/jobs/${jobId}${frame ? `/frames/${frame}` : ""}/image.${fmt}${q}`;
   }
 
+  function label(version) {
+    img.dataset.version = String(version);
+    previewNote.textContent =
+      `Merge ${version}: ${job.tasks_merged} of ${job.tasks_total} passes.`;
+  }
+
   // Fetch the preview only if the image can have changed: a new merge (image_version) or a new
   // exposure / tone map. The server's ETag is sent back, so an unchanged image costs a 304.
   async function refreshPreview() {
@@ -115,16 +121,18 @@ export function renderJob(view, jobId) {
       const version = job.image_version;
       const r = await fetch(imageUrl("png"), { headers, cache: "no-store" });
       if (r.status === 304) {
+        // The image shown is still the current one: an image fetched just after the answer
+        // that said which merge it was can be of later merges (a job that finished meanwhile),
+        // and its ETag then holds for the merge the next answer gives
         shown.version = version;
+        label(version);
       } else if (r.ok) {
         const blob = await r.blob();
         if (objectUrl) URL.revokeObjectURL(objectUrl);
         objectUrl = URL.createObjectURL(blob);
         img.src = objectUrl;
         shown = { etag: r.headers.get("ETag"), version, key };
-        img.dataset.version = String(version);
-        previewNote.textContent =
-          `Merge ${version}: ${job.tasks_merged} of ${job.tasks_total} passes.`;
+        label(version);
       }
     } finally {
       fetching = false;
@@ -197,6 +205,17 @@ export function renderJob(view, jobId) {
         + "(or the farm does not report the choice yet)."));
   }
 
+  // A job with render.target_error: the relMSE asked for and the frames' estimate from the
+  // samples merged so far (docs/adaptive-sampling.md), none before every pixel has its pilot
+  function targetText(j) {
+    const asked = `relMSE ${j.target_error}`;
+    if (j.expected_error == null) {
+      return FINAL.includes(j.status) ? asked : `${asked} · estimated once every pixel has samples`;
+    }
+    const est = String(Number(Number(j.expected_error).toPrecision(3)));
+    return j.status === "done" ? `${asked} · reached ${est} (estimated)` : `${asked} · now ${est}`;
+  }
+
   function render() {
     title.textContent = job.name || `Job ${job.id.slice(0, 8)}`;
     badge.replaceChildren(statusBadge(job.status));
@@ -211,6 +230,9 @@ export function renderJob(view, jobId) {
           ? `${job.spp_per_pass}–${job.largest_pass} spp a pass)`
           : `${job.spp_per_pass} spp a pass)`)],
       ["Passes merged", `${job.tasks_merged} / ${job.tasks_total}`],
+      ...(job.target_error == null ? [] : [["Target error", targetText(job)]]),
+      ...(job.denoise ? [["Denoise", "once done, with Open Image Denoise (the noisy image "
+        + "kept as image.exr's noisy layer)"]] : []),
       ["Samples/s", fmtRate(job.samples_per_second)],
       ["Elapsed", fmtDuration(elapsed(job))],
       ["ETA", job.status === "done" ? "done" : fmtDuration(job.eta_seconds)],

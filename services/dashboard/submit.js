@@ -53,7 +53,9 @@ export function renderSubmit(view) {
       ...field("spp_per_pass", "Samples of the first pass", { type: "number", min: "1",
         placeholder: "8" }),
       ...field("max_spp_per_pass", "Largest pass", { type: "number", min: "1",
-        placeholder: "64" })),
+        placeholder: "64" }),
+      // (the farm refuses it, 422 on this field, where it cannot denoise: pyoidn missing)
+      ...field("denoise", "Denoise when done (Open Image Denoise)", { type: "checkbox" })),
     formError, submit);
   view.append(h("h1", {}, "Submit a scene"), h("section", { class: "panel" }, form));
 
@@ -131,6 +133,7 @@ export function renderSubmit(view) {
       const v = document.getElementById(`f-${k}`).value;
       if (v !== "") body[k] = Number(v);
     }
+    if (document.getElementById("f-denoise").checked) body.denoise = true;
     submit.disabled = true;
     try {
       const job = await api("/api/jobs", { method: "POST", body });

@@ -287,6 +287,110 @@ def test_a_phone_gets_one_column_and_no_sideways_scroll(dashboard, browser, arti
         context.close()
 
 
+def test_a_job_with_a_target_error_shows_the_target_and_its_estimate(dashboard, page, api,
+                                                                      artifacts):
+    """A job with render.target_error: its page gives the relMSE asked for and, once done, the
+    frame's estimate the farm stopped on (the API's expected_error, to 3 digits). The Submit
+    form's denoise box asks for the job option, and the job page says the image is denoised (or
+    the farm's 422 on the field shows next to it where it cannot denoise)."""
+    from renderer.film.denoise import oidn_available
+
+    scene = json.loads((ROOT / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
+    scene["film"] = {"width": 32, "height": 24}
+    scene["render"]["spp"] = 256
+    scene["render"]["target_error"] = 0.05
+    page.goto(f"{dashboard.url}/#/submit")
+    page.fill("#scene", json.dumps(scene))
+    page.fill("#f-tile_size", "16")
+    page.check("#f-denoise")
+    page.click("#submit-job")
+    if not oidn_available():
+        error = page.wait_for_selector("#err-denoise:not(:empty)")
+        assert "cannot denoise" in error.inner_text()
+        page.uncheck("#f-denoise")
+        page.click("#submit-job")
+    page.wait_for_url("**/#/job/*")
+    job_id = page.url.rsplit("/", 1)[1]
+    page.wait_for_selector("#job-status .badge.s-done", timeout=120_000)
+    job = api.get(f"/api/jobs/{job_id}").json()
+    assert job["target_error"] == 0.05 and job["expected_error"] is not None
+    assert job["denoise"] is oidn_available()
+    facts = dict(zip(page.locator("#job-facts dt").all_inner_texts(),
+                     page.locator("#job-facts dd").all_inner_texts(), strict=True))
+    reached = repr(float(f"{job['expected_error']:.3g}"))  # (3 digits, as the page gives it)
+    assert facts["Target error"] == f"relMSE 0.05 · reached {reached} (estimated)", facts
+    assert ("Denoise" in facts) is oidn_available()
+    page.wait_for_function(
+        f"document.querySelector('#preview').dataset.version === '{job['image_version']}'")
+    page.wait_for_function("document.querySelector('#preview').complete")
+    assert page.eval_on_selector("#preview", IMG_MEAN) > 20
+    shot(page, artifacts, "target")
+    no_page_errors(page)
+
+
+def test_a_running_job_with_a_target_error_shows_its_estimate_so_far(dashboard, page):
+    """While a job with a target runs, its page gives the estimate from the samples merged so
+    far, and says when there is none yet (a pixel without its pilot). The job is made in the
+    store, not queued; its answer is given the target and the estimates by the page's route."""
+    import uuid
+
+    from services.farm.planner import Plan
+
+    store = dashboard.store()
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "target", 0, Plan(16, 16, 4, 8, 4), b"{}")
+    estimate = {"expected_error": None}
+
+    def answer(route):
+        body = route.fetch().json()
+        body.update(status="running", target_error=0.01, **estimate)
+        route.fulfill(json=body)
+
+    page.route(f"**/api/jobs/{job_id}", answer)
+    page.goto(f"{dashboard.url}/#/job/{job_id}")
+    row = "() => [...document.querySelectorAll('#job-facts dd')].some(d => d.innerText === {!r})"
+    page.wait_for_function(row.format("relMSE 0.01 · estimated once every pixel has samples"))
+    estimate["expected_error"] = 0.031234
+    page.wait_for_function(row.format("relMSE 0.01 · now 0.0312"), timeout=15_000)
+    page.unroute(f"**/api/jobs/{job_id}")
+    store.cancel_job(job_id)
+    no_page_errors(page)
+
+
+def test_a_preview_fetched_after_its_answer_is_labelled_by_the_next(dashboard, page, api):
+    """The preview is fetched after the job's answer that gave its merge; a job that merged
+    again (or finished) between the two serves the later image, whose ETag the next answer's
+    merge then matches (304): the page labels the image with that merge, not the first. Made
+    here by giving the page's first answer of a done job an earlier merge."""
+    scene = json.loads((ROOT / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
+    scene["film"] = {"width": 32, "height": 24}
+    scene["render"]["spp"] = 16
+    r = api.post("/api/jobs", json={"scene": scene, "spp_per_pass": 8, "tile_size": 16})
+    assert r.status_code == 201, r.text
+    job_id = r.json()["id"]
+    api_wait(api, job_id, "done")
+    version = api.get(f"/api/jobs/{job_id}").json()["image_version"]
+    assert version > 1
+    answers = []
+
+    def answer(route):
+        body = route.fetch().json()
+        if not answers:  # (the first: a merge the preview will be newer than)
+            body.update(status="running", image_version=1, tasks_merged=1)
+        answers.append(body["image_version"])
+        route.fulfill(json=body)
+
+    page.route(f"**/api/jobs/{job_id}", answer)
+    page.goto(f"{dashboard.url}/#/job/{job_id}")
+    page.wait_for_function(
+        f"document.querySelector('#preview').dataset.version === '{version}'", timeout=15_000)
+    assert answers[0] == 1
+    assert page.inner_text("#preview-note").startswith(f"Merge {version}: ")
+    page.unroute(f"**/api/jobs/{job_id}")
+    no_page_errors(page)
+
+
+
 def test_the_api_process_survives(dashboard):
     # Last in the module: nothing above crashed the service or the workers.
     assert dashboard.server.poll() is None and dashboard.worker.poll() is None
