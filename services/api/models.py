@@ -66,6 +66,10 @@ class TilePublic(BaseModel):
     state: str
     samples: int = Field(description="samples per pixel merged")
     error: str | None = None
+    expected_error: float | None = Field(
+        default=None, description="a job with a target: the tile's expected relMSE from its "
+                                  "merged samples (the mean of its pixels' error terms), once "
+                                  "a merge has given its pixels 2 samples")
 
 
 class JobPublic(BaseModel):

@@ -19,6 +19,15 @@ const TILE_COLOURS = { queued: "#5b6270", running: "#e0a526", converged: "#3a8fb
                        failed: "#d9453b" };
 
 // Samples per pixel -> colour: dark blue (none) to pale yellow (all planned), viridis-like.
+// A tile's estimated error on the ramp: 1/4 x the job's target at its dark end, 4 x at its
+// bright end, the target in the middle (log scale: the error falls as 1 / samples)
+const ERROR_SPAN = 4;
+function errorColour(ratio) {
+  return samplesColour((Math.log(ratio) / Math.log(ERROR_SPAN) + 1) / 2);
+}
+
+const digits3 = (x) => String(Number(Number(x).toPrecision(3)));
+
 function samplesColour(fraction) {
   const stops = [[38, 33, 92], [33, 120, 142], [63, 188, 115], [240, 230, 110]];
   const x = Math.max(0, Math.min(1, fraction)) * (stops.length - 1);
@@ -60,8 +69,12 @@ export function renderJob(view, jobId) {
   const exrLink = h("a", { id: "download-exr", class: "button", download: "" }, "EXR");
   const grid = h("div", { class: "tile-grid", id: "tile-grid", role: "img" });
   const legend = h("div", { class: "legend", id: "tile-legend" });
+  const errorOption = h("option", { value: "error", hidden: true,
+    title: "the tile's expected relMSE from its merged samples (grey: none yet)" },
+  "estimated error");
   const colourSel = h("select", { id: "colour-by", "aria-label": "colour tiles by" },
-    h("option", { value: "state" }, "state"), h("option", { value: "samples" }, "samples"));
+    h("option", { value: "state" }, "state"), h("option", { value: "samples" }, "samples"),
+    errorOption);
   const errors = h("div", { id: "job-errors" });
   const methods = h("div", { id: "job-methods" });
   const frameStrip = h("div", { class: "frame-strip", id: "frame-strip" });
@@ -147,13 +160,17 @@ export function renderJob(view, jobId) {
     const shownTiles = job.tile_states.filter((t) => (t.frame ?? 0) === frame);
     grid.setAttribute("aria-label", `${shownTiles.length} tiles coloured by ${colourBy}`);
     const cells = shownTiles.map((t) => {
+      const estimate = t.expected_error == null ? ""
+        : `, estimated relMSE ${digits3(t.expected_error)}`;
       const fill = colourBy === "state" ? TILE_COLOURS[t.state] || "#888"
-        : samplesColour(t.samples / job.spp);
+        : colourBy === "samples" ? samplesColour(t.samples / job.spp)
+          : t.expected_error == null ? "#888" : errorColour(t.expected_error / job.target_error);
       return h("div", {
         class: `tile t-${t.state}${t.error ? " has-error" : ""}`,
-        dataset: { index: t.index, state: t.state, samples: t.samples },
+        dataset: { index: t.index, state: t.state, samples: t.samples,
+          estimate: t.expected_error ?? "" },
         title: `tile ${t.index} (${t.x0}, ${t.y0}) ${t.width}×${t.height}: ${t.state}, `
-          + `${t.samples} of ${job.spp} spp${t.error ? `\n${t.error}` : ""}`,
+          + `${t.samples} of ${job.spp} spp${estimate}${t.error ? `\n${t.error}` : ""}`,
         style: `left:${(100 * t.x0) / job.width}%;top:${(100 * t.y0) / job.height}%;`
           + `width:${(100 * t.width) / job.width}%;height:${(100 * t.height) / job.height}%;`
           + `background:${fill}`,
@@ -167,6 +184,12 @@ export function renderJob(view, jobId) {
       legend.replaceChildren(...Object.entries(TILE_COLOURS)
         .filter(([s]) => s !== "converged" || counts[s]).map(([s, c]) =>
         h("span", {}, h("i", { style: `background:${c}` }), `${s} ${counts[s] || 0}`)));
+    } else if (colourBy === "error") {
+      legend.replaceChildren(h("span", {}, `${digits3(job.target_error / ERROR_SPAN)}`),
+        h("i", { class: "ramp", style: `background:linear-gradient(90deg,${
+          [0.25, 0.5, 1, 2, 4].map(errorColour).join(",")})` }),
+        h("span", {}, `${digits3(job.target_error * ERROR_SPAN)} relMSE (target `
+          + `${job.target_error} mid-ramp)`));
     } else {
       legend.replaceChildren(h("span", {}, "0 spp"),
         h("i", { class: "ramp", style: `background:linear-gradient(90deg,${
@@ -212,11 +235,16 @@ export function renderJob(view, jobId) {
     if (j.expected_error == null) {
       return FINAL.includes(j.status) ? asked : `${asked} · estimated once every pixel has samples`;
     }
-    const est = String(Number(Number(j.expected_error).toPrecision(3)));
+    const est = digits3(j.expected_error);
     return j.status === "done" ? `${asked} · reached ${est} (estimated)` : `${asked} · now ${est}`;
   }
 
   function render() {
+    // (tiles coloured by their estimated error: a job with a target has them)
+    errorOption.hidden = job.target_error == null;
+    if (job.target_error == null && colourBy === "error") {
+      colourBy = colourSel.value = "state";
+    }
     title.textContent = job.name || `Job ${job.id.slice(0, 8)}`;
     badge.replaceChildren(statusBadge(job.status));
     bar.replaceChildren(progressBar(job.progress, job.status));

@@ -271,6 +271,16 @@ def _summary_values(text: str | None) -> list[float]:
     return values
 
 
+def _estimates(summaries: dict) -> dict[int, float]:
+    """``JobStore.tile_estimates`` from the ``tile_err`` hash as read."""
+    out = {}
+    for tile, text in summaries.items():
+        err_sum, _, pixels = _summary_values(_s(text))
+        if pixels > 0:
+            out[int(tile)] = err_sum / pixels
+    return out
+
+
 # ``merge_pass_buffer``'s answer when its merge counted the job's last task
 MERGED_LAST = 2
 
@@ -744,6 +754,7 @@ class JobStore:
         if meta is not None and meta.target_error is not None:
             out["target_error"] = meta.target_error
             out["expected_error"] = meta.expected_error
+            out["estimates"] = {str(t): e for t, e in self.tile_estimates(job_id).items()}
         blocklist = self.blocklist(job_id)
         if blocklist:
             out["blocklist"] = blocklist
@@ -766,22 +777,31 @@ class JobStore:
 
     # --- tiles ----------------------------------------------------------------------------------
     def job_view(self, job_id: str) -> tuple[JobMeta, dict[int, str], dict[int, int],
-                                             dict[int, str], dict[str, int]] | None:
-        """The job, its tiles' states, samples and errors, and its blocklist (node -> failed
-        passes), as one snapshot in one round trip (what a status answer shows); None for an
-        unknown job."""
+                                             dict[int, str], dict[str, int],
+                                             dict[int, float]] | None:
+        """The job, its tiles' states, samples and errors, its blocklist (node -> failed
+        passes), and for a job with a target its tiles' estimated errors (``tile_estimates``),
+        as one snapshot in one round trip (what a status answer shows); None for an unknown
+        job."""
         pipe = self.r.pipeline()
-        for part in ("tile_state", "tile_samples", "tile_error", "failures"):
+        for part in ("tile_state", "tile_samples", "tile_error", "failures", "tile_err"):
             pipe.hgetall(self.k("job", job_id, part))
         pipe.smembers(self.k("job", job_id, "blocklist"))
         pipe.hgetall(self.job_key(job_id))
-        states, samples, errors, failures, blocked, h = pipe.execute()
+        states, samples, errors, failures, summaries, blocked, h = pipe.execute()
         if not h:
             return None
         return (JobMeta.from_hash(h), {int(k): v.decode() for k, v in states.items()},
                 {int(k): int(v) for k, v in samples.items()},
                 {int(k): v.decode() for k, v in errors.items()},
-                {n.decode(): int(failures.get(n, 0)) for n in sorted(blocked)})
+                {n.decode(): int(failures.get(n, 0)) for n in sorted(blocked)},
+                _estimates(summaries))
+
+    def tile_estimates(self, job_id: str) -> dict[int, float]:
+        """A job with a target: each tile's expected relMSE from its merged samples, the mean of
+        its pixels' error terms (its ``tile_err`` summary: Σ e_p over the pixels with 2 samples
+        or more, over their number), for the tiles whose summary counts a pixel."""
+        return _estimates(self.r.hgetall(self.k("job", job_id, "tile_err")))
 
     # --- the blocklist --------------------------------------------------------------------------
     def note_failure(self, job_id: str, node: str, threshold: int) -> int:

@@ -320,6 +320,18 @@ def test_a_job_with_a_target_error_shows_the_target_and_its_estimate(dashboard, 
     reached = repr(float(f"{job['expected_error']:.3g}"))  # (3 digits, as the page gives it)
     assert facts["Target error"] == f"relMSE 0.05 · reached {reached} (estimated)", facts
     assert ("Denoise" in facts) is oidn_available()
+    # Each tile's estimate; over the frame's pixels they make the job's (Σ e_p / P both)
+    tiles = job["tile_states"]
+    assert all(t["expected_error"] is not None for t in tiles), tiles
+    pixels = sum(t["width"] * t["height"] for t in tiles)
+    assert sum(t["expected_error"] * t["width"] * t["height"] for t in tiles) / pixels == \
+        pytest.approx(job["expected_error"], rel=1e-9)
+    page.select_option("#colour-by", "error")
+    assert page.inner_text("#tile-legend").endswith("0.2 relMSE (target 0.05 mid-ramp)")
+    shown = page.eval_on_selector_all(
+        "#tile-grid .tile", "ts => ts.map(t => [Number(t.dataset.estimate), t.title])")
+    assert [e for e, _ in shown] == pytest.approx([t["expected_error"] for t in tiles])
+    assert all("estimated relMSE" in title for _, title in shown)
     page.wait_for_function(
         f"document.querySelector('#preview').dataset.version === '{job['image_version']}'")
     page.wait_for_function("document.querySelector('#preview').complete")
@@ -386,6 +398,8 @@ def test_a_preview_fetched_after_its_answer_is_labelled_by_the_next(dashboard, p
         f"document.querySelector('#preview').dataset.version === '{version}'", timeout=15_000)
     assert answers[0] == 1
     assert page.inner_text("#preview-note").startswith(f"Merge {version}: ")
+    # (a job without a target has no tile estimates to colour by)
+    assert page.eval_on_selector("#colour-by option[value=error]", "o => o.hidden")
     page.unroute(f"**/api/jobs/{job_id}")
     no_page_errors(page)
 

@@ -179,6 +179,44 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     assert not store.r.exists(store.k("job", plain, "tile_err"))
 
 
+def test_a_target_job_reports_each_tiles_estimate_while_in_redis_and_archived(store):
+    """Each tile's estimated error (the status answer's ``tile_states[].expected_error``) is the
+    mean of its pixels' error terms in its merged buffer, in the job's view while Redis holds it
+    and in the tiles' summary its record keeps once archived; a job without a target has
+    none."""
+    import numpy as np
+
+    from renderer.film.adaptive import error_terms
+    from renderer.film.buffer import SampleBuffer
+
+    rng = np.random.default_rng(3)
+    plan = Plan(40, 16, 64, 16, 8)  # 3 tiles (16, 16 and 8 px wide) x 8 passes of 8
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02)
+    merged = {}
+    for t in (0, 2):  # (tile 1 merges nothing: no estimate)
+        for p in range(2):
+            buf = SampleBuffer.empty(*plan.tile_rect(t))
+            x = rng.gamma(2.0, 0.5 + t, size=(8,) + buf.sum.shape)
+            buf.sum[:] = x.sum(axis=0)
+            buf.sum_sq[:] = (x * x).sum(axis=0)
+            buf.count[:] = 8
+            store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
+            assert store.merge_pass_buffer(job_id, t, p)
+            merged[t] = merged[t] + buf if t in merged else buf
+    want = {t: float(error_terms(b).mean()) for t, b in merged.items()}
+    view = store.job_view(job_id)
+    assert view is not None and view[5].keys() == {0, 2}
+    for t, e in want.items():
+        assert view[5][t] == pytest.approx(e, rel=1e-12)
+    final = store.tiles_final(job_id, plan.n_tiles)["estimates"]
+    assert {int(t): e for t, e in final.items()} == view[5]
+
+    plain = uuid.uuid4().hex
+    store.create_job(plain, "", 0, plan, b"{}", {}, time.time())
+    assert store.job_view(plain)[5] == {} and "estimates" not in store.tiles_final(plain, 3)
+
+
 def test_a_tile_summary_of_the_earlier_rule_is_taken_back_out(store):
     """A job with a target running across the upgrade: a tile whose stored summary is the earlier
     rule's four numbers (Σ e, Σ √v, Σ v^¼, pixels), its error sum and pixels in the job's sums,

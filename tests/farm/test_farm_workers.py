@@ -13,6 +13,8 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
+from renderer.film.adaptive import error_terms
+from renderer.film.buffer import SampleBuffer
 from renderer.render import render
 from services.api.main import create_app
 from services.farm.merge import assemble
@@ -264,3 +266,13 @@ def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job
     assert samples.min() < 256 and samples.max() <= 256
     assert job["target_error"] == 0.02
     assert job["expected_error"] is not None and 0 < job["expected_error"] <= 0.02
+    # Each tile's estimate is the mean of its pixels' error terms in its merged buffer
+    # (renderer.film.adaptive.error_terms), and over the frame they make the job's
+    store = farm.store()
+    tiles = farm_client.get(f"/api/jobs/{job['id']}").json()["tile_states"]
+    for t in tiles:
+        terms = error_terms(SampleBuffer.from_bytes(store.tile_buffer(job["id"], t["index"])))
+        assert t["expected_error"] == pytest.approx(terms.mean(), rel=1e-9)
+    pixels = sum(t["width"] * t["height"] for t in tiles)
+    assert sum(t["expected_error"] * t["width"] * t["height"] for t in tiles) / pixels == \
+        pytest.approx(job["expected_error"], rel=1e-9)

@@ -169,7 +169,7 @@ def list_jobs(store: StoreDep, records: RecordsDep,
 
 
 def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
-               errors: dict[int, str], blocklist: dict[str, int],
+               errors: dict[int, str], blocklist: dict[str, int], estimates: dict[int, float],
                live_tags: list[frozenset[str]] | None = None) -> JobDetail:
     if meta.tiles_final:  # out of Redis: its tiles' summary is in its record
         final = meta.tiles_final
@@ -178,6 +178,7 @@ def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
                   else dict.fromkeys(range(meta.plan.n_tiles), "done"))
         samples = dict(enumerate(final.get("samples", [])))
         errors = {int(t): e for t, e in final.get("errors", {}).items()}
+        estimates = {int(t): e for t, e in final.get("estimates", {}).items()}
     plan = meta.plan
     tiles = []
     merged = [0] * plan.frames  # pixel-samples of each frame
@@ -185,7 +186,8 @@ def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
         x0, y0, w, h = plan.tile_rect(t)
         tiles.append(TilePublic(index=t, frame=plan.frame_of(t), x0=x0, y0=y0, width=w,
                                 height=h, state=states.get(t, "queued"),
-                                samples=samples.get(t, 0), error=errors.get(t)))
+                                samples=samples.get(t, 0), error=errors.get(t),
+                                expected_error=estimates.get(t)))
         merged[plan.frame_of(t)] += w * h * min(samples.get(t, 0), plan.spp)
     per_frame = plan.width * plan.height * plan.spp
     frames = [FramePublic(index=f, progress=n / per_frame if per_frame else 1.0)
@@ -229,7 +231,7 @@ class StatusViews:
             record = self.records.get(job_id)
             if record is None:
                 return None
-            read = (record, {}, {}, {}, {})
+            read = (record, {}, {}, {}, {}, {})
         # A job requiring tags that is waiting: the workers are part of what its answer says
         live_tags = (live_tag_sets(self.store.workers())
                      if read[0].tags and read[0].status in ACTIVE else None)
