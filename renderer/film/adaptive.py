@@ -635,7 +635,7 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     """The farm's rule, a pure function of a tile's merged buffer (and the frame's ``scale``,
     ``frame_scale`` of the job's tile summaries, and its estimated error, their error sum over
     their pixels, when known): the samples each pixel takes of the next pass of
-    ``pass_samples``, (h, w) int32. Every pixel until it has ``PILOT``; then nothing once the
+    ``pass_samples``, (h, w) int32. Every pixel up to ``PILOT``; then nothing once the
     frame's estimated error is within ``STOP_SLACK`` of AIM × target (the local loop's stop:
     the frame's λ counts every pixel at its share, a pixel that already has more too, so the
     counts alone would go on past the aim); else each pixel its deficit against ``allocate``
@@ -645,7 +645,8 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     pixels' own variances), every pixel its deficit against the one count that reaches it."""
     count = buf.count
     if int(count.min(initial=PILOT)) < PILOT:
-        want = np.full(count.shape, cap, np.int64)
+        # The pilot (the local loop's): PILOT samples every pixel before anything is estimated
+        want = np.full(count.shape, min(PILOT, cap), np.int64)
     elif frame_error is not None and aim_reached(frame_error, target):
         return np.zeros(count.shape, np.int32)
     else:

@@ -567,11 +567,17 @@ def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(s
     from renderer.film.buffer import SampleBuffer
     from services.farm.passes import adaptive_counts
 
+    from renderer.film.adaptive import PILOT
+
     rng = np.random.default_rng(4)
-    plan = Plan(32, 16, 4096, 16, 32)  # 2 tiles x passes of 32
+    plan = Plan(40, 16, 4096, 16, 32)  # 3 tiles (16, 16 and 8 px wide) x passes of 32
     job_id = uuid.uuid4().hex
     store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.01)
-    for t in range(2):
+    # Before a tile's first merge: the pilot, PILOT samples every pixel of it, not the pass
+    pilot = adaptive_counts(store, store.get_job(job_id), 2, 0.01, 32)
+    assert pilot.shape == (16, 8) and (pilot == PILOT).all()
+    assert (adaptive_counts(store, store.get_job(job_id), 2, 0.01, 4) == 4).all()
+    for t in range(3):
         buf = SampleBuffer.empty(*plan.tile_rect(t))
         x = rng.exponential(1.0, size=(32,) + buf.sum.shape)
         buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 32

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from fastapi.testclient import TestClient
 
-from renderer.film.adaptive import error_terms
+from renderer.film.adaptive import AIM, error_terms
 from renderer.film.buffer import SampleBuffer
 from renderer.render import render
 from services.api.main import create_app
@@ -244,6 +244,24 @@ def test_a_target_job_runs_a_chain_of_passes_per_tile_not_every_planned_pass(
     after = farm_client.get(f"/api/jobs/{job['id']}").json()
     assert (after["target_error"], after["expected_error"], after["progress"]) == (
         0.02, job["expected_error"], 1.0)
+
+
+def test_a_target_jobs_first_pass_is_the_pilot(farm, farm_client, wait_for_job, tiny_scene):
+    """A job with a target renders PILOT samples a pixel in a tile's first pass, as the local
+    loop's pilot, not the whole pass: the Cornell box (a packet scene, whose first pass is 32
+    samples by default) at a target its pilot alone reaches stops with PILOT samples in every
+    pixel (it took 32, 0.07x the target, when the first pass was rendered whole)."""
+    from renderer.film.adaptive import PILOT
+
+    scene = copy.deepcopy(tiny_scene)
+    scene["render"].update(spp=256, target_error=0.5)
+    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 16})
+    assert r.status_code == 201, r.text
+    job = wait_for_job(farm_client, r.json()["id"])
+    assert job["status"] == "done" and job["spp_per_pass"] == 32, job
+    frame, _ = assemble(farm.store(), job["id"])
+    assert ((frame.count + frame.dropped) == PILOT).all()
+    assert job["expected_error"] <= AIM * 0.5
 
 
 def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job, tiny_scene):

@@ -659,8 +659,12 @@ def test_on_even_noise_every_round_is_even():
 
 
 def test_tile_rule_pilots_every_pixel_then_allocates():
+    # In the pilot: every pixel up to PILOT (the local loop's), not the whole pass
     buf = synthetic(np.ones((4, 4, PILOT - 1)))
-    np.testing.assert_array_equal(pass_counts(buf, 0.01, 256, 8), 8)  # in the pilot: all
+    np.testing.assert_array_equal(pass_counts(buf, 0.01, 256, 8), 1)
+    np.testing.assert_array_equal(pass_counts(synthetic(np.ones((4, 4, 2))), 0.01, 256, 32),
+                                  PILOT - 2)
+    np.testing.assert_array_equal(pass_counts(buf, 0.01, PILOT - 1, 8), 0)  # (render.spp)
     flat = synthetic(np.ones((4, 4, PILOT)))
     assert tile_converged(flat, 0.01, 256)  # no variance anywhere: done after the pilot
     rng = np.random.default_rng(5)
@@ -679,7 +683,7 @@ def test_tile_rule_stops_when_the_frames_error_is_within_the_slack_of_its_aim():
     job's tile summaries) is within STOP_SLACK of AIM × target, no pixel takes samples, whatever
     the frame's scale asks of the tile (its λ counts a pixel that already has more than its
     share as if it had its share); above it, the counts are those without the frame's error.
-    In the pilot every pixel still takes its pass."""
+    In the pilot every pixel still takes what it lacks of it."""
     rng = np.random.default_rng(12)
     noisy = synthetic(rng.exponential(1.0, (6, 6, 32)))
     aim = AIM * 0.01
@@ -691,7 +695,7 @@ def test_tile_rule_stops_when_the_frames_error_is_within_the_slack_of_its_aim():
     np.testing.assert_array_equal(
         pass_counts(noisy, 0.01, 4096, 64, 200.0, aim * (1.0 + 2.0 * STOP_SLACK)), shaped)
     pilot = synthetic(rng.exponential(1.0, (6, 6, PILOT - 1)))
-    np.testing.assert_array_equal(pass_counts(pilot, 0.01, 4096, 8, 200.0, 0.0), 8)
+    np.testing.assert_array_equal(pass_counts(pilot, 0.01, 4096, 8, 200.0, 0.0), 1)
 
 
 def test_tile_rule_takes_the_loops_gate():
