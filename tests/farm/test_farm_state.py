@@ -563,11 +563,9 @@ def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(s
     the tile takes samples."""
     import numpy as np
 
-    from renderer.film.adaptive import AIM, STOP_SLACK
+    from renderer.film.adaptive import AIM, PILOT, STOP_SLACK
     from renderer.film.buffer import SampleBuffer
     from services.farm.passes import adaptive_counts
-
-    from renderer.film.adaptive import PILOT
 
     rng = np.random.default_rng(4)
     plan = Plan(40, 16, 4096, 16, 32)  # 3 tiles (16, 16 and 8 px wide) x passes of 32
