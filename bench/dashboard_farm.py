@@ -86,6 +86,9 @@ class DashboardFarm:
         spp = changes.pop("spp", None)
         if spp:
             scene["render"]["spp"] = spp
+        target = changes.pop("target_error", None)
+        if target:
+            scene["render"]["target_error"] = target
         r = client.post("/api/jobs", json={"scene": scene, "name": example, **changes})
         r.raise_for_status()
         return r.json()

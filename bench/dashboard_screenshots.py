@@ -3,7 +3,8 @@
     .venv/bin/python -m bench.dashboard_screenshots [--out docs/images/dashboard]
 
 Renders a few example jobs (two done, one cancelled, one running and one queued at the shots),
-then saves jobs.png, job.png, workers.png, submit.png, submit-errors.png, methods.png and
+then saves jobs.png, job.png, job-done.png, job-target.png (a job with a target error, its tiles
+coloured by their estimated error), workers.png, submit.png, submit-errors.png, methods.png and
 phone-jobs.png / phone-job.png (390 px wide).
 """
 
@@ -34,6 +35,10 @@ def main() -> None:
         farm.wait(api, done["id"])
         glass = farm.submit(api, "glass_sphere", film=half, spp=32, tile_size=32)
         farm.wait(api, glass["id"])
+        # a job with a target error: its tiles coloured by their estimated error
+        target = farm.submit(api, "caustic_floor", film=half, spp=4096, target_error=0.01,
+                             tile_size=16)
+        farm.wait(api, target["id"])
         cancelled = farm.submit(api, "mirror_phong", film=half, spp_per_pass=4, tile_size=32)
         time.sleep(1.0)
         api.delete(f"/api/jobs/{cancelled['id']}")
@@ -53,6 +58,12 @@ def main() -> None:
         shot("jobs", "jobs")
         shot(f"job/{running['id']}", "job", wait=2.5, full=True)
         shot(f"job/{done['id']}", "job-done", full=True)
+        page.goto(f"{farm.url}/#/job/{target['id']}")
+        page.wait_for_timeout(1500)
+        page.select_option("#colour-by", "error")
+        page.wait_for_timeout(500)
+        page.screenshot(path=str(args.out / "job-target.png"), full_page=True)
+        print(args.out / "job-target.png")
         shot("workers", "workers")
         page.goto(f"{farm.url}/#/submit")
         page.select_option("#example", "cornell_box")
