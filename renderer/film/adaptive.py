@@ -102,31 +102,41 @@ def _window_sums_kernel(values, radius, rows, out):
     (2r+1)² − 1) and without a subtraction, so a pixel's own value never enters its sum, not
     even as a rounding residue: a firefly's variance cannot leak into its own estimate or wipe
     out its neighbours' small ones. Each row is one run of w·c values, an offset at a time, so
-    the additions vectorise; every sum still adds its terms in window order."""
+    the additions vectorise (on 1-D row views from 0: indexing the 2-D arrays at an offset, they
+    did not, 2.4x slower on a 64×48 frame of 9 channels); every sum still adds its terms in
+    window order."""
     h, w, channels = values.shape
     n = w * channels
     flat = values.reshape((h, n))
     row_sums = rows.reshape((h, n))
     sums = out.reshape((h, n))
     for y in range(h):
+        src = flat[y]
+        dst = row_sums[y]
         for j in range(n):
-            row_sums[y, j] = 0.0
+            dst[j] = 0.0
         for d in range(-radius, radius + 1):
             if d != 0:
-                shift = d * channels
-                for j in range(max(0, -d) * channels, min(w, w - d) * channels):
-                    row_sums[y, j] += flat[y, j + shift]
+                lo = max(0, -d) * channels
+                hi = min(w, w - d) * channels
+                into = dst[lo:hi]
+                add = src[lo + d * channels:hi + d * channels]
+                for j in range(hi - lo):
+                    into[j] += add[j]
     for y in range(h):
+        dst = sums[y]
         for j in range(n):
-            sums[y, j] = 0.0
+            dst[j] = 0.0
         for yy in range(max(0, y - radius), min(h, y + radius + 1)):
+            row = row_sums[yy]
             if yy != y:
+                own = flat[yy]
                 for j in range(n):
-                    sums[y, j] += row_sums[yy, j]
-                    sums[y, j] += flat[yy, j]
+                    dst[j] += row[j]
+                    dst[j] += own[j]
             else:
                 for j in range(n):
-                    sums[y, j] += row_sums[yy, j]
+                    dst[j] += row[j]
 
 
 def _moments(buf: SampleBuffer) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
