@@ -19,15 +19,6 @@ const TILE_COLOURS = { queued: "#5b6270", running: "#e0a526", converged: "#3a8fb
                        failed: "#d9453b" };
 
 // Samples per pixel -> colour: dark blue (none) to pale yellow (all planned), viridis-like.
-// A tile's estimated error on the ramp: 1/4 x the job's target at its dark end, 4 x at its
-// bright end, the target in the middle (log scale: the error falls as 1 / samples)
-const ERROR_SPAN = 4;
-function errorColour(ratio) {
-  return samplesColour((Math.log(ratio) / Math.log(ERROR_SPAN) + 1) / 2);
-}
-
-const digits3 = (x) => String(Number(Number(x).toPrecision(3)));
-
 function samplesColour(fraction) {
   const stops = [[38, 33, 92], [33, 120, 142], [63, 188, 115], [240, 230, 110]];
   const x = Math.max(0, Math.min(1, fraction)) * (stops.length - 1);
@@ -36,6 +27,15 @@ function samplesColour(fraction) {
   const c = stops[i].map((a, k) => Math.round(a + (stops[i + 1][k] - a) * t));
   return `rgb(${c.join(",")})`;
 }
+
+// A tile's estimated error on the ramp: 1/4 x the job's target at its dark end, 4 x at its
+// bright end, the target in the middle (log scale: the error falls as 1 / samples)
+const ERROR_SPAN = 4;
+function errorColour(ratio) {
+  return samplesColour((Math.log(ratio) / Math.log(ERROR_SPAN) + 1) / 2);
+}
+
+const digits3 = (x) => String(Number(Number(x).toPrecision(3)));
 
 export function renderJob(view, jobId) {
   let job = null;
