@@ -212,7 +212,7 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
     if compiled.target_error is not None:
         # Adaptive sampling: each pixel's share of this pass, from the tile's merged buffer
         counts = adaptive_counts(store, meta, tile, compiled.target_error, count)
-        if counts is not None and not counts.any():
+        if not counts.any():
             # Nothing to add under the frame's scale now: the pass is merged empty and the tile
             # waits, converged, with its later passes unsent (each pass of a target job queues
             # the next). Once no tile renders, settle_converged asks every converged tile again

@@ -419,12 +419,11 @@ def allocate(v: np.ndarray, target: float, have: np.ndarray, cap: int,
     if target <= 0:
         raise ValueError("target must be > 0")
     have = np.asarray(have, np.int64)
-    v = np.where(np.isfinite(v), np.maximum(v, 0.0), 0.0)
+    v = _finite_or_zero(v)
     lo = np.minimum(have, cap).astype(np.float64)
     c = np.ones(v.shape) if cost is None else np.maximum(np.asarray(cost, np.float64), 1e-9)
     root = np.sqrt(v / c)
-    ve = v if error_of is None else np.where(np.isfinite(error_of), np.maximum(error_of, 0.0),
-                                             0.0)
+    ve = v if error_of is None else _finite_or_zero(error_of)
 
     def counts(lam: float) -> np.ndarray:
         return np.clip(np.ceil(lam * root), lo, cap)
@@ -571,11 +570,22 @@ def least_scale(ve: np.ndarray, have: np.ndarray, root: np.ndarray, target: floa
     λ = S / (P·target − F) is tried in turn and the first inside its interval taken (the error
     falls with λ, so there is one)."""
     ve, have, root = (np.ascontiguousarray(a, np.float64).ravel() for a in (ve, have, root))
-    ve = np.where(np.isfinite(ve), np.maximum(ve, 0.0), 0.0)
-    with np.errstate(divide="ignore"):
-        t = np.where(root > 0, have / np.where(root > 0, root, 1.0), np.inf)
+    ve = _finite_or_zero(ve)
+    t = _crossings(have, root)
     return float(_least_scale_kernel(ve, have, root, t, np.argsort(t), float(target),
                                      np.empty(ve.size + 1)))
+
+
+def _finite_or_zero(a: np.ndarray) -> np.ndarray:
+    """``a`` with its NaNs, infinities and negative values as 0 (a variance that adds nothing)."""
+    return np.where(np.isfinite(a), np.maximum(a, 0.0), 0.0)
+
+
+def _crossings(have: np.ndarray, root: np.ndarray) -> np.ndarray:
+    """t_p = have_p / root_p, the scale λ at which λ root_p passes what the pixel has (inf where
+    root is 0): ``least_scale``'s order."""
+    with np.errstate(divide="ignore"):
+        return np.where(root > 0, have / np.where(root > 0, root, 1.0), np.inf)
 
 
 @kernel
@@ -624,14 +634,11 @@ def _gate(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have: np.
     counts = np.asarray(have).ravel()
     n = counts.size
     have_f = counts.astype(np.float64)
-    ve = np.ascontiguousarray(v_error, np.float64).ravel()
-    ve = np.where(np.isfinite(ve), np.maximum(ve, 0.0), 0.0)
-    v = np.ascontiguousarray(v, np.float64).ravel()
+    ve = _finite_or_zero(np.ascontiguousarray(v_error, np.float64).ravel())
     c = (np.ones(n) if cost is None
          else np.maximum(np.ascontiguousarray(cost, np.float64).ravel(), 1e-9))
-    root = np.sqrt(np.where(np.isfinite(v), np.maximum(v, 0.0), 0.0) / c)
-    with np.errstate(divide="ignore"):
-        t = np.where(root > 0, have_f / np.where(root > 0, root, 1.0), np.inf)
+    root = np.sqrt(_finite_or_zero(np.ascontiguousarray(v, np.float64).ravel()) / c)
+    t = _crossings(have_f, root)
     # (the even counts' order: by count, none needed where every pixel has the same)
     order_even = (np.arange(n) if n == 0 or counts.min() == counts.max()
                   else np.argsort(counts, kind="stable"))
@@ -662,22 +669,25 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     else:
         v = neighbour_variance(buf)
         own = sample_variance(buf)
-        if scale is not None and math.isfinite(scale):
-            want = allocate(v, AIM * target, count, cap, scale=scale)
+        framed = scale is not None and math.isfinite(scale)
+        if framed:
             # the tile's share of the frame's aim: its error, as its pixels' own variances price
             # it, at the frame's scale (the counts unrounded, as the gate compares them)
             with np.errstate(invalid="ignore"):
                 shaped = np.maximum(count, scale * np.sqrt(np.maximum(v, 0.0)))
             aim = float(np.mean(np.where(np.isfinite(own), own, 0.0) / shaped))
         else:
-            want = allocate(v, AIM * target, count, cap, error_of=own)
             aim = AIM * target
-        if aim > 0:
-            # The local loop's gate: even counts where the shape, priced by each pixel's own
-            # variance, would not reach the tile's aim with fewer samples
-            pays, m = _gate(v, None, own, count, aim)
-            if not pays and math.isfinite(m):
-                want = np.clip(np.ceil(m), count, cap).astype(np.int64)
+        # The local loop's gate: even counts where the shape, priced by each pixel's own
+        # variance, would not reach the tile's aim with fewer samples (the shaped counts are
+        # solved only where it does)
+        pays, m = _gate(v, None, own, count, aim) if aim > 0 else (True, math.inf)
+        if not pays and math.isfinite(m):
+            want = np.clip(np.ceil(m), count, cap).astype(np.int64)
+        elif framed:
+            want = allocate(v, AIM * target, count, cap, scale=scale)
+        else:
+            want = allocate(v, AIM * target, count, cap, error_of=own)
     return np.clip(want - count, 0, pass_samples).astype(np.int32)
 
 
@@ -696,6 +706,8 @@ def warm_up() -> None:
     buf.sum[:] = np.arange(16, dtype=np.float64).reshape(4, 4, 1)
     buf.sum_sq[:] = 2.0 * buf.sum * buf.sum + 1.0
     pass_counts(buf, 0.01, 64, 8)
+    # (the shaped counts' solve too, which pass_counts skips where its gate takes even counts)
+    allocate(neighbour_variance(buf), 0.01, buf.count, 64, error_of=sample_variance(buf))
     tile_summary(buf)
 
 

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from renderer.film.adaptive import PILOT, frame_scale, pass_counts
+from renderer.film.adaptive import frame_scale, pass_counts
 from renderer.film.buffer import SampleBuffer
 from services.farm.blocklist import no_eligible_reason
 from services.farm.merge import merge_pass
@@ -123,24 +123,24 @@ def pass_failed(store: JobStore, settings: Settings, delivery: Delivery, tile: i
 
 
 def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: float,
-                    pass_samples: int) -> np.ndarray | None:
+                    pass_samples: int) -> np.ndarray:
     """Adaptive sampling: the samples each pixel of the tile takes of this pass (``(h, w)``
     int32), a pure rule of the tile's merged buffer and the frame's scale from the job's tile
     summaries (``renderer.film.adaptive.pass_counts``, ``frame_scale``), nothing once the
     frame's estimated error from them (``JobMeta.expected_error``) is within the rule's slack of
-    its aim. Before the tile's first merge, the pilot: ``PILOT`` samples every pixel (at most
-    the pass and ``render.spp``), as the local loop's, not the whole first pass (a packet
-    scene's first pass of 32 samples took the Cornell box to 0.07x a target of 0.1)."""
+    its aim. Before the tile's first merge the rule sees an empty buffer and gives the pilot:
+    ``PILOT`` samples every pixel (at most the pass and ``render.spp``), as the local loop's,
+    not the whole first pass (a packet scene's first pass of 32 samples took the Cornell box to
+    0.07x a target of 0.1)."""
     data = store.tile_buffer(meta.id, tile)
-    if data is None:
-        _, _, w, h = meta.plan.tile_rect(tile)
-        return np.full((h, w), min(PILOT, pass_samples, meta.plan.spp), np.int32)
+    buf = (SampleBuffer.empty(*meta.plan.tile_rect(tile)) if data is None
+           else SampleBuffer.from_bytes(data))
     scale = None
     if meta.err_pixels >= meta.plan.width * meta.plan.height * meta.plan.frames:
         # Every pixel of the frames has an estimate: the frame-wide allocation
         scale = frame_scale(meta.weight_sum, meta.err_pixels, target_error)
-    return pass_counts(SampleBuffer.from_bytes(data), target_error, meta.plan.spp,
-                       pass_samples, scale, meta.expected_error)
+    return pass_counts(buf, target_error, meta.plan.spp, pass_samples, scale,
+                       meta.expected_error)
 
 
 def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
@@ -165,7 +165,7 @@ def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], Job
     for tile, pass_index in heads.items():
         counts = adaptive_counts(store, meta, tile, meta.target_error,
                                  meta.plan.sample_range(pass_index)[1])
-        if counts is not None and counts.any():
+        if counts.any():
             again.append((tile, pass_index))
     if again:
         for tile, _ in again:
