@@ -155,13 +155,17 @@ def cmd_render(args: argparse.Namespace) -> int:
                             plan=plan if compiled.target_error is not None else None)
         seconds = time.perf_counter() - t0
     _write_render(args, out, compiled, buf, aovs, threads)
-    if compiled.target_error is not None:
-        from renderer.film.adaptive import stopping_error
+    from renderer.film.adaptive import stopping_error
 
+    if compiled.target_error is not None:
         print(f"reached: expected relMSE {stopping_error(buf):.3g} (target "
               f"{compiled.target_error:g}), {buf.count.mean():.0f} spp a pixel on average "
               f"({int(buf.count.min())}–{int(buf.count.max())})", file=sys.stderr)
         total = int(buf.count.sum() + buf.dropped.sum())
+    elif buf.count.size and int(buf.count.min()) >= 2:
+        # (the same estimate from each pixel's own samples: what a target would stop on)
+        print(f"expected relMSE {stopping_error(buf):.3g} (estimated from the samples' "
+              f"variance)", file=sys.stderr)
     dropped = buf.total_dropped
     print(
         f"wrote {out}: {total / seconds:,.0f} samples/s over {seconds:.2f} s"

@@ -222,6 +222,11 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
     print(f"job {job['id']} done in {time.perf_counter() - t0:.1f} s"
           + (f"; {job['dropped_samples']} non-finite samples dropped"
              if job["dropped_samples"] else ""), file=sys.stderr)
+    if job.get("expected_error") is not None:  # (its samples' estimate; none below 2 a pixel)
+        target = job.get("target_error")
+        print(f"expected relMSE {job['expected_error']:.3g}"
+              + (f" (target {target:g})" if target is not None else
+                 " (estimated from the samples' variance)"), file=sys.stderr)
     frames = job.get("frames", 1)
     for output in outputs:
         for frame in range(frames):

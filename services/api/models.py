@@ -67,8 +67,8 @@ class TilePublic(BaseModel):
     samples: int = Field(description="samples per pixel merged")
     error: str | None = None
     expected_error: float | None = Field(
-        default=None, description="a job with a target: the tile's expected relMSE from its "
-                                  "merged samples (the mean of its pixels' error terms), once "
+        default=None, description="the tile's expected relMSE from its merged samples (the mean "
+                                  "of its pixels' error terms, docs/adaptive-sampling.md), once "
                                   "a merge has given its pixels 2 samples")
 
 
@@ -116,9 +116,9 @@ class JobPublic(BaseModel):
         default=None, description="the scene's render.target_error: the frame's expected relMSE "
                                   "asked for (docs/adaptive-sampling.md)")
     expected_error: float | None = Field(
-        default=None, description="a job with a target: the frames' expected relMSE estimated "
-                                  "from the samples merged so far, once every pixel has one "
-                                  "(the quantity target_error bounds)")
+        default=None, description="the frames' expected relMSE estimated from the samples "
+                                  "merged so far, once every pixel has 2 (the quantity "
+                                  "target_error bounds; any job has it)")
     waiting_for: str | None = Field(
         default=None, description="queued or running with no live worker that has its tags: "
                                   "'waiting for a worker with tags gpu'")

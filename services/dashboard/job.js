@@ -28,14 +28,30 @@ function samplesColour(fraction) {
   return `rgb(${c.join(",")})`;
 }
 
-// A tile's estimated error on the ramp: 1/4 x the job's target at its dark end, 4 x at its
-// bright end, the target in the middle (log scale: the error falls as 1 / samples)
+// A tile's estimated error on the ramp: 1/4 x the middle at its dark end, 4 x at its bright end
+// (log scale: the error falls as 1 / samples); the middle is the job's target, or for a job
+// without one the frames' estimate (errorCentre)
 const ERROR_SPAN = 4;
 function errorColour(ratio) {
   return samplesColour((Math.log(ratio) / Math.log(ERROR_SPAN) + 1) / 2);
 }
 
 const digits3 = (x) => String(Number(Number(x).toPrecision(3)));
+
+// The ramp's middle: the target; without one the frames' estimate, or before every pixel has
+// one the pixel-weighted mean of the tiles' estimates so far; null when no tile has one
+function errorCentre(job) {
+  if (job.target_error != null) return job.target_error;
+  if (job.expected_error != null) return job.expected_error;
+  let sum = 0;
+  let pixels = 0;
+  for (const t of job.tile_states) {
+    if (t.expected_error == null) continue;
+    sum += t.expected_error * t.width * t.height;
+    pixels += t.width * t.height;
+  }
+  return pixels && sum > 0 ? sum / pixels : null;
+}
 
 export function renderJob(view, jobId) {
   let job = null;
@@ -159,12 +175,13 @@ export function renderJob(view, jobId) {
     // a job of frames: the tiles of the frame the preview shows (the legend counts them all)
     const shownTiles = job.tile_states.filter((t) => (t.frame ?? 0) === frame);
     grid.setAttribute("aria-label", `${shownTiles.length} tiles coloured by ${colourBy}`);
+    const centre = errorCentre(job);
     const cells = shownTiles.map((t) => {
       const estimate = t.expected_error == null ? ""
         : `, estimated relMSE ${digits3(t.expected_error)}`;
       const fill = colourBy === "state" ? TILE_COLOURS[t.state] || "#888"
         : colourBy === "samples" ? samplesColour(t.samples / job.spp)
-          : t.expected_error == null ? "#888" : errorColour(t.expected_error / job.target_error);
+          : t.expected_error == null ? "#888" : errorColour(t.expected_error / centre);
       return h("div", {
         class: `tile t-${t.state}${t.error ? " has-error" : ""}`,
         dataset: { index: t.index, state: t.state, samples: t.samples,
@@ -185,11 +202,12 @@ export function renderJob(view, jobId) {
         .filter(([s]) => s !== "converged" || counts[s]).map(([s, c]) =>
         h("span", {}, h("i", { style: `background:${c}` }), `${s} ${counts[s] || 0}`)));
     } else if (colourBy === "error") {
-      legend.replaceChildren(h("span", {}, `${digits3(job.target_error / ERROR_SPAN)}`),
+      const middle = job.target_error != null ? `target ${job.target_error}`
+        : `the frame's estimate ${digits3(centre)}`;
+      legend.replaceChildren(h("span", {}, `${digits3(centre / ERROR_SPAN)}`),
         h("i", { class: "ramp", style: `background:linear-gradient(90deg,${
           [0.25, 0.5, 1, 2, 4].map(errorColour).join(",")})` }),
-        h("span", {}, `${digits3(job.target_error * ERROR_SPAN)} relMSE (target `
-          + `${job.target_error} mid-ramp)`));
+        h("span", {}, `${digits3(centre * ERROR_SPAN)} relMSE (${middle} mid-ramp)`));
     } else {
       legend.replaceChildren(h("span", {}, "0 spp"),
         h("i", { class: "ramp", style: `background:linear-gradient(90deg,${
@@ -239,10 +257,17 @@ export function renderJob(view, jobId) {
     return j.status === "done" ? `${asked} · reached ${est} (estimated)` : `${asked} · now ${est}`;
   }
 
+  // A job without a target: the frames' expected relMSE from the samples merged so far
+  function estimateText(j) {
+    const est = `relMSE ${digits3(j.expected_error)}`;
+    return j.status === "done" ? est : `${est} so far`;
+  }
+
   function render() {
-    // (tiles coloured by their estimated error: a job with a target has them)
-    errorOption.hidden = job.target_error == null;
-    if (job.target_error == null && colourBy === "error") {
+    // (tiles coloured by their estimated error: once a merge has given a tile's pixels 2
+    // samples; the farm estimates every job's)
+    errorOption.hidden = errorCentre(job) == null;
+    if (errorOption.hidden && colourBy === "error") {
       colourBy = colourSel.value = "state";
     }
     title.textContent = job.name || `Job ${job.id.slice(0, 8)}`;
@@ -258,7 +283,8 @@ export function renderJob(view, jobId) {
           ? `${job.spp_per_pass}–${job.largest_pass} spp a pass)`
           : `${job.spp_per_pass} spp a pass)`)],
       ["Passes merged", `${job.tasks_merged} / ${job.tasks_total}`],
-      ...(job.target_error == null ? [] : [["Target error", targetText(job)]]),
+      ...(job.target_error != null ? [["Target error", targetText(job)]]
+        : job.expected_error != null ? [["Estimated error", estimateText(job)]] : []),
       ...(job.denoise ? [["Denoise", "once done, with Open Image Denoise (the noisy image "
         + "kept as image.exr's noisy layer)"]] : []),
       ["Samples/s", fmtRate(job.samples_per_second)],

@@ -14,7 +14,7 @@ Key                                Type    What
                                            failed
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
-``{p}:job:{id}:tile_err``          hash    tile -> its error summary (a job with a target)
+``{p}:job:{id}:tile_err``          hash    tile -> its error summary (``tile_summary``)
 ``{p}:job:{id}:attempts``          hash    ``tile:pass`` -> deliveries (the redelivery cap)
 ``{p}:job:{id}:merged``            set     ``tile:pass`` merged into the accumulation
 ``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (``to_bytes``)
@@ -248,7 +248,7 @@ def _plan_fields(plan: Plan) -> dict[str, Any]:
             "frames": plan.frames, "tasks_total": plan.n_tasks}
 
 
-# A job with a target: the job-hash fields that sum its tiles' error summaries, in the order of
+# The job-hash fields that sum its tiles' error summaries, in the order of
 # ``renderer.film.adaptive.tile_summary``'s tuple, and a summary as its ``tile_err`` entry
 ERROR_SUMS = ("err_sum", "weight_sum", "err_pixels")
 
@@ -327,7 +327,7 @@ class JobMeta:
     tags: tuple[str, ...] = ()  # the worker tags it requires (services.farm.pools)
     denoise: bool = False  # its done image denoised (services.farm.archive.frame_exr)
     # render.target_error, and the sums of its tiles' summaries (renderer.film.adaptive
-    # tile_summary, kept by the merge): the frame's scale and expected error
+    # tile_summary, kept by every merge): a target job's scale, and every job's expected error
     target_error: float | None = None
     err_sum: float = 0.0
     weight_sum: float = 0.0
@@ -336,8 +336,8 @@ class JobMeta:
     @property
     def expected_error(self) -> float | None:
         """The frames' expected relMSE from their merged samples (the quantity target_error
-        bounds), once every pixel has an estimate; else None (also for a job without a target
-        that no merge summarised)."""
+        bounds; every job's merges keep it), once every pixel has an estimate (2 samples); else
+        None."""
         pixels = self.plan.width * self.plan.height * self.plan.frames
         if self.err_pixels < pixels or pixels == 0:
             return None
@@ -699,19 +699,18 @@ class JobStore:
             "denoise": "1" if meta.denoise else "",
             "target_error": "" if meta.target_error is None else meta.target_error,
         }
+        # The tiles' error summaries and the job's sums of them, as the merges kept them: each a
+        # pure function of the tile's merged buffer, so computed again here rather than carried
+        # in the snapshot (the next merge of a tile replaces its summary and adds the change;
+        # without them a target job's scale, and any job's estimate, would start from nothing)
         summaries: dict[str, str] = {}
-        if meta.target_error is not None:
-            # The tiles' error summaries and the job's sums of them, as the merges kept them:
-            # each a pure function of the tile's merged buffer, so computed again here rather
-            # than carried in the snapshot (the next merge of a tile replaces its summary and
-            # adds the change; without them the frame's scale would start from nothing)
-            sums = [0.0] * len(ERROR_SUMS)
-            for t, data in enumerate(snap.tile_buffers):
-                if data is not None:
-                    summary = tile_summary(SampleBuffer.from_bytes(data))
-                    summaries[str(t)] = _summary_text(summary)
-                    sums = [a + b for a, b in zip(sums, summary, strict=True)]
-            fields.update(zip(ERROR_SUMS, sums, strict=True))
+        sums = [0.0] * len(ERROR_SUMS)
+        for t, data in enumerate(snap.tile_buffers):
+            if data is not None:
+                summary = tile_summary(SampleBuffer.from_bytes(data))
+                summaries[str(t)] = _summary_text(summary)
+                sums = [a + b for a, b in zip(sums, summary, strict=True)]
+        fields.update(zip(ERROR_SUMS, sums, strict=True))
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(meta.id), mapping=fields)
         if summaries:
@@ -753,8 +752,11 @@ class JobStore:
             out["denoise"] = True
         if meta is not None and meta.target_error is not None:
             out["target_error"] = meta.target_error
+        if meta is not None and meta.expected_error is not None:
             out["expected_error"] = meta.expected_error
-            out["estimates"] = {str(t): e for t, e in self.tile_estimates(job_id).items()}
+        estimates = self.tile_estimates(job_id)
+        if estimates:
+            out["estimates"] = {str(t): e for t, e in estimates.items()}
         blocklist = self.blocklist(job_id)
         if blocklist:
             out["blocklist"] = blocklist
@@ -780,7 +782,7 @@ class JobStore:
                                              dict[int, str], dict[str, int],
                                              dict[int, float]] | None:
         """The job, its tiles' states, samples and errors, its blocklist (node -> failed
-        passes), and for a job with a target its tiles' estimated errors (``tile_estimates``),
+        passes), and its tiles' estimated errors (``tile_estimates``),
         as one snapshot in one round trip (what a status answer shows); None for an unknown
         job."""
         pipe = self.r.pipeline()
@@ -798,7 +800,7 @@ class JobStore:
                 _estimates(summaries))
 
     def tile_estimates(self, job_id: str) -> dict[int, float]:
-        """A job with a target: each tile's expected relMSE from its merged samples, the mean of
+        """Each tile's expected relMSE from its merged samples, the mean of
         its pixels' error terms (its ``tile_err`` summary: Σ e_p over the pixels with 2 samples
         or more, over their number), for the tiles whose summary counts a pixel."""
         return _estimates(self.r.hgetall(self.k("job", job_id, "tile_err")))
@@ -946,7 +948,7 @@ class JobStore:
                     pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
                     put = ("", b"") if data is None or ttl is None else (int(ttl * 1000), data)
                     ttl = None  # stored by the first read; a retry after a conflict need not
-                    (is_merged, stored, (status, spp, target, total), acc_bytes, tile_samples,
+                    (is_merged, stored, (status, spp, _target, total), acc_bytes, tile_samples,
                      tile_state, old_summary) = pipe.eval(
                         _MERGE_READ, 8, merged_key, pass_key, job_key, acc_key, samples_key,
                         state_key, err_key, self.k("pending"), member, str(tile),
@@ -981,13 +983,12 @@ class JobStore:
                     # "running" means a pass of the tile is rendering now: a tile that has more
                     # passes to come goes back to queued (not a failed tile: that stays failed)
                     requeue = not tile_done and _s(tile_state) == "running"
-                    # A job with a target: the tile's error summary, and the change to the job's
-                    # sums (its old summary read under the same WATCH of the tile's buffer)
-                    summary = delta = None
-                    if _s(target):
-                        summary = tile_summary(acc)
-                        before = _summary_values(_s(old_summary))
-                        delta = [new - was for new, was in zip(summary, before, strict=True)]
+                    # The tile's error summary, and the change to the job's sums (its old
+                    # summary read under the same WATCH of the tile's buffer): a job with a
+                    # target allocates by them, and every job reports its estimated error
+                    summary = tile_summary(acc)
+                    before = _summary_values(_s(old_summary))
+                    delta = [new - was for new, was in zip(summary, before, strict=True)]
                     pipe.multi()
                     pipe.set(acc_key, acc.to_bytes())
                     pipe.sadd(merged_key, member)
@@ -1004,10 +1005,9 @@ class JobStore:
                     pipe.hincrby(job_key, "dropped", int(buf.dropped.sum()))
                     pipe.hincrby(job_key, "version", 1)
                     pipe.hset(job_key, "active_at", time.time())  # the stall clock restarts
-                    if summary is not None and delta is not None:
-                        pipe.hset(err_key, str(tile), _summary_text(summary))
-                        for name, d in zip(ERROR_SUMS, delta, strict=True):
-                            pipe.hincrbyfloat(job_key, name, d)
+                    pipe.hset(err_key, str(tile), _summary_text(summary))
+                    for name, d in zip(ERROR_SUMS, delta, strict=True):
+                        pipe.hincrbyfloat(job_key, name, d)
                     replies = pipe.execute()
                     break
                 except redis.WatchError:

@@ -374,13 +374,7 @@ def test_a_preview_fetched_after_its_answer_is_labelled_by_the_next(dashboard, p
     again (or finished) between the two serves the later image, whose ETag the next answer's
     merge then matches (304): the page labels the image with that merge, not the first. Made
     here by giving the page's first answer of a done job an earlier merge."""
-    scene = json.loads((ROOT / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
-    scene["film"] = {"width": 32, "height": 24}
-    scene["render"]["spp"] = 16
-    r = api.post("/api/jobs", json={"scene": scene, "spp_per_pass": 8, "tile_size": 16})
-    assert r.status_code == 201, r.text
-    job_id = r.json()["id"]
-    api_wait(api, job_id, "done")
+    job_id = small_done_job(api)
     version = api.get(f"/api/jobs/{job_id}").json()["image_version"]
     assert version > 1
     answers = []
@@ -398,9 +392,46 @@ def test_a_preview_fetched_after_its_answer_is_labelled_by_the_next(dashboard, p
         f"document.querySelector('#preview').dataset.version === '{version}'", timeout=15_000)
     assert answers[0] == 1
     assert page.inner_text("#preview-note").startswith(f"Merge {version}: ")
-    # (a job without a target has no tile estimates to colour by)
-    assert page.eval_on_selector("#colour-by option[value=error]", "o => o.hidden")
     page.unroute(f"**/api/jobs/{job_id}")
+    no_page_errors(page)
+
+
+def test_a_job_without_a_target_shows_its_estimated_error(dashboard, page, api):
+    """Every job's merges estimate its error: a job without a target gives the frames' expected
+    relMSE as a fact, and its tiles can be coloured by their estimates on a ramp whose middle
+    is the frame's. A job nothing was merged into has no estimate to colour by."""
+    import uuid
+
+    from services.farm.planner import Plan
+
+    job_id = small_done_job(api)
+    job = api.get(f"/api/jobs/{job_id}").json()
+    assert job["target_error"] is None and job["expected_error"] > 0
+    page.goto(f"{dashboard.url}/#/job/{job_id}")
+    page.wait_for_selector("#job-status .badge.s-done")
+    facts = dict(zip(page.locator("#job-facts dt").all_inner_texts(),
+                     page.locator("#job-facts dd").all_inner_texts(), strict=True))
+    estimate = repr(float(f"{job['expected_error']:.3g}"))
+    assert facts["Estimated error"] == f"relMSE {estimate}" and "Target error" not in facts
+    assert not page.eval_on_selector("#colour-by option[value=error]", "o => o.hidden")
+    page.select_option("#colour-by", "error")
+    assert page.inner_text("#tile-legend").endswith(
+        f"relMSE (the frame's estimate {estimate} mid-ramp)")
+    shown = page.eval_on_selector_all(
+        "#tile-grid .tile", "ts => ts.map(t => [Number(t.dataset.estimate), t.style.background])")
+    assert [e for e, _ in shown] == pytest.approx([t["expected_error"] for t in job["tile_states"]])
+    # (the tiles' estimates differ, and so do their colours)
+    assert len({e for e, _ in shown}) == len(shown) == len({c for _, c in shown}) > 1
+
+    store = dashboard.store()
+    empty = uuid.uuid4().hex
+    store.create_job(empty, "nothing merged", 0, Plan(16, 16, 4, 8, 4), b"{}")
+    page.goto(f"{dashboard.url}/#/job/{empty}")
+    page.wait_for_selector("#job-facts dt")
+    assert page.eval_on_selector("#colour-by option[value=error]", "o => o.hidden")
+    facts = page.locator("#job-facts dt").all_inner_texts()
+    assert "Estimated error" not in facts and "Target error" not in facts
+    store.cancel_job(empty)
     no_page_errors(page)
 
 
@@ -411,6 +442,19 @@ def test_the_api_process_survives(dashboard):
 
 
 # --- helpers --------------------------------------------------------------------------------------
+
+
+def small_done_job(api) -> str:
+    """The example scene at 32×24, 16 spp in 2 passes of 8 and 16-px tiles, submitted and
+    rendered: its job id."""
+    scene = json.loads((ROOT / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
+    scene["film"] = {"width": 32, "height": 24}
+    scene["render"]["spp"] = 16
+    r = api.post("/api/jobs", json={"scene": scene, "spp_per_pass": 8, "tile_size": 16})
+    assert r.status_code == 201, r.text
+    job_id = r.json()["id"]
+    api_wait(api, job_id, "done")
+    return job_id
 
 
 def api_wait(api, job_id, status, timeout=60.0):

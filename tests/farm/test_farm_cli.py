@@ -51,6 +51,8 @@ def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_sce
             timeout=240)
         assert done.returncode == 0, done.stderr
         assert np.load(out).shape == (24, 32, 3) and np.load(out).any()
+        # the job's expected relMSE, estimated from its samples (it has no target)
+        assert "(estimated from the samples' variance)" in done.stderr, done.stderr
         children = psutil.Process(up.pid).children(recursive=True)
         names = {c.name() for c in children}
         assert any("redis" in n for n in names), names  # embedded Redis

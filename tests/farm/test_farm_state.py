@@ -169,7 +169,7 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
         assert [float(x) for x in restored[t].split()] == pytest.approx(
             [float(x) for x in summary.split()], rel=1e-12)
 
-    # A snapshot of a job without a target restores without one, and no summaries
+    # A job without a target restores without one, with its summaries (its estimate) too
     plain = uuid.uuid4().hex
     store.create_job(plain, "", 0, plan, b"{}", {}, time.time())
     snap = store.snapshot(plain)
@@ -177,12 +177,29 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
     assert store.get_job(plain).target_error is None
     assert not store.r.exists(store.k("job", plain, "tile_err"))
+    for t in (0, 1):
+        buf = SampleBuffer.empty(*plan.tile_rect(t))
+        x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
+        store.put_pass(plain, t, 0, buf.to_bytes(), ttl=60)
+        assert store.merge_pass_buffer(plain, t, 0)
+    before = store.get_job(plain)
+    snap = store.snapshot(plain)
+    assert before.expected_error is not None
+    assert store.delete_job(plain, statuses=("queued", "running"))
+    store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
+    after = store.get_job(plain)
+    assert after.target_error is None
+    assert after.expected_error == pytest.approx(before.expected_error, rel=1e-12)
+    assert store.tile_estimates(plain).keys() == {0, 1}
 
 
-def test_a_target_job_reports_each_tiles_estimate_while_in_redis_and_archived(store):
+@pytest.mark.parametrize("target", [0.02, None])
+def test_a_job_reports_each_tiles_estimate_while_in_redis_and_archived(store, target):
     """Each tile's estimated error (the status answer's ``tile_states[].expected_error``) is the
     mean of its pixels' error terms in its merged buffer, in the job's view while Redis holds it
-    and in the tiles' summary its record keeps once archived; a job without a target has
+    and in the tiles' summary its record keeps once archived, with a target or without; over
+    the frame's pixels they make the job's estimate. A job nothing was merged into has
     none."""
     import numpy as np
 
@@ -192,7 +209,7 @@ def test_a_target_job_reports_each_tiles_estimate_while_in_redis_and_archived(st
     rng = np.random.default_rng(3)
     plan = Plan(40, 16, 64, 16, 8)  # 3 tiles (16, 16 and 8 px wide) x 8 passes of 8
     job_id = uuid.uuid4().hex
-    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02)
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=target)
     merged = {}
     for t in (0, 2):  # (tile 1 merges nothing: no estimate)
         for p in range(2):
@@ -209,12 +226,25 @@ def test_a_target_job_reports_each_tiles_estimate_while_in_redis_and_archived(st
     assert view is not None and view[5].keys() == {0, 2}
     for t, e in want.items():
         assert view[5][t] == pytest.approx(e, rel=1e-12)
-    final = store.tiles_final(job_id, plan.n_tiles)["estimates"]
-    assert {int(t): e for t, e in final.items()} == view[5]
+    final = store.tiles_final(job_id, plan.n_tiles)
+    assert {int(t): e for t, e in final["estimates"].items()} == view[5]
+    assert view[0].expected_error is None and "expected_error" not in final  # tile 1: none
+    assert ("target_error" in final) == (target is not None)
+    # tile 1's first pass: every pixel has an estimate, the job's is their pixels' mean
+    buf = SampleBuffer.empty(*plan.tile_rect(1))
+    x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
+    buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
+    store.put_pass(job_id, 1, 0, buf.to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(job_id, 1, 0)
+    merged[1] = buf
+    frame = np.concatenate([error_terms(merged[t]).ravel() for t in range(3)])
+    assert store.get_job(job_id).expected_error == pytest.approx(frame.mean(), rel=1e-12)
+    assert store.tiles_final(job_id, plan.n_tiles)["expected_error"] == pytest.approx(
+        frame.mean(), rel=1e-12)
 
-    plain = uuid.uuid4().hex
-    store.create_job(plain, "", 0, plan, b"{}", {}, time.time())
-    assert store.job_view(plain)[5] == {} and "estimates" not in store.tiles_final(plain, 3)
+    nothing = uuid.uuid4().hex
+    store.create_job(nothing, "", 0, plan, b"{}", {}, time.time(), target_error=target)
+    assert store.job_view(nothing)[5] == {} and "estimates" not in store.tiles_final(nothing, 3)
 
 
 def test_a_tile_summary_of_the_earlier_rule_is_taken_back_out(store):

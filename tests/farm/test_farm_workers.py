@@ -57,6 +57,18 @@ def test_job_equals_the_local_render(farm, farm_client, wait_for_job, tiny_scene
     assert {t["state"] for t in job["tile_states"]} == {"done"}
     assert {t["samples"] for t in job["tile_states"]} == {16}
     _assert_complete(farm, job["id"], tiny_scene, _image(farm_client, job["id"]))
+    # A job without a target reports its estimated error too: each tile's, the mean of its
+    # merged buffer's error terms (its summary kept over several merges, as its whole), and
+    # over the frame's pixels they make the job's
+    store = farm.store()
+    assert job["target_error"] is None
+    for t in job["tile_states"]:
+        terms = error_terms(SampleBuffer.from_bytes(store.tile_buffer(job["id"], t["index"])))
+        assert t["expected_error"] == pytest.approx(terms.mean(), rel=1e-9)
+    pixels = sum(t["width"] * t["height"] for t in job["tile_states"])
+    assert job["expected_error"] == pytest.approx(sum(
+        t["expected_error"] * t["width"] * t["height"] for t in job["tile_states"]) / pixels,
+        rel=1e-9)
     # ETag: a poller gets 304 while nothing changes.
     png = farm_client.get(f"/api/jobs/{job['id']}/image.png")
     assert png.headers["content-type"] == "image/png" and png.content[:4] == b"\x89PNG"

@@ -140,6 +140,24 @@ def test_render_with_a_target_says_the_plan_and_what_it_reached(tmp_path, capsys
     assert 0 < reached <= 0.05
 
 
+def test_render_without_a_target_says_its_expected_error(tmp_path, capsys):
+    """Every render with 2 samples a pixel or more reports the frame's expected relMSE estimated
+    from its samples (``stopping_error``, what a target would stop on); one of 1 sample a pixel
+    knows none and says nothing."""
+    from renderer.film.adaptive import stopping_error
+    from renderer.render import render_buffer
+
+    scene = small_scene(tmp_path)
+    assert main(["render", str(scene), "-o", str(tmp_path / "x.npy"), "--spp", "16", "-q"]) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines()
+                if x.startswith("expected relMSE"))
+    assert line.endswith("(estimated from the samples' variance)")
+    want = stopping_error(render_buffer(compile_scene(load_scene_file(scene)), 16))
+    assert float(line.split()[2]) == float(f"{want:.3g}") and want > 0
+    assert main(["render", str(scene), "-o", str(tmp_path / "y.npy"), "--spp", "1", "-q"]) == 0
+    assert "relMSE" not in capsys.readouterr().err
+
+
 def test_console_script_runs_in_a_fresh_process(tmp_path):
     """The installed entry point, end to end, with a mesh read from a file next to the scene."""
     (tmp_path / "tri.obj").write_text("v -0.5 -0.5 0\nv 0.5 -0.5 0\nv 0 0.5 0\nf 1 2 3\n")
