@@ -14,6 +14,7 @@ import hashlib
 import json
 import sys
 import time
+import uuid
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -87,16 +88,23 @@ class Client:
     def _request(self, method: str, path: str, **kwargs: Any) -> httpx.Response:
         """The response, once the server is available; tries again with backoff meanwhile.
 
-        A submission is sent again too: a 503 means it was refused before the job was stored
-        (the store call failed), and a refused connection means it never arrived."""
+        A submission is sent again too, with the ``Idempotency-Key`` it was first sent with: a
+        job it made already (its answer a 503 after the job was stored, or lost on the way) is
+        the answer, not a second job. So a request with that header is sent again after a
+        timeout too; another is not (a slow answer may still have done what it asked)."""
         tries = 0
         since = time.monotonic()
+        keyed = "Idempotency-Key" in kwargs.get("headers", {})
+        again: tuple[type[Exception], ...] = (httpx.ConnectError, httpx.RemoteProtocolError,
+                                              httpx.ReadError)
+        if keyed:
+            again += (httpx.TimeoutException,)
         while True:
             try:
                 r = self.http.request(method, path, **kwargs)
-            except (httpx.ConnectError, httpx.RemoteProtocolError, httpx.ReadError) as err:
-                # Not sent, or a connection the server closed as it went away (not a timeout:
-                # a slow answer to a submission may still have created the job).
+            except again as err:
+                # Not sent, a connection the server closed as it went away, or (a request
+                # that can be repeated) no answer in time
                 why = f"cannot reach the server ({type(err).__name__}: {err})"
                 retry_after = 0.0
             else:
@@ -125,7 +133,9 @@ class Client:
         return str(r.json()["asset"])
 
     def submit(self, scene: dict, **options: Any) -> dict:
-        r = self._request("POST", "/api/jobs", json={"scene": scene, **options})
+        """Submit a job (one ``Idempotency-Key`` for all of this call's tries: one job)."""
+        r = self._request("POST", "/api/jobs", json={"scene": scene, **options},
+                          headers={"Idempotency-Key": uuid.uuid4().hex})
         if r.status_code == 422:
             raise ValueError("\n".join(
                 f"{'.'.join(map(str, d['loc'][2:])) or d['loc']}: {d['msg']}"

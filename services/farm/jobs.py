@@ -9,7 +9,9 @@ of its own for large bodies).
 never more than the scene's spp; the largest pass as asked, else the default but never below the
 first), plans tiles × passes, refuses a plan over the task limit or the cost limits
 (``services.farm.cost``), writes the job's record (``services.farm.records``), creates the job in
-the store and queues its passes.
+the store and queues its passes. A submission with an ``Idempotency-Key`` that a job's record
+holds already is that job (``Replayed``), not a new one: a client that sends a submission again
+(its answer lost, a 503, a timeout) gets one job.
 
 The route (``services/api/routes/jobs.py``) only turns a ``Refusal`` into its HTTP answer.
 """
@@ -34,7 +36,7 @@ from services.farm.frames import PatchError, apply_patch
 from services.farm.planner import Plan, chain_heads, default_tile_size
 from services.farm.pools import live_tag_sets, waiting_for
 from services.farm.queue import enqueue
-from services.farm.records import Records, RecordsUnavailable
+from services.farm.records import Records, RecordsUnavailable, Submission
 from services.farm.settings import Settings
 from services.farm.store import JobMeta, JobStore
 
@@ -59,6 +61,25 @@ class Refusal:
     status: int
     errors: list[tuple[Loc, str, str]]
     headers: dict[str, str] | None = field(default=None)
+
+
+@dataclass(frozen=True)
+class Replayed:
+    """A submission sent again: its ``Idempotency-Key`` found the job the first one made (the
+    job as it is now); nothing new is queued."""
+
+    meta: JobMeta
+
+
+def _replayed(store: JobStore, prior: JobMeta, digest: str | None,
+              submission: Submission) -> Replayed | Refusal:
+    """The answer to a submission whose key ``prior``'s record holds: that job, if the body is
+    the same; else a 422 on the key (one key, one request)."""
+    if digest != submission.digest:
+        return Refusal(422, [(["header", "Idempotency-Key"],
+                              f"this key was sent before with another request (job {prior.id}): "
+                              "a new request needs a new key", "value_error")])
+    return Replayed(store.get_job(prior.id) or prior)
 
 
 @dataclass(frozen=True)
@@ -160,9 +181,13 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
 
 
 def queue_job(store: JobStore, records: Records, celery: Celery, settings: Settings,
-              options: JobOptions, scene: CheckedScene,
-              submitter: str | None = None) -> JobMeta | Refusal:
-    """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal."""
+              options: JobOptions, scene: CheckedScene, submitter: str | None = None,
+              submission: Submission | None = None) -> JobMeta | Replayed | Refusal:
+    """Plan and queue a job, or say why not; nothing is queued when the answer is a Refusal.
+    ``submission``: the request's ``Idempotency-Key`` (``records.request_key``) and body digest;
+    a job whose record holds that key is the answer (``Replayed``), before any limit."""
+    if submission is not None and (prior := records.by_request(submission.key)) is not None:
+        return _replayed(store, *prior, submission)
     # The default passes of a scene the workers' packet kernel covers (asked by check_scene on
     # a farm of packet workers) are as many times larger as that kernel is faster: a task as
     # long, its fixed cost as small a share
@@ -214,7 +239,9 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     # unrecorded; with Redis away after it, the record goes again (the sweeper would fail it).
     created = JobMeta.new(job_id, options.name, options.priority, plan, scene.methods,
                           time.time(), submitter, options.tags, options.denoise)
-    records.create(created)
+    prior = records.create(created, submission)
+    if prior is not None and submission is not None:
+        return _replayed(store, *prior, submission)  # the same request at the same moment
     try:
         meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
                                 scene.methods, created.created_at, submitter, options.tags,

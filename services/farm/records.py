@@ -29,6 +29,10 @@ timings                ``created_at``, ``started_at``, ``finished_at`` (Unix sec
 ``frames``             its frames (``services.farm.frames``); NULL for one. Once archived,
                        ``tiles`` lists each frame's images (``frame_images``)
 ``pass_growth``        how its passes grow (``services.farm.planner``); NULL for 1
+``request_key``        the ``Idempotency-Key`` it was submitted with, scoped to its submitter
+                       (``request_key``; unique): a submission sent again finds this job
+``request_digest``     the SHA-256 of that submission's body (the same key with another body
+                       is refused)
 =====================  ========================================================================
 
 ``job_counts`` holds the number of jobs of each status, kept by triggers on ``jobs`` (a listing's
@@ -49,6 +53,7 @@ from __future__ import annotations
 
 import contextlib
 import fcntl
+import hashlib
 import json
 import threading
 import time
@@ -119,12 +124,15 @@ jobs = Table(
     Column("tags", String(300)),
     Column("frames", Integer),
     Column("pass_growth", Integer),
+    Column("request_key", String(64)),
+    Column("request_digest", String(64)),
     Index("jobs_created_at", "created_at", "id"),
     Index("jobs_status_created_at", "status", "created_at", "id"),
     Index("jobs_finished_at", "finished_at"),
     Index("jobs_image_exr", "image_exr"),
     Index("jobs_image_png", "image_png"),
     Index("jobs_state_blob", "state_blob"),
+    Index("jobs_request_key", "request_key", unique=True),
 )
 
 # Jobs by status, kept by triggers on ``jobs`` (migration 0002).
@@ -154,6 +162,21 @@ LOST_AFTER = 10.0
 
 class RecordsUnavailable(RuntimeError):
     """The job database does not answer (the API turns it into 503)."""
+
+
+@dataclass(frozen=True)
+class Submission:
+    """What a job's row keeps of the request that made it, when that request had an
+    ``Idempotency-Key``: the key as stored (``request_key``) and the SHA-256 of its body."""
+
+    key: str
+    digest: str
+
+
+def request_key(submitter: str | None, key: str) -> str:
+    """The stored form of an ``Idempotency-Key``: the SHA-256 of its submitter's name (the API
+    token's, or none) and the key, so that one client's key never finds another's job."""
+    return hashlib.sha256(f"{submitter or ''}\x00{key}".encode()).hexdigest()
 
 
 def engine_for(url: str, schema: str | None = None) -> Engine:
@@ -265,10 +288,28 @@ class Records:
         self.engine.dispose()
 
     # --- one job --------------------------------------------------------------------------------
-    def create(self, meta: JobMeta) -> None:
-        """The row of a job just submitted (IntegrityError suppressed: adopted meanwhile)."""
+    def create(self, meta: JobMeta,
+               submission: Submission | None = None) -> tuple[JobMeta, str] | None:
+        """The row of a job just submitted (IntegrityError suppressed: adopted meanwhile). With
+        a ``submission``, whose key another job's row may hold already (the same request sent
+        again, perhaps at the same moment): that job and its request's digest, and no row
+        written; else None."""
+        values = _row(meta)
+        if submission is not None:
+            values.update(request_key=submission.key, request_digest=submission.digest)
         with contextlib.suppress(sa_exc.IntegrityError), self._begin() as conn:
-            conn.execute(insert(jobs).values(**_row(meta)))
+            conn.execute(insert(jobs).values(**values))
+        if submission is None:
+            return None
+        prior = self.by_request(submission.key)
+        return prior if prior is not None and prior[0].id != meta.id else None
+
+    def by_request(self, key: str) -> tuple[JobMeta, str] | None:
+        """The job submitted with this request key (``request_key``), and its request's body
+        digest; None if none has it (or its row was deleted)."""
+        with self._begin() as conn:
+            row = conn.execute(select(jobs).where(jobs.c.request_key == key)).mappings().first()
+        return (_meta(row), row["request_digest"]) if row is not None else None
 
     def create_many(self, metas: list[JobMeta]) -> None:
         """Rows for many jobs at once, in one transaction (an import, a benchmark)."""

@@ -136,6 +136,118 @@ def test_submission_is_planned_and_listed(client, tiny_scene):
     assert client.post(f"/api/jobs/{job['id']}/retry").json()["status"] == "running"
 
 
+def test_a_submission_sent_again_with_its_idempotency_key_is_one_job(client, tiny_scene,
+                                                                      monkeypatch):
+    """A submission sent again with the Idempotency-Key it was first sent with (its answer lost,
+    a timeout) is answered with the job the first one made: 200, ``Idempotent-Replayed``, its
+    passes queued once. The same key with another body is refused on the header; a job deleted
+    frees its key; without a key, each submission is a job; a key that is not 1–255 visible
+    ASCII characters is refused naming the header."""
+    import services.farm.jobs as jobs_module
+
+    sent = []
+    enqueue = jobs_module.enqueue
+    monkeypatch.setattr(jobs_module, "enqueue",
+                        lambda celery, job_id, *a, **k: (sent.append(job_id),
+                                                         enqueue(celery, job_id, *a, **k)))
+    body = {"scene": tiny_scene, "tile_size": 16, "spp_per_pass": 8}
+    key = {"Idempotency-Key": f"submit-{uuid.uuid4()}"}
+    first = client.post("/api/jobs", json=body, headers=key)
+    assert first.status_code == 201, first.text
+    assert "idempotent-replayed" not in first.headers
+    again = client.post("/api/jobs", json=body, headers=key)
+    assert again.status_code == 200, again.text
+    assert again.headers["idempotent-replayed"] == "true"
+    assert again.json()["id"] == first.json()["id"] and again.json()["tasks_total"] == 8
+    assert sent == [first.json()["id"]]
+    assert client.get("/api/jobs").json()["count"] == 1
+
+    other = client.post("/api/jobs", json={**body, "name": "another"}, headers=key)
+    assert other.status_code == 422
+    (detail,) = other.json()["detail"]
+    assert detail["loc"] == ["header", "Idempotency-Key"]
+    assert first.json()["id"] in detail["msg"]
+
+    for bad in ("", "has space", "x" * 256, "na\u00efve".encode("latin-1")):
+        r = client.post("/api/jobs", json=body, headers={"Idempotency-Key": bad})
+        assert r.status_code == 422, (bad, r.text)
+        assert r.json()["detail"][0]["loc"] == ["header", "Idempotency-Key"], bad
+
+    plain = [client.post("/api/jobs", json=body).json()["id"] for _ in range(2)]
+    assert len(set(plain)) == 2 and client.get("/api/jobs").json()["count"] == 3
+
+    job_id = first.json()["id"]
+    assert client.delete(f"/api/jobs/{job_id}").json()["status"] == "cancelled"
+    assert client.delete(f"/api/jobs/{job_id}").status_code == 204  # (finished: deleted)
+    anew = client.post("/api/jobs", json=body, headers=key)
+    assert anew.status_code == 201 and anew.json()["id"] != job_id
+
+
+def test_a_submission_answered_503_after_its_job_was_stored_is_that_job_sent_again(
+        client, tiny_scene, monkeypatch):
+    """Redis answered the job's creation but not the sending of its passes: the answer is 503,
+    and the job stays queued for the stall rule to send. The client sends it again with its
+    Idempotency-Key and gets that job, not a second one."""
+    import redis
+
+    import services.farm.jobs as jobs_module
+
+    def unreachable(*args, **kwargs):
+        raise redis.ConnectionError("Redis went away between the job and its passes")
+
+    body = {"scene": tiny_scene, "tile_size": 16, "spp_per_pass": 8}
+    key = {"Idempotency-Key": uuid.uuid4().hex}
+    with monkeypatch.context() as m:
+        m.setattr(jobs_module, "enqueue", unreachable)
+        refused = client.post("/api/jobs", json=body, headers=key)
+    assert refused.status_code == 503, refused.text
+    (stored,) = client.get("/api/jobs").json()["data"]
+    assert stored["status"] == "queued"
+    again = client.post("/api/jobs", json=body, headers=key)
+    assert again.status_code == 200 and again.json()["id"] == stored["id"]
+    assert client.get("/api/jobs").json()["count"] == 1
+
+
+def test_lucent_submit_sends_a_submission_whose_answer_was_lost_again_and_gets_one_job(
+        client, tiny_scene):
+    """``Client.submit`` (``lucent submit``) after a timeout: the server made the job but its
+    answer never came. The client sends the submission again, with the same Idempotency-Key,
+    and gets that job; the farm has one. A request without a key is not sent again after a
+    timeout (a slow answer may still have done what it asked)."""
+    import httpx
+
+    from services.client import Client
+
+    class AnswerLost(httpx.BaseTransport):
+        """The API's transport, but the first submission's answer times out after the
+        server has handled it."""
+
+        def __init__(self, inner):
+            self.inner, self.keys = inner, []
+
+        def handle_request(self, request):
+            response = self.inner.handle_request(request)
+            if request.method in ("POST", "GET") and request.url.path == "/api/jobs":
+                self.keys.append(request.headers.get("idempotency-key"))
+                if len(self.keys) == 1 or request.method == "GET":
+                    response.read()
+                    raise httpx.ReadTimeout("the answer was lost", request=request)
+            return response
+
+    said: list[str] = []
+    transport = AnswerLost(client._transport)
+    farm = Client("http://testserver", say=said.append, patience=30.0)
+    farm.http = httpx.Client(base_url="http://testserver", transport=transport)
+    job = farm.submit(tiny_scene)
+    assert len(transport.keys) == 2 and transport.keys[0] == transport.keys[1] is not None
+    assert len(said) == 1 and "ReadTimeout" in said[0], said
+    listed = client.get("/api/jobs").json()
+    assert listed["count"] == 1 and listed["data"][0]["id"] == job["id"]
+    with pytest.raises(httpx.ReadTimeout):
+        farm._request("GET", "/api/jobs")
+    assert len(said) == 1  # (not retried)
+
+
 # --- planning -----------------------------------------------------------------------------------
 
 

@@ -58,15 +58,37 @@ def test_migration_at_start_up_is_idempotent(settings):
     with TestClient(create_app(settings)) as c:
         assert c.get("/api/jobs").json()["count"] == 0
     records = records_of(settings)
-    assert records.revision() == "0005"
+    assert records.revision() == "0006"
     records.create(_meta(time.time()))
     records.migrate()
     with TestClient(create_app(settings)) as c:
         assert c.get("/api/jobs").json()["count"] == 1
-    assert records.revision() == "0005"
+    assert records.revision() == "0006"
     indexes = {i["name"] for i in inspect(records.engine).get_indexes("jobs")}
     assert {"jobs_created_at", "jobs_status_created_at", "jobs_finished_at", "jobs_image_exr",
-            "jobs_image_png"} <= indexes
+            "jobs_image_png", "jobs_request_key"} <= indexes
+
+
+def test_a_request_key_is_one_jobs(settings):
+    """A job's row keeps the Idempotency-Key it was submitted with (scoped to its submitter) and
+    its request's digest, unique: a second job's row with the same key is not written, and the
+    first job is the answer (two identical requests at the same moment make one job). Another
+    submitter's same key is another request; a deleted row frees its key."""
+    from services.farm.records import Submission, request_key
+
+    records = records_of(settings)
+    first, second = _meta(time.time(), "queued"), _meta(time.time(), "queued")
+    alices = Submission(request_key("alice", "k-1"), "digest-1")
+    assert records.create(first, alices) is None
+    prior = records.create(second, alices)
+    assert prior is not None and (prior[0].id, prior[1]) == (first.id, "digest-1")
+    assert records.get(second.id) is None
+    assert records.by_request(alices.key)[0].id == first.id
+    assert records.by_request(request_key(None, "k-1")) is None
+    assert records.create(second, Submission(request_key("bob", "k-1"), "digest-1")) is None
+    assert records.get(second.id) is not None
+    records.delete(first.id)
+    assert records.by_request(alices.key) is None
 
 
 def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
@@ -78,7 +100,7 @@ def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
     for status in ("done", "done", "failed", "running"):
         records.create(_meta(t0, status))
     records.migrate()
-    assert records.revision() == "0005"
+    assert records.revision() == "0006"
     assert records.count_by_status() == {"queued": 0, "running": 1, "done": 2, "failed": 1,
                                          "cancelled": 0}
     first = records.page("done")[0][0]

@@ -9,7 +9,17 @@ from collections import OrderedDict
 from dataclasses import dataclass
 from typing import Annotated, Literal
 
-from fastapi import APIRouter, Depends, HTTPException, Path, Query, Request, Response, status
+from fastapi import (
+    APIRouter,
+    Depends,
+    Header,
+    HTTPException,
+    Path,
+    Query,
+    Request,
+    Response,
+    status,
+)
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
@@ -40,11 +50,11 @@ from services.farm.archive import (
     frame_exr,
     unpark_job,
 )
-from services.farm.jobs import Refusal, queue_job
+from services.farm.jobs import Refusal, Replayed, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
 from services.farm.pools import live_tag_sets, waiting_for
-from services.farm.records import Records
+from services.farm.records import Records, Submission, request_key
 from services.farm.store import ACTIVE, JobMeta, JobStore, is_job_id
 
 router = APIRouter(prefix="/jobs", tags=["jobs"])
@@ -122,6 +132,9 @@ def _get_or_404(store: JobStore, records: Records, job_id: str) -> JobMeta:
     return meta
 
 
+# An Idempotency-Key: 1–255 visible ASCII characters (a UUID, say), chosen by the client
+IDEMPOTENCY_KEY = r"^[\x21-\x7e]{1,255}$"
+
 # The body is read by the route (services/api/intake.py), not by FastAPI; the schema says what
 # it holds all the same (the OpenAPI document, the fuzzing).
 _JOB_CREATE_BODY = {"requestBody": {"required": True, "content": {
@@ -133,17 +146,34 @@ _JOB_CREATE_BODY = {"requestBody": {"required": True, "content": {
                  400: {"description": "a body the JSON parser gives up on"},
                  422: {"description": "an invalid request or an invalid or over-limit scene; "
                                       "`loc` names the field"},
+                 200: {"description": "the same request sent again with its Idempotency-Key: "
+                                      "the job the first one made (header Idempotent-Replayed)",
+                       "model": JobPublic},
                  429: {"description": "the farm's backlog is full (LUCENT_MAX_QUEUED_SAMPLES)"}})
-async def create_job(request: Request, store: StoreDep, records: RecordsDep, celery: CeleryDep,
-                     settings: SettingsDep, submitter: SubmitterDep):
+async def create_job(request: Request, response: Response, store: StoreDep,
+                     records: RecordsDep, celery: CeleryDep, settings: SettingsDep,
+                     submitter: SubmitterDep,
+                     idempotency_key: Annotated[str | None, Header(
+                         alias="Idempotency-Key", pattern=IDEMPOTENCY_KEY,
+                         description="any 1–255 visible ASCII characters the client chooses "
+                                     "for this request: sent again with the same body, it "
+                                     "answers the job the first one made (200) instead of "
+                                     "making another")] = None):
     """Validate the request and its scene (``JobCreate``), plan tiles × passes and queue them.
-    Nothing is queued if the scene is invalid or over a limit."""
-    read = await request.app.state.intake.read(await request.body(),
-                                               request.headers.get("content-type"))
+    Nothing is queued if the scene is invalid or over a limit. With an ``Idempotency-Key`` that
+    an earlier request of the same submitter used, the answer is that request's job."""
+    body = await request.body()
+    read = await request.app.state.intake.read(body, request.headers.get("content-type"))
     if isinstance(read, Rejection):
         return JSONResponse(status_code=read.status, content=read.content)
+    submission = None if idempotency_key is None else Submission(
+        request_key(submitter, idempotency_key), hashlib.sha256(body).hexdigest())
     answer = await run_in_threadpool(queue_job, store, records, celery, settings, read.options,
-                                     read.scene, submitter)
+                                     read.scene, submitter, submission)
+    if isinstance(answer, Replayed):
+        response.status_code = status.HTTP_200_OK
+        response.headers["Idempotent-Replayed"] = "true"
+        return to_public(answer.meta)
     if isinstance(answer, Refusal):
         return JSONResponse(status_code=answer.status, headers=answer.headers,
                             content=error_content({"loc": loc, "msg": msg, "type": kind}
