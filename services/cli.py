@@ -165,7 +165,8 @@ def cmd_render(args: argparse.Namespace) -> int:
     elif buf.count.size and int(buf.count.min()) >= 2:
         # (the same estimate from each pixel's own samples: what a target would stop on)
         print(f"expected relMSE {stopping_error(buf):.3g} (estimated from the samples' "
-              f"variance)", file=sys.stderr)
+              f"variance{'; of the image before denoising' if args.denoise else ''})",
+              file=sys.stderr)
     dropped = buf.total_dropped
     print(
         f"wrote {out}: {total / seconds:,.0f} samples/s over {seconds:.2f} s"

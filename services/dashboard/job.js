@@ -203,7 +203,8 @@ export function renderJob(view, jobId) {
         h("span", {}, h("i", { style: `background:${c}` }), `${s} ${counts[s] || 0}`)));
     } else if (colourBy === "error") {
       const middle = job.target_error != null ? `target ${job.target_error}`
-        : `the frame's estimate ${digits3(centre)}`;
+        : job.expected_error != null ? `the frame's estimate ${digits3(centre)}`
+          : `the tiles' mean so far ${digits3(centre)}`;
       legend.replaceChildren(h("span", {}, `${digits3(centre / ERROR_SPAN)}`),
         h("i", { class: "ramp", style: `background:linear-gradient(90deg,${
           [0.25, 0.5, 1, 2, 4].map(errorColour).join(",")})` }),

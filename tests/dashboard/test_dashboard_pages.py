@@ -431,6 +431,22 @@ def test_a_job_without_a_target_shows_its_estimated_error(dashboard, page, api):
     assert page.eval_on_selector("#colour-by option[value=error]", "o => o.hidden")
     facts = page.locator("#job-facts dt").all_inner_texts()
     assert "Estimated error" not in facts and "Target error" not in facts
+    # Running, one tile estimated (the answer given by the page's route): the ramp's middle is
+    # the estimated tiles' mean, the frame having none yet
+    def answer(route):
+        body = route.fetch().json()
+        body["status"] = "running"
+        body["tile_states"][0]["expected_error"] = 0.0234
+        route.fulfill(json=body)
+
+    page.route(f"**/api/jobs/{empty}", answer)
+    page.reload()
+    page.wait_for_function(
+        "!document.querySelector('#colour-by option[value=error]').hidden")
+    page.select_option("#colour-by", "error")
+    assert page.inner_text("#tile-legend").endswith(
+        "relMSE (the tiles' mean so far 0.0234 mid-ramp)")
+    page.unroute(f"**/api/jobs/{empty}")
     store.cancel_job(empty)
     no_page_errors(page)
 
