@@ -145,11 +145,15 @@ def with_method(scene: dict, material: str, method: str, spp: int) -> dict:
 # --------------------------------------------------------------------------------------------------
 
 
-def reference(name: str, scene: dict, material: str, spp: int) -> tuple[np.ndarray, str]:
-    """The converged image of ``scene`` (its ``volumetric`` form) and where it came from."""
+def reference(name: str, scene: dict, material: str, spp: int,
+              committed: bool = True) -> tuple[np.ndarray, str]:
+    """The converged image of ``scene`` (its ``volumetric`` form) and where it came from: the
+    committed one in tests/data for a stock scene (whatever ``spp``, unless ``committed`` is
+    False), else Mitsuba's at ``spp``, cached."""
     scene = with_method(scene, material, "volumetric", spp)
     stored = ROOT / "tests" / "data" / f"{name}_ref.npy"
-    stock = (_mixed(name) if name in MIXED else _example(name)) if stored.exists() else None
+    stock = ((_mixed(name) if name in MIXED else _example(name))
+             if committed and stored.exists() else None)
     if stock is not None and scene == with_method(stock, material, "volumetric", spp):
         split = " split by channel" if name in CHROMATIC_SUITE else ""
         return (np.load(stored).astype(np.float64),

@@ -2,14 +2,15 @@
 time at the same error, per scene and target.
 
     .venv/bin/python -m bench.target_error [--scenes ...] [--targets 0.1 0.03 ...] [--seeds K]
-                                           [--even] [--out CSV] [--chart PNG]
+                                           [--even] [--ref-spp N] [--out CSV] [--chart PNG]
     .venv/bin/python -m bench.target_error --overhead [--scenes ...] [--runs N]
     .venv/bin/python -m bench.target_error --radius [--scenes ...]
 
 The scenes: the chart suite (``bench.accuracy.suite``: wax sphere, backlit slab, concave torus,
 thin shell, spheres at albedo 0.5/0.9/0.99, 64×48, the translucent material ``volumetric``,
-Mitsuba 3 volpath references at 16384 spp), plus four scenes outside it: the wax sphere
-in the Cornell box at 160×120 (its Mitsuba reference rendered once and cached), and three with
+Mitsuba 3 volpath references at 16384 spp, ``--ref-spp`` to change it), plus four scenes
+outside it: the wax sphere in the Cornell box at 160×120 (its Mitsuba reference rendered once
+and cached), and three with
 committed Mitsuba references at 64×48: the glass sphere in the Cornell box (its caustic mostly
 hidden under the sphere), the caustic floor (a glass sphere over an open floor under a small
 light: the caustic in the sphere's shadow, and the light seen through the sphere from everywhere
@@ -87,11 +88,20 @@ def scene_at(scene: dict, material: str | None, spp: int, target: float | None,
     return data
 
 
-def scene_reference(name: str, scene: dict, material: str | None) -> np.ndarray:
-    """The converged image of a scene of ``scenes()``: the suite's Mitsuba reference (cached), or
-    the committed one in tests/data for the scenes outside the suite."""
+# The suite's references' samples a pixel (--ref-spp): a frame of n samples measured against one
+# of N has its relMSE raised by about n / N by the reference's own noise
+REF_SPP = 16384
+
+
+def scene_reference(name: str, scene: dict, material: str | None,
+                    spp: int | None = None) -> np.ndarray:
+    """The converged image of a scene of ``scenes()``: the suite's Mitsuba reference at ``spp``
+    (``REF_SPP`` by default; cached), or the committed one in tests/data for the scenes outside
+    the suite."""
     if material is not None:
-        return reference(name, scene, material, 16384)[0]
+        spp = spp or REF_SPP
+        # (the committed references are of REF_SPP: another count is rendered, and cached)
+        return reference(name, scene, material, spp, committed=spp == REF_SPP)[0]
     return np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
 
 
@@ -159,6 +169,11 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--replay", action="store_true",
                         help="run the loop on draws from a stash of each scene's samples "
                              "instead: its error and its cost counted, without timing noise")
+    parser.add_argument("--ref-spp", type=int, default=REF_SPP,
+                        help="the suite's Mitsuba references at this many samples a pixel "
+                             "(other than 16384, the committed ones too are rendered, and "
+                             "cached; a reference's own noise adds about spp / ref-spp to a "
+                             "frame's measured relMSE)")
     parser.add_argument("--even", action="store_true",
                         help="also run each target with every round even (uniform sampling "
                              "with the loop's rounds and stop) and print what the shape gains")
@@ -191,7 +206,7 @@ def main(argv: list[str] | None = None) -> int:
           flush=True)
     for name in args.scenes:
         scene, material = all_scenes[name]
-        ref = scene_reference(name, scene, material)
+        ref = scene_reference(name, scene, material, args.ref_spp)
         # Warm the JIT: the render kernel, and the adaptive loop's kernels (a --repeat 1 run's
         # first target would otherwise load or compile them inside its time)
         render_buffer(scene_at(scene, material, 1, None))
