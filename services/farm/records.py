@@ -297,12 +297,16 @@ class Records:
         values = _row(meta)
         if submission is not None:
             values.update(request_key=submission.key, request_digest=submission.digest)
-        with contextlib.suppress(sa_exc.IntegrityError), self._begin() as conn:
-            conn.execute(insert(jobs).values(**values))
-        if submission is None:
-            return None
-        prior = self.by_request(submission.key)
-        return prior if prior is not None and prior[0].id != meta.id else None
+        try:
+            with self._begin() as conn:
+                conn.execute(insert(jobs).values(**values))
+        except sa_exc.IntegrityError:
+            if submission is None:
+                return None
+            # the key's row (another job's), or this id's (adopted meanwhile, without a key)
+            prior = self.by_request(submission.key)
+            return prior if prior is not None and prior[0].id != meta.id else None
+        return None
 
     def by_request(self, key: str) -> tuple[JobMeta, str] | None:
         """The job submitted with this request key (``request_key``), and its request's body

@@ -199,12 +199,12 @@ return n
 # ARGV: the pass's member of the merged set, the tile, '1' when the caller has the pass's bytes,
 # and to store them first as ``put_pass`` does, their time to live in ms and the bytes, else
 # ''): whether the pass is merged, the pass buffer (or only whether it exists: 1 or 0), the
-# job's status, spp, target_error and tasks_total, the accumulation, and the tile's samples,
+# job's status, spp and tasks_total, the accumulation, and the tile's samples,
 # state and error summary. The buffer is stored only for a pass not merged of a job not done:
 # for the sweeper, should this process die before its EXEC.
 _MERGE_READ = """
 local merged = redis.call('SISMEMBER', KEYS[1], ARGV[1])
-local job = redis.call('HMGET', KEYS[3], 'status', 'spp', 'target_error', 'tasks_total')
+local job = redis.call('HMGET', KEYS[3], 'status', 'spp', 'tasks_total')
 if ARGV[4] ~= '' and merged == 0 and job[1] and job[1] ~= 'done' then
   redis.call('SET', KEYS[2], ARGV[5], 'PX', ARGV[4])
   redis.call('SADD', KEYS[8], KEYS[2])
@@ -948,7 +948,7 @@ class JobStore:
                     pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
                     put = ("", b"") if data is None or ttl is None else (int(ttl * 1000), data)
                     ttl = None  # stored by the first read; a retry after a conflict need not
-                    (is_merged, stored, (status, spp, _target, total), acc_bytes, tile_samples,
+                    (is_merged, stored, (status, spp, total), acc_bytes, tile_samples,
                      tile_state, old_summary) = pipe.eval(
                         _MERGE_READ, 8, merged_key, pass_key, job_key, acc_key, samples_key,
                         state_key, err_key, self.k("pending"), member, str(tile),
