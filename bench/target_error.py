@@ -5,6 +5,7 @@ time at the same error, per scene and target.
                                            [--even] [--ref-spp N] [--out CSV] [--chart PNG]
     .venv/bin/python -m bench.target_error --overhead [--scenes ...] [--runs N]
     .venv/bin/python -m bench.target_error --radius [--scenes ...]
+    .venv/bin/python -m bench.target_error --paired [--scenes ...] [--targets ...] [--pairs N]
 
 The scenes: the chart suite (``bench.accuracy.suite``: wax sphere, backlit slab, concave torus,
 thin shell, spheres at albedo 0.5/0.9/0.99, 64×48, the translucent material ``volumetric``,
@@ -36,7 +37,9 @@ sampling's at its error, the cost of the loop's structure alone, and "shape gain
 ratio over it, what the shape of the counts gains at equal error (below 1: it gains).
 ``--overhead`` times the loop's passes and its bookkeeping apart, against its samples rendered
 in one pass (``overhead``); ``--radius`` what the shape of the counts gains from each window
-radius of its estimates at a few samples a pixel (``radius_table``).
+radius of its estimates at a few samples a pixel (``radius_table``); ``--paired`` times each
+target run and uniform sampling at its error in turns, so that the machine's drift between two
+separate timings does not enter their ratio (``paired``).
 """
 
 from __future__ import annotations
@@ -44,6 +47,7 @@ from __future__ import annotations
 import argparse
 import csv
 import json
+import math
 import time
 from pathlib import Path
 
@@ -174,6 +178,10 @@ def main(argv: list[str] | None = None) -> int:
                              "(other than 16384, the committed ones too are rendered, and "
                              "cached; a reference's own noise adds about spp / ref-spp to a "
                              "frame's measured relMSE)")
+    parser.add_argument("--paired", action="store_true",
+                        help="time each target run against uniform sampling at its error in "
+                             "pairs, in turns, instead (--pairs of them, --seeds of each)")
+    parser.add_argument("--pairs", type=int, default=PAIRS)
     parser.add_argument("--even", action="store_true",
                         help="also run each target with every round even (uniform sampling "
                              "with the loop's rounds and stop) and print what the shape gains")
@@ -191,6 +199,12 @@ def main(argv: list[str] | None = None) -> int:
         return oracle(args.scenes, all_scenes)
     if args.farm:
         return farm(args.scenes, all_scenes, args.targets)
+    if args.paired:
+        rows = paired(args.scenes, all_scenes, args.targets, args.pairs, args.seeds,
+                      args.ref_spp)
+        if args.out is not None:
+            _write_csv(rows, args.out)
+        return 0
     if args.radius:
         radius_table(args.scenes, all_scenes)
         return 0
@@ -665,6 +679,113 @@ def replay(names: list[str], all_scenes: dict, targets: list[float] = REPLAY_TAR
                       flush=True)
     return rows
 
+
+# paired(): pairs of timings, the target run and uniform sampling at its error in turns
+PAIRS = 7
+# equal_error_spp(): fixed-point steps of n ← n e(n) / error
+EQUAL_ERROR_STEPS = 4
+
+
+def equal_error_spp(error_at, error: float, start: float,
+                    steps: int = EQUAL_ERROR_STEPS) -> float:
+    """The samples a pixel (not a whole number) at which uniform sampling's relMSE is ``error``,
+    given ``error_at(n)``, its relMSE at n samples a pixel (n whole): uniform sampling's relMSE
+    is c / n in expectation, so n = m · e(m) / error for any m; taken at m near the answer
+    (from ``start``, then each step's answer rounded) the reading is of renders near the
+    error asked, where a frame's own fluctuations and any floor of the error (the reference's
+    noise) are what they are at it."""
+    n = max(1.0, float(start))
+    for _ in range(steps):
+        m = max(1, round(n))
+        n = max(1.0, m * error_at(m) / error)
+    return n
+
+
+def paired(names: list[str], all_scenes: dict, targets: list[float], pairs: int = PAIRS,
+           seeds: int = 2, ref_spp: int = REF_SPP) -> list[dict]:
+    """The target loop's time over uniform sampling's at the same error, timed in pairs
+    (``--paired``): per scene and target, the loop is run (seeds 7, 8, …) for its error e,
+    uniform sampling's samples a pixel at e found (``equal_error_spp``, on the mean error of
+    the same seeds), and then ``pairs`` times in turns the loop and uniform sampling at the
+    whole counts either side of it, each a render of every seed (the order swapped every
+    pair, so that a machine that slows down or speeds up weighs on both alike). A pair's
+    uniform time is interpolated linearly between its two counts; its ratio is the loop's
+    time over it. A frame of milliseconds is rendered as many times in a row as take
+    ``SHORT`` seconds (at most ``MOST_RUNS``), the same number for both, and its time is their
+    mean. Reported: the median pair's ratio and the least and greatest (the spread the
+    machine's noise leaves), and the ratio of the best times. Returns the rows it prints."""
+    from renderer.render import render_buffer
+    from renderer.scene import load_scene
+    from renderer.scene.compile import compile_scene
+
+    def compiled(scene, material, spp, target):
+        return [compile_scene(load_scene(scene_at(scene, material, spp, target, 7 + k)))
+                for k in range(seeds)]
+
+    def run(frames: list, repeat: int) -> float:
+        start = time.perf_counter()
+        for _ in range(repeat):
+            for cs in frames:
+                render_buffer(cs)
+        return (time.perf_counter() - start) / repeat
+
+    rows = []
+    print(f"{'scene':<20} {'target':>7} {'mean spp':>8} {'err/target':>10} "
+          f"{'uniform spp':>11} {'runs':>4} {'ratio median':>12} {'min':>6} {'max':>6} "
+          f"{'best':>6}", flush=True)
+    for name in names:
+        scene, material = all_scenes[name]
+        ref = scene_reference(name, scene, material, ref_spp)
+        error_at = _uniform_error(lambda n, s=scene, m=material: compiled(s, m, n, None), ref)
+        for target in targets:
+            loop = compiled(scene, material, CAP, target)
+            bufs = [render_buffer(cs) for cs in loop]  # (its error, and the kernels loaded)
+            error = float(np.mean([rel_mse(b.mean().astype(np.float64), ref) for b in bufs]))
+            spp = float(np.mean([b.count.mean() for b in bufs]))
+            n = equal_error_spp(error_at, error, spp)
+            lo = max(1, math.floor(n))
+            counts = (lo,) if n == lo else (lo, lo + 1)
+            uniform = {m: compiled(scene, material, m, None) for m in counts}
+            run(uniform[lo], 1)
+            repeat = int(np.clip(math.ceil(SHORT / max(run(loop, 1), 1e-6)), 1, MOST_RUNS))
+            loop_t, uniform_t = [], []
+            for p in range(pairs):
+                sides = ["loop", "uniform"] if p % 2 == 0 else ["uniform", "loop"]
+                for side in sides:
+                    if side == "loop":
+                        loop_t.append(run(loop, repeat))
+                    else:
+                        t = [run(uniform[m], repeat) for m in counts]
+                        uniform_t.append(t[0] if len(t) == 1
+                                         else t[0] + (n - lo) * (t[1] - t[0]))
+            ratio = np.array(loop_t) / np.array(uniform_t)
+            row = {"scene": name, "target": target, "seeds": seeds, "mean_spp": spp,
+                   "rel_mse": error, "ratio": error / target, "uniform_spp": n,
+                   "runs": repeat, "pairs": pairs, "time_ratio": float(np.median(ratio)),
+                   "time_ratio_min": float(ratio.min()), "time_ratio_max": float(ratio.max()),
+                   "time_ratio_best": min(loop_t) / min(uniform_t)}
+            rows.append(row)
+            print(f"{name:<20} {target:>7} {spp:>8.0f} {error / target:>10.2f} {n:>11.1f} "
+                  f"{repeat:>4} {row['time_ratio']:>12.2f} {ratio.min():>6.2f} "
+                  f"{ratio.max():>6.2f} {row['time_ratio_best']:>6.2f}", flush=True)
+    return rows
+
+
+def _uniform_error(frames, ref: np.ndarray):
+    """``error_at(n)`` for ``equal_error_spp``: the mean relMSE of uniform renders of
+    ``frames(n)`` (the scene at n spp, one compiled scene a seed) against ``ref``, each count
+    rendered once."""
+    from renderer.render import render_buffer
+
+    known: dict[int, float] = {}
+
+    def error_at(n: int) -> float:
+        if n not in known:
+            known[n] = float(np.mean([rel_mse(render_buffer(cs).mean().astype(np.float64), ref)
+                                      for cs in frames(n)]))
+        return known[n]
+
+    return error_at
 
 def farm(names: list[str], all_scenes: dict, targets: list[float]) -> int:
     """Each scene and target as a farm job (an embedded Redis, one worker node of 2 processes,
