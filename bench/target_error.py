@@ -787,6 +787,7 @@ def _uniform_error(frames, ref: np.ndarray):
 
     return error_at
 
+
 def farm(names: list[str], all_scenes: dict, targets: list[float]) -> int:
     """Each scene and target as a farm job (an embedded Redis, one worker node of 2 processes,
     tiles of 16 px, passes growing from 8 spp): the achieved relMSE of the merged frame against
