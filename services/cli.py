@@ -104,6 +104,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     import numba
     from tqdm import tqdm
 
+    from renderer.film.adaptive import AIM
     from renderer.render import render_buffer
     from renderer.scene.compile import CompileError, compile_scene
     from renderer.wavefront.cpu import unsupported
@@ -115,9 +116,11 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"{args.scene}: {err}", file=sys.stderr)
         return 1
     t_compile = time.perf_counter() - t0
+    from renderer.materials.auto import describe_choice
+
     for name, choice in compiled.info["auto"].items():
-        print(f"auto chose {choice['method']} for {name!r}: {choice['reason']}, expected relMSE "
-              f"{choice['expected_error']:.3g}", file=sys.stderr)
+        print(f"auto chose {choice['method']} for {name!r}: "
+              f"{describe_choice(choice['reason'], choice['expected_error'])}", file=sys.stderr)
     threads = args.threads or numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
     print(
         f"{args.scene}: {compiled.width}x{compiled.height}, {spp} spp, "
@@ -145,8 +148,11 @@ def cmd_render(args: argparse.Namespace) -> int:
             bar.update(done - bar.n)
 
         def plan(mean_spp: float) -> None:
-            bar.write(f"target relMSE {compiled.target_error:g}: after the pilot the allocation "
-                      f"plans {mean_spp:.0f} spp a pixel on average (at most {spp})",
+            # (called only with a target)
+            target = float(compiled.target_error or 0.0)
+            bar.write(f"target relMSE {target:g}: after the pilot the allocation plans "
+                      f"{mean_spp:.0f} spp a pixel on average (at most {spp}) to reach an "
+                      f"expected relMSE of {AIM * target:.3g} ({AIM:g} × target)",
                       file=sys.stderr)
 
         t0 = time.perf_counter()

@@ -107,7 +107,19 @@ def format_rgb(v) -> str:
 class AutoChoice:
     method: str  # a translucent method, "dielectric" or "opaque"
     reason: str
+    # the method's expected bias: its relMSE over the object's pixels with the noise gone (an
+    # approximation's measured floor, the opaque limit's error; 0 for an exact method)
     expected_error: float
+
+
+def describe_choice(reason: str, expected_error: float) -> str:
+    """Why ``auto`` chose a method, as the CLI prints it and the job API reports it: the reason
+    and the method's expected bias, which the samples' noise (what ``render.target_error``'s
+    sampling brings down) comes on top of."""
+    bias = ("none (unbiased: the error is the samples' noise alone)" if expected_error == 0.0
+            else f"relMSE {expected_error:.3g} over the object's pixels (the samples' noise "
+                 "comes on top)")
+    return f"{reason}; expected bias {bias}"
 
 
 def opaque_reach(albedo, density, g: float, ior: float) -> float:

@@ -28,7 +28,7 @@ from typing import Any
 
 from celery import Celery
 
-from renderer.materials.auto import auto_choices
+from renderer.materials.auto import auto_choices, describe_choice
 from renderer.scene import Limits, SceneError, load_scene
 from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
@@ -171,7 +171,7 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
     if errors:
         return Refusal(422, errors)
     # What `auto` picks for each material (the workers compile the same choice)
-    methods = {name: f"{c.method}: {c.reason}, expected relMSE {c.expected_error:.3g}"
+    methods = {name: f"{c.method}: {describe_choice(c.reason, c.expected_error)}"
                for name, c in auto_choices(parsed).items()}
     return CheckedScene(parsed.film.width, parsed.film.height, parsed.render.spp, methods,
                         json.dumps(scene).encode(),

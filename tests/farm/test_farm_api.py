@@ -82,6 +82,8 @@ def test_auto_choice_is_reported_with_the_job(client, tiny_scene):
     assert r.status_code == 201, r.text
     job = client.get(f"/api/jobs/{r.json()['id']}").json()
     assert job["methods"]["wax"].startswith("volumetric: optical radius 2")
+    assert job["methods"]["wax"].endswith("; expected bias none (unbiased: the error is the "
+                                          "samples' noise alone)")
     assert set(job["methods"]) == {"wax"}
 
 

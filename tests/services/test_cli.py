@@ -122,12 +122,15 @@ def test_render_reports_what_auto_chose(tmp_path, capsys):
     path = tmp_path / "wax.json"
     path.write_text(json.dumps(data))
     assert main(["render", str(path), "-o", str(tmp_path / "x.npy"), "-q"]) == 0
-    assert "auto chose volumetric for 'wax': optical radius 2" in capsys.readouterr().err
+    line = next(x for x in capsys.readouterr().err.splitlines() if x.startswith("auto chose"))
+    assert line.startswith("auto chose volumetric for 'wax': optical radius 2")
+    assert line.endswith("; expected bias none (unbiased: the error is the samples' noise alone)")
 
 
 def test_render_with_a_target_says_the_plan_and_what_it_reached(tmp_path, capsys):
-    """render.target_error: the CLI tells the pilot's planned samples, then the expected relMSE
-    reached (at most the target) and the samples a pixel took."""
+    """render.target_error: the CLI tells the pilot's planned samples and the error they aim at
+    (AIM × target), then the expected relMSE reached (at most the target) and the samples a
+    pixel took."""
     data = json.loads(small_scene(tmp_path).read_text())
     data["render"].update(spp=2048, target_error=0.05)
     path = tmp_path / "target.json"
@@ -135,6 +138,7 @@ def test_render_with_a_target_says_the_plan_and_what_it_reached(tmp_path, capsys
     assert main(["render", str(path), "-o", str(tmp_path / "x.npy"), "-q"]) == 0
     err = capsys.readouterr().err
     assert "target relMSE 0.05: after the pilot the allocation plans" in err
+    assert "to reach an expected relMSE of 0.04 (0.8 × target)" in err
     line = next(x for x in err.splitlines() if x.startswith("reached: expected relMSE"))
     reached = float(line.split()[3])
     assert 0 < reached <= 0.05

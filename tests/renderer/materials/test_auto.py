@@ -17,6 +17,7 @@ from renderer.materials.auto import (
     auto_choice,
     channel_regimes,
     choose_method,
+    describe_choice,
     scene_regimes,
 )
 from renderer.render import render
@@ -47,6 +48,21 @@ def test_a_loose_target_takes_the_cheapest_method_that_meets_it():
     assert choose_method((0.9,) * 3, 8.0, 0.5, 0.5).method == "backlight"
     assert choose_method((0.9,) * 3, 8.0, 0.5, 0.45).method == "diffusion"
     assert choose_method((0.9,) * 3, 8.0, 0.5, 0.35).method == "volumetric"
+
+
+def test_the_choice_is_described_with_its_bias():
+    """What the CLI and the job API say: an exact method has no bias, its error is the samples'
+    noise; an approximation its measured floor over the object's pixels, the noise on top (it
+    said "expected relMSE 0" for the reference, as if its image had no error)."""
+    exact = choose_method((0.97, 0.88, 0.7), 8.0, 0.5, None)
+    said = describe_choice(exact.reason, exact.expected_error)
+    assert said.startswith(exact.reason)
+    assert said.endswith("; expected bias none (unbiased: the error is the samples' noise alone)")
+    rough = choose_method((0.9,) * 3, 8.0, 0.5, 0.35, regimes=frozenset())
+    assert rough.method == "backlight"
+    assert rough.expected_error == REGIME_FLOOR["backlight"]["solid"]
+    assert describe_choice(rough.reason, rough.expected_error).endswith(
+        "; expected bias relMSE 0.314 over the object's pixels (the samples' noise comes on top)")
 
 
 def test_the_regime_picks_the_floors():
