@@ -105,6 +105,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     from tqdm import tqdm
 
     from renderer.film.adaptive import AIM
+    from renderer.materials.auto import describe_choice
     from renderer.render import render_buffer
     from renderer.scene.compile import CompileError, compile_scene
     from renderer.wavefront.cpu import unsupported
@@ -116,8 +117,6 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"{args.scene}: {err}", file=sys.stderr)
         return 1
     t_compile = time.perf_counter() - t0
-    from renderer.materials.auto import describe_choice
-
     for name, choice in compiled.info["auto"].items():
         print(f"auto chose {choice['method']} for {name!r}: "
               f"{describe_choice(choice['reason'], choice['expected_error'])}", file=sys.stderr)
