@@ -19,6 +19,7 @@ On a farm (the code lives in ``services/`` and ``worker/``):
 from __future__ import annotations
 
 import argparse
+import math
 import os
 import sys
 import time
@@ -85,6 +86,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         scene.render.seed = args.seed
     if args.sampler is not None:
         scene.render.sampler = args.sampler
+    if args.target_error is not None:
+        # (before the compile: auto chooses its method for the target)
+        scene.render.target_error = None if args.target_error == "none" else args.target_error
     spp = args.spp if args.spp is not None else scene.render.spp
     if spp < 1:
         print("--spp must be >= 1", file=sys.stderr)
@@ -121,8 +125,10 @@ def cmd_render(args: argparse.Namespace) -> int:
         print(f"auto chose {choice['method']} for {name!r}: "
               f"{describe_choice(choice['reason'], choice['expected_error'])}", file=sys.stderr)
     threads = args.threads or numba.config.NUMBA_NUM_THREADS  # type: ignore[attr-defined]
+    samples = (f"{spp} spp" if compiled.target_error is None else
+               f"target relMSE {compiled.target_error:g}, at most {spp} spp a pixel")
     print(
-        f"{args.scene}: {compiled.width}x{compiled.height}, {spp} spp, "
+        f"{args.scene}: {compiled.width}x{compiled.height}, {samples}, "
         f"{compiled.info['primitives']} primitives, {compiled.info['lights']} lights, "
         f"{threads} threads (scene compiled in {t_compile:.2f} s)",
         file=sys.stderr,
@@ -353,6 +359,20 @@ def _tags(text: str) -> tuple[str, ...]:
     return tags
 
 
+def _target_error(text: str) -> float | str:
+    """``--target-error``: a relMSE > 0, or ``none`` (the scene's target dropped: uniform
+    sampling at the spp), as ``render.target_error`` takes it."""
+    if text.strip().lower() == "none":
+        return "none"
+    try:
+        value = float(text)
+    except ValueError:
+        raise argparse.ArgumentTypeError(f"{text!r} is not a number or none") from None
+    if not (math.isfinite(value) and value > 0):
+        raise argparse.ArgumentTypeError(f"{text!r}: the target must be a relMSE > 0, or none")
+    return value
+
+
 def build_parser() -> argparse.ArgumentParser:
     parser = argparse.ArgumentParser(prog="lucent", description=__doc__.split("\n\n")[0])
     sub = parser.add_subparsers(dest="command", required=True)
@@ -364,6 +384,10 @@ def build_parser() -> argparse.ArgumentParser:
     p.add_argument("--seed", type=int, help="random seed (default: the scene's render.seed)")
     p.add_argument("--sampler", choices=["independent", "sobol"],
                    help="random numbers of a sample (default: the scene's render.sampler)")
+    p.add_argument("--target-error", type=_target_error, metavar="T",
+                   help="render to this expected relMSE of the frame, adaptively, --spp then "
+                        "the most a pixel takes; none: the spp everywhere (default: the "
+                        "scene's render.target_error)")
     p.add_argument("--threads", type=int, help="render threads (default: all cores)")
     p.add_argument("--kernel", choices=KERNELS, default="packet",
                    help="packet (default): 16 paths at once in the CPU's vector lanes, for "

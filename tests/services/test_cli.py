@@ -144,6 +144,47 @@ def test_render_with_a_target_says_the_plan_and_what_it_reached(tmp_path, capsys
     assert 0 < reached <= 0.05
 
 
+def test_target_error_option_sets_and_drops_the_scenes_target(tmp_path, capsys):
+    """--target-error T renders a scene without a target to T, --spp the most a pixel takes;
+    --target-error none renders a scene with a target at its spp everywhere, the same frame as
+    without the target."""
+    scene = small_scene(tmp_path)
+    out = tmp_path / "t.npy"
+    assert main(["render", str(scene), "-o", str(out), "--spp", "2048",
+                 "--target-error", "0.05", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "24x18, target relMSE 0.05, at most 2048 spp a pixel," in err
+    assert "target relMSE 0.05: after the pilot the allocation plans" in err
+    line = next(x for x in err.splitlines() if x.startswith("reached: expected relMSE"))
+    assert 0 < float(line.split()[3]) <= 0.05
+    assert 8 <= float(line.split()[6]) < 2048  # (mean spp: past the pilot, far below the cap)
+
+    data = json.loads(scene.read_text())
+    data["render"].update(spp=16, target_error=0.05)
+    targeted = tmp_path / "targeted.json"
+    targeted.write_text(json.dumps(data))
+    assert main(["render", str(targeted), "-o", str(out), "--target-error", "none", "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "24x18, 16 spp," in err and "reached" not in err and "target relMSE" not in err
+    data["render"]["target_error"] = None
+    want = render(compile_scene(load_scene_file(_write(tmp_path / "plain.json", data))))
+    np.testing.assert_array_equal(np.load(out), want)
+
+
+@pytest.mark.parametrize("value", ["0", "-0.01", "inf", "nan", "abc"])
+def test_target_error_option_refuses_what_is_not_a_relmse(tmp_path, capsys, value):
+    with pytest.raises(SystemExit) as exit_:
+        main(["render", str(small_scene(tmp_path)), "-o", str(tmp_path / "x.npy"),
+              "--target-error", value])
+    assert exit_.value.code == 2
+    assert "argument --target-error:" in capsys.readouterr().err
+
+
+def _write(path: Path, data: dict) -> Path:
+    path.write_text(json.dumps(data))
+    return path
+
+
 def test_render_without_a_target_says_its_expected_error(tmp_path, capsys):
     """Every render with 2 samples a pixel or more reports the frame's expected relMSE estimated
     from its samples (``stopping_error``, what a target would stop on); one of 1 sample a pixel
