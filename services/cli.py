@@ -294,10 +294,11 @@ def cmd_submit(args: argparse.Namespace) -> int:
         return frames
     if frames is not None:
         options["frames"] = frames
+    render = ({} if args.target_error is None else
+              {"target_error": None if args.target_error == "none" else args.target_error})
     return submit_and_wait(args.scene, args.server, token=os.environ.get("LUCENT_API_TOKEN"),
                            wait=args.wait, outputs=[args.output] if args.output else [],
-                           quiet=args.quiet,
-                           options=options)
+                           quiet=args.quiet, options=options, render=render)
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -462,6 +463,10 @@ def build_parser() -> argparse.ArgumentParser:
                    help="the largest pass: passes grow up to it (LUCENT_PASS_GROWTH) "
                         "(default 64)")
     p.add_argument("--priority", type=int, help="0-9, 9 runs first (default 0)")
+    p.add_argument("--target-error", type=_target_error, metavar="T",
+                   help="the job renders to this expected relMSE of the frame, its tiles' "
+                        "passes adaptive, the scene's spp then the most a pixel takes; none: "
+                        "the spp everywhere (default: the scene's render.target_error)")
     p.add_argument("--sweep", metavar="PATH=V1,V2,...",
                    help="one frame a value of a scene field, e.g. materials.wax.density=1,2,4,8 "
                         "(-o then writes OUT_0000.png, OUT_0001.png, ...)")

@@ -199,8 +199,10 @@ def _seconds(retry_after: str | None) -> float:
 
 def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, wait: bool = False,
                     outputs: list[str] | None = None, quiet: bool = False,
-                    options: dict[str, Any] | None = None) -> int:
-    """``lucent submit``: returns the process exit code. ``outputs``: images to write when done."""
+                    options: dict[str, Any] | None = None,
+                    render: dict[str, Any] | None = None) -> int:
+    """``lucent submit``: returns the process exit code. ``outputs``: images to write when done;
+    ``render``: fields set in the scene's ``render`` before it is sent (``--target-error``)."""
     outputs = outputs or []
     for output in outputs:
         if Path(output).suffix.lower() not in IMAGE_TYPES:
@@ -208,7 +210,11 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
             return 2
     client = Client(server, token)
     try:
-        job = client.submit(scene_for_upload(scene_path, client), **(options or {}))
+        scene = scene_for_upload(scene_path, client)
+        if render and isinstance(scene.setdefault("render", {}), dict):
+            # (a render that is not an object is left for the server to name)
+            scene["render"].update(render)
+        job = client.submit(scene, **(options or {}))
     except ValueError as err:
         print(f"{scene_path}: the server refused it:\n{err}", file=sys.stderr)
         return 1

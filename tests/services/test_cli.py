@@ -180,6 +180,32 @@ def test_target_error_option_refuses_what_is_not_a_relmse(tmp_path, capsys, valu
     assert "argument --target-error:" in capsys.readouterr().err
 
 
+def test_submit_target_error_option_sets_the_sent_scenes_target(tmp_path, monkeypatch, capsys):
+    """lucent submit --target-error: the scene the farm is sent has render.target_error T (none:
+    null), its other render fields as the file has them; without the option, the file's."""
+    import services.client
+
+    sent: list[dict] = []
+
+    class Farm:
+        def __init__(self, server, token=None):
+            pass
+
+        def submit(self, scene, **options):
+            sent.append(scene)
+            return {"id": f"job{len(sent)}", "tiles": 1, "tasks_total": 1}
+
+    monkeypatch.setattr(services.client, "Client", Farm)
+    data = json.loads(small_scene(tmp_path).read_text())
+    data["render"].update(spp=64, target_error=0.05)
+    scene = str(_write(tmp_path / "targeted.json", data))
+    for flag, want in ((["--target-error", "0.02"], 0.02), (["--target-error", "none"], None),
+                       ([], 0.05)):
+        assert main(["submit", scene, "--server", "http://farm"] + flag) == 0
+        assert sent[-1]["render"] == {**data["render"], "target_error": want}
+    assert capsys.readouterr().out.split() == ["job1", "job2", "job3"]
+
+
 def _write(path: Path, data: dict) -> Path:
     path.write_text(json.dumps(data))
     return path
