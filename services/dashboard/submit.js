@@ -54,6 +54,9 @@ export function renderSubmit(view) {
         placeholder: "8" }),
       ...field("max_spp_per_pass", "Largest pass", { type: "number", min: "1",
         placeholder: "64" }),
+      // (set in the scene sent, render.target_error: the farm's 422 on it shows here)
+      ...field("target_error", "Target relMSE (adaptive; the spp the most a pixel takes)",
+        { type: "number", min: "0", step: "any", placeholder: "the scene's" }),
       // (the farm refuses it, 422 on this field, where it cannot denoise: pyoidn missing)
       ...field("denoise", "Denoise when done (Open Image Denoise)", { type: "checkbox" })),
     formError, submit);
@@ -80,9 +83,13 @@ export function renderSubmit(view) {
     scene.setAttribute("aria-invalid", "true");
   }
 
+  // Whether the scene sent had its render.target_error from the form's field
+  let targetFromField = false;
+
   function showErrors(detail) {
     for (const d of Array.isArray(detail) ? detail : [{ loc: [], msg: String(detail) }]) {
-      const loc = (d.loc || []).slice(d.loc?.[0] === "body" ? 1 : 0);
+      let loc = (d.loc || []).slice(d.loc?.[0] === "body" ? 1 : 0);
+      if (targetFromField && loc.join(".") === "scene.render.target_error") loc = ["target_error"];
       if (loc[0] === "scene") {
         sceneError(jsonPath(loc.slice(1)), d.msg, loc.slice(1));
       } else if (loc.length && document.getElementById(`err-${loc[0]}`)) {
@@ -128,6 +135,11 @@ export function renderSubmit(view) {
       sceneError("", `is not valid JSON: ${err.message}`, null);
       return;
     }
+    const target = document.getElementById("f-target_error").value;
+    targetFromField = target !== "" && parsed !== null && typeof parsed === "object"
+      && !Array.isArray(parsed) && (parsed.render == null
+        || (typeof parsed.render === "object" && !Array.isArray(parsed.render)));
+    if (targetFromField) parsed.render = { ...parsed.render, target_error: Number(target) };
     const body = { scene: parsed, name: document.getElementById("f-name").value.trim() };
     for (const k of ["priority", "tile_size", "spp_per_pass", "max_spp_per_pass"]) {
       const v = document.getElementById(`f-${k}`).value;

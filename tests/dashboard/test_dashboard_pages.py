@@ -340,6 +340,34 @@ def test_a_job_with_a_target_error_shows_the_target_and_its_estimate(dashboard, 
     no_page_errors(page)
 
 
+def test_the_submit_forms_target_sets_the_scenes_and_its_error_shows_next_to_it(
+        dashboard, page, api, artifacts):
+    """The Submit form's target relMSE is set in the scene sent (render.target_error, over the
+    scene's own); a value the farm refuses (422 on scene.render.target_error) is said next to
+    the field, not in the scene's errors, and nothing is queued."""
+    before = api.get("/api/jobs").json()["count"]
+    scene = json.loads((ROOT / "examples" / f"{ROOT_EXAMPLE}.json").read_text())
+    scene["film"] = {"width": 32, "height": 24}
+    scene["render"].update(spp=64, target_error=0.5)
+    page.goto(f"{dashboard.url}/#/submit")
+    page.fill("#scene", json.dumps(scene))
+    page.fill("#f-target_error", "-0.02")
+    page.click("#submit-job")
+    error = page.wait_for_selector("#err-target_error:not(:empty)")
+    assert "> 0" in error.inner_text()
+    assert page.get_attribute("#f-target_error", "aria-invalid") == "true"
+    assert page.locator("#scene-errors li").count() == 0
+    shot(page, artifacts, "submit-target-error")
+    assert api.get("/api/jobs").json()["count"] == before
+    page.fill("#f-target_error", "0.02")
+    page.click("#submit-job")
+    page.wait_for_url("**/#/job/*")
+    job = api.get(f"/api/jobs/{page.url.rsplit('/', 1)[1]}").json()
+    assert job["target_error"] == 0.02
+    page.wait_for_selector("#job-status .badge.s-done", timeout=120_000)
+    no_page_errors(page)
+
+
 def test_a_running_job_with_a_target_error_shows_its_estimate_so_far(dashboard, page):
     """While a job with a target runs, its page gives the estimate from the samples merged so
     far, and says when there is none yet (a pixel without its pilot). The job is made in the
