@@ -169,9 +169,13 @@ def cmd_render(args: argparse.Namespace) -> int:
     from renderer.film.adaptive import stopping_error
 
     if compiled.target_error is not None:
-        print(f"reached: expected relMSE {stopping_error(buf):.3g} (target "
+        reached = stopping_error(buf)
+        capped = reached > compiled.target_error and int(buf.count.max(initial=0)) >= spp
+        print(f"reached: expected relMSE {reached:.3g} (target "
               f"{compiled.target_error:g}), {buf.count.mean():.0f} spp a pixel on average "
-              f"({int(buf.count.min())}–{int(buf.count.max())})", file=sys.stderr)
+              f"({int(buf.count.min())}–{int(buf.count.max())})"
+              + (f"; pixels stopped at the most a pixel takes, {spp} spp (--spp or "
+                 "render.spp): more reaches the target" if capped else ""), file=sys.stderr)
         total = int(buf.count.sum() + buf.dropped.sum())
     elif buf.count.size and int(buf.count.min()) >= 2:
         # (the same estimate from each pixel's own samples: what a target would stop on)

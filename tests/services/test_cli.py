@@ -158,6 +158,13 @@ def test_target_error_option_sets_and_drops_the_scenes_target(tmp_path, capsys):
     line = next(x for x in err.splitlines() if x.startswith("reached: expected relMSE"))
     assert 0 < float(line.split()[3]) <= 0.05
     assert 8 <= float(line.split()[6]) < 2048  # (mean spp: past the pilot, far below the cap)
+    assert "more reaches the target" not in line
+    # A cap too low for the target: the line says the pixels stopped at it
+    assert main(["render", str(scene), "-o", str(out), "--spp", "8",
+                 "--target-error", "0.0001", "-q"]) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines() if x.startswith("reached:"))
+    assert line.endswith("; pixels stopped at the most a pixel takes, 8 spp (--spp or "
+                         "render.spp): more reaches the target"), line
 
     data = json.loads(scene.read_text())
     data["render"].update(spp=16, target_error=0.05)
