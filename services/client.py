@@ -240,9 +240,13 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
              if job["dropped_samples"] else ""), file=sys.stderr)
     if job.get("expected_error") is not None:  # (its samples' estimate; none below 2 a pixel)
         target = job.get("target_error")
+        # (the farm stops a frame below its target: a done job above it ran into the cap)
+        short = target is not None and job["expected_error"] > target
         print(f"expected relMSE {job['expected_error']:.3g}"
               + (f" (target {target:g})" if target is not None else
-                 " (estimated from the samples' variance)"), file=sys.stderr)
+                 " (estimated from the samples' variance)")
+              + (f"; above the target: a pixel takes at most render.spp, {job.get('spp')} "
+                 "samples, and more may reach it" if short else ""), file=sys.stderr)
     frames = job.get("frames", 1)
     for output in outputs:
         for frame in range(frames):

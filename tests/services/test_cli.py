@@ -213,6 +213,34 @@ def test_submit_target_error_option_sets_the_sent_scenes_target(tmp_path, monkey
     assert capsys.readouterr().out.split() == ["job1", "job2", "job3"]
 
 
+@pytest.mark.parametrize("expected, short", [(0.016, False), (0.03, True)])
+def test_submit_says_when_a_job_stopped_at_its_spp_short_of_its_target(
+        tmp_path, monkeypatch, capsys, expected, short):
+    """lucent submit --wait: a done job's estimate is given with its target, and where it is
+    above the target (the farm stops a frame below it), that render.spp may be what stopped
+    it."""
+    import services.client
+
+    class Farm:
+        def __init__(self, server, token=None):
+            pass
+
+        def submit(self, scene, **options):
+            return {"id": "job1", "tiles": 1, "tasks_total": 1}
+
+        def wait(self, job_id, progress=True):
+            return {"id": job_id, "status": "done", "dropped_samples": 0, "frames": 1,
+                    "spp": 64, "target_error": 0.02, "expected_error": expected}
+
+    monkeypatch.setattr(services.client, "Client", Farm)
+    assert main(["submit", str(small_scene(tmp_path)), "--server", "http://farm", "--wait",
+                 "-q"]) == 0
+    line = next(x for x in capsys.readouterr().err.splitlines() if x.startswith("expected"))
+    assert line.startswith(f"expected relMSE {expected:g} (target 0.02)")
+    assert line.endswith("; above the target: a pixel takes at most render.spp, 64 samples, "
+                         "and more may reach it") is short
+
+
 def _write(path: Path, data: dict) -> Path:
     path.write_text(json.dumps(data))
     return path
