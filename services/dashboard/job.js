@@ -255,7 +255,11 @@ export function renderJob(view, jobId) {
       return FINAL.includes(j.status) ? asked : `${asked} · estimated once every pixel has samples`;
     }
     const est = digits3(j.expected_error);
-    return j.status === "done" ? `${asked} · reached ${est} (estimated)` : `${asked} · now ${est}`;
+    if (j.status !== "done") return `${asked} · now ${est}`;
+    // (the farm stops a frame below its target: a done job above it ran into render.spp)
+    return j.expected_error > j.target_error
+      ? `${asked} · ${est} (estimated): above the target, a pixel takes at most ${j.spp} samples`
+      : `${asked} · reached ${est} (estimated)`;
   }
 
   // A job without a target: the frames' expected relMSE from the samples merged so far

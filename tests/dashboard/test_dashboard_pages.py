@@ -370,8 +370,9 @@ def test_the_submit_forms_target_sets_the_scenes_and_its_error_shows_next_to_it(
 
 def test_a_running_job_with_a_target_error_shows_its_estimate_so_far(dashboard, page):
     """While a job with a target runs, its page gives the estimate from the samples merged so
-    far, and says when there is none yet (a pixel without its pilot). The job is made in the
-    store, not queued; its answer is given the target and the estimates by the page's route."""
+    far, and says when there is none yet (a pixel without its pilot); done above its target, it
+    names the cap a pixel takes. The job is made in the store, not queued; its answer is given
+    the target, the estimates and the status by the page's route."""
     import uuid
 
     from services.farm.planner import Plan
@@ -379,11 +380,11 @@ def test_a_running_job_with_a_target_error_shows_its_estimate_so_far(dashboard, 
     store = dashboard.store()
     job_id = uuid.uuid4().hex
     store.create_job(job_id, "target", 0, Plan(16, 16, 4, 8, 4), b"{}")
-    estimate = {"expected_error": None}
+    estimate = {"expected_error": None, "status": "running"}
 
     def answer(route):
         body = route.fetch().json()
-        body.update(status="running", target_error=0.01, **estimate)
+        body.update(target_error=0.01, spp=64, **estimate)
         route.fulfill(json=body)
 
     page.route(f"**/api/jobs/{job_id}", answer)
@@ -392,6 +393,11 @@ def test_a_running_job_with_a_target_error_shows_its_estimate_so_far(dashboard, 
     page.wait_for_function(row.format("relMSE 0.01 · estimated once every pixel has samples"))
     estimate["expected_error"] = 0.031234
     page.wait_for_function(row.format("relMSE 0.01 · now 0.0312"), timeout=15_000)
+    # Done above its target (the farm stops a frame below it): the cap is named
+    estimate["status"] = "done"
+    page.wait_for_function(row.format(
+        "relMSE 0.01 · 0.0312 (estimated): above the target, a pixel takes at most 64 samples"),
+        timeout=15_000)
     page.unroute(f"**/api/jobs/{job_id}")
     store.cancel_job(job_id)
     no_page_errors(page)
