@@ -108,7 +108,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     import numba
     from tqdm import tqdm
 
-    from renderer.film.adaptive import AIM
+    from renderer.film.adaptive import AIM, PILOT
     from renderer.materials.auto import describe_choice
     from renderer.render import render_buffer
     from renderer.scene.compile import CompileError, compile_scene
@@ -145,15 +145,23 @@ def cmd_render(args: argparse.Namespace) -> int:
     elif args.kernel != "scalar" and (reason := unsupported(compiled)) is not None:
         by = "the scalar kernel" if args.kernel == "wavefront" else "the GPU's path kernel"
         print(f"the wavefront stages do not cover {reason}: {by} renders it", file=sys.stderr)
-    total = compiled.width * compiled.height * spp
+    # (with a target, the pilot's samples until its plan says how many the loop will take)
+    total = compiled.width * compiled.height * (spp if compiled.target_error is None
+                                                else min(PILOT, spp))
     with tqdm(total=total, unit="samples", unit_scale=True, disable=args.quiet,
               file=sys.stderr, smoothing=0.3) as bar:
 
-        def progress(done: int, _total: int, _seconds: float) -> None:
+        def progress(done: int, planned: int, _seconds: float) -> None:
+            if compiled.target_error is not None:
+                # The loop's samples, not the cap's: the pilot's plan, raised to what a round
+                # plans past it; the render's own total once it ends (done == planned)
+                bar.total = done if done == planned else max(bar.total, planned)
+                bar.refresh()
             bar.update(done - bar.n)
 
         def plan(mean_spp: float) -> None:
             # (called only with a target)
+            bar.total = max(round(mean_spp * compiled.width * compiled.height), bar.n)
             target = float(compiled.target_error or 0.0)
             bar.write(f"target relMSE {target:g}: after the pilot the allocation plans "
                       f"{mean_spp:.0f} spp a pixel on average (at most {spp}) to reach an "

@@ -178,6 +178,33 @@ def test_target_error_option_sets_and_drops_the_scenes_target(tmp_path, capsys):
     np.testing.assert_array_equal(np.load(out), want)
 
 
+def test_the_progress_bar_of_a_target_render_counts_its_samples_not_the_caps(tmp_path, capsys):
+    """With a target the bar's total is the pilot's plan, raised where a round plans past it,
+    and the samples rendered once it ends: it ends full, not at the share of the spp cap
+    (2048 a pixel here) that the loop took."""
+    import re
+
+    from tqdm import tqdm
+
+    from renderer.render import render_buffer
+
+    scene = small_scene(tmp_path)
+    assert main(["render", str(scene), "-o", str(tmp_path / "x.npy"), "--spp", "2048",
+                 "--target-error", "0.01"]) == 0
+    err = capsys.readouterr().err
+    bars = [x for x in re.split(r"[\r\n]", err) if "samples/s]" in x]
+    assert bars[-1].lstrip().startswith("100%|"), bars[-1]
+    # (the same render's samples: the loop's counts are a function of the scene)
+    data = json.loads(scene.read_text())
+    data["render"].update(spp=2048, target_error=0.01)
+    counts = render_buffer(compile_scene(load_scene_file(_write(tmp_path / "t.json", data)))).count
+    done, total = re.search(r"\| *(\S+)/(\S+) \[", bars[-1]).groups()
+    assert done == total == tqdm.format_sizeof(int(counts.sum())), bars[-1]
+    assert counts.mean() > 8  # (rounds after the pilot)
+    # (never the cap's 24 x 18 x 2048 samples as the total)
+    assert all(f"/{tqdm.format_sizeof(24 * 18 * 2048)} " not in bar for bar in bars), bars
+
+
 @pytest.mark.parametrize("value", ["0", "-0.01", "inf", "nan", "abc"])
 def test_target_error_option_refuses_what_is_not_a_relmse(tmp_path, capsys, value):
     with pytest.raises(SystemExit) as exit_:
