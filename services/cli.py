@@ -86,9 +86,9 @@ def cmd_render(args: argparse.Namespace) -> int:
         scene.render.seed = args.seed
     if args.sampler is not None:
         scene.render.sampler = args.sampler
-    if args.target_error is not None:
-        # (before the compile: auto chooses its method for the target)
-        scene.render.target_error = None if args.target_error == "none" else args.target_error
+    # (before the compile: auto chooses its method for the target)
+    for field, value in _render_options(args).items():
+        setattr(scene.render, field, value)
     spp = args.spp if args.spp is not None else scene.render.spp
     if spp < 1:
         print("--spp must be >= 1", file=sys.stderr)
@@ -306,11 +306,9 @@ def cmd_submit(args: argparse.Namespace) -> int:
         return frames
     if frames is not None:
         options["frames"] = frames
-    render = ({} if args.target_error is None else
-              {"target_error": None if args.target_error == "none" else args.target_error})
     return submit_and_wait(args.scene, args.server, token=os.environ.get("LUCENT_API_TOKEN"),
                            wait=args.wait, outputs=[args.output] if args.output else [],
-                           quiet=args.quiet, options=options, render=render)
+                           quiet=args.quiet, options=options, render=_render_options(args))
 
 
 def cmd_demo(args: argparse.Namespace) -> int:
@@ -384,6 +382,14 @@ def _target_error(text: str) -> float | str:
     if not (math.isfinite(value) and value > 0):
         raise argparse.ArgumentTypeError(f"{text!r}: the target must be a relMSE > 0, or none")
     return value
+
+
+def _render_options(args: argparse.Namespace) -> dict:
+    """The scene's ``render`` fields the command line sets (``render`` and ``submit``):
+    ``target_error`` from ``--target-error`` where given, None for ``none``."""
+    if args.target_error is None:
+        return {}
+    return {"target_error": None if args.target_error == "none" else args.target_error}
 
 
 def build_parser() -> argparse.ArgumentParser:
