@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numba
 import numpy as np
 
-from renderer.film.adaptive import sample_to_target
+from renderer.film.adaptive import noise_target, sample_to_target
 from renderer.film.buffer import SampleBuffer
 from renderer.integrators.path import render_tile_kernel
 from renderer.packet import render_tile_packet
@@ -126,7 +126,9 @@ def render_buffer(
             if progress is not None:
                 progress(done, planned, time.perf_counter() - start)
 
-        return sample_to_target(render_pass, (cs.height, cs.width), cs.target_error, spp,
+        # (the samples' share of the target: auto's models may take some of it)
+        return sample_to_target(render_pass, (cs.height, cs.width),
+                                noise_target(cs.target_error, cs.expected_bias), spp,
                                 plan=plan, progress=report, max_pass=pass_spp, even=even)
     done = 0
     while done < spp:

@@ -108,7 +108,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     import numba
     from tqdm import tqdm
 
-    from renderer.film.adaptive import AIM, PILOT
+    from renderer.film.adaptive import AIM, PILOT, noise_target
     from renderer.materials.auto import describe_choice
     from renderer.render import render_buffer
     from renderer.scene.compile import CompileError, compile_scene
@@ -163,10 +163,14 @@ def cmd_render(args: argparse.Namespace) -> int:
             # (called only with a target)
             bar.total = max(round(mean_spp * compiled.width * compiled.height), bar.n)
             target = float(compiled.target_error or 0.0)
+            bias = compiled.expected_bias
+            aim = (f"{AIM * target:.3g} ({AIM:g} × target)" if bias == 0.0 else
+                   f"{AIM * noise_target(target, bias):.3g} from the samples' noise ({AIM:g} × "
+                   f"{noise_target(target, bias):.3g}: the target less the bias auto's models "
+                   f"may add, {bias:.3g})")
             bar.write(f"target relMSE {target:g}: after the pilot the allocation plans "
                       f"{mean_spp:.0f} spp a pixel on average (at most {spp}) to reach an "
-                      f"expected relMSE of {AIM * target:.3g} ({AIM:g} × target)",
-                      file=sys.stderr)
+                      f"expected relMSE of {aim}", file=sys.stderr)
 
         t0 = time.perf_counter()
         buf = render_buffer(compiled, spp, threads=threads, progress=progress,
@@ -177,10 +181,15 @@ def cmd_render(args: argparse.Namespace) -> int:
     from renderer.film.adaptive import stopping_error
 
     if compiled.target_error is not None:
-        reached = stopping_error(buf)
+        noise = stopping_error(buf)
+        bias = compiled.expected_bias
+        # (the frame's expected relMSE: the samples' noise and, at most, auto's models' bias)
+        reached = noise + bias
         capped = reached > compiled.target_error and int(buf.count.max(initial=0)) >= spp
+        parts = "" if bias == 0.0 else (f"; the samples' noise {noise:.3g} and the bias of "
+                                        f"auto's models, at most {bias:.3g}")
         print(f"reached: expected relMSE {reached:.3g} (target "
-              f"{compiled.target_error:g}), {buf.count.mean():.0f} spp a pixel on average "
+              f"{compiled.target_error:g}{parts}), {buf.count.mean():.0f} spp a pixel on average "
               f"({int(buf.count.min())}–{int(buf.count.max())})"
               + (f"; pixels stopped at the most a pixel takes, {spp} spp (--spp or "
                  "render.spp): more reaches the target" if capped else ""), file=sys.stderr)

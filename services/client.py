@@ -242,8 +242,11 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
         target = job.get("target_error")
         # (the farm stops a frame below its target: a done job above it ran into the cap)
         short = target is not None and job["expected_error"] > target
+        bias = job.get("expected_bias") or 0.0  # (what auto's models may add: the job's answer)
+        parts = (f"; the samples' noise {job['expected_error'] - bias:.3g} and the bias of "
+                 f"auto's models, at most {bias:.3g}" if bias else "")
         print(f"expected relMSE {job['expected_error']:.3g}"
-              + (f" (target {target:g})" if target is not None else
+              + (f" (target {target:g}{parts})" if target is not None else
                  " (estimated from the samples' variance)")
               + (f"; above the target: a pixel takes at most render.spp, {job.get('spp')} "
                  "samples, and more may reach it" if short else ""), file=sys.stderr)

@@ -300,6 +300,20 @@ def neighbour_variance(buf: SampleBuffer, floor: float | None = None) -> np.ndar
     return shape_estimates(buf, floor)[0]
 
 
+# The least share of the target the loop leaves the samples' noise where a model ``auto``
+# chose takes the rest (noise_target)
+NOISE_FLOOR = 0.1
+
+
+def noise_target(target: float, bias: float) -> float:
+    """The samples' share of ``target`` (the frame's expected relMSE) where the frame's
+    models add ``bias`` to it (``renderer.materials.auto.frame_bias``): the target less the
+    bias, at least ``NOISE_FLOOR`` × the target (where the bias is nearly all of it, the loop
+    would otherwise take samples without end; the frame may then end above the target by
+    what the bias takes past that share)."""
+    return max(target - max(bias, 0.0), NOISE_FLOOR * target)
+
+
 def aim_reached(error: float, target: float) -> bool:
     """The stop of the local loop and of the farm's tile rule: the frame's estimated error is
     within ``STOP_SLACK`` of AIM × ``target``."""

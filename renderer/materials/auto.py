@@ -403,6 +403,80 @@ def auto_choice(scene, name: str):
     return choice
 
 
+# Rays at most for ``frame_share`` (pixel centres on a grid of every k-th pixel beyond it), and
+# its ray-sphere tests at most (fewer rays where there are many objects: a job's every frame
+# asks it at submission)
+SHARE_RAYS = 65536
+SHARE_TESTS = 1 << 24
+
+
+def frame_share(scene, objects) -> float:
+    """The share of the film's pixels that may see one of ``objects``: an upper bound of the
+    pixels they cover, cheap (no BVH). A pixel counts when the ray through its centre passes
+    within a pixel's angle (its diagonal) of an object's bounding sphere, so that an object
+    smaller than a pixel, or a pixel its silhouette crosses off centre, still counts; occlusion
+    and the bounding sphere's slack only add to it. Beyond ``SHARE_RAYS`` pixels, one ray a
+    block of k×k pixels, each sphere widened by the block's diagonal, with fewer rays where
+    ``SHARE_TESTS`` would be passed (coarser, still a bound). 1 where the camera is inside a
+    bounding sphere."""
+    if not objects:
+        return 0.0
+    cam, film = scene.camera, scene.film
+    w, h = film.width, film.height
+    pos = np.asarray(cam.position, np.float64)
+    forward = np.asarray(cam.look_at, np.float64) - pos
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(cam.up, np.float64))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    tan_half = math.tan(math.radians(cam.fov) / 2.0)
+    rays = max(1024, min(SHARE_RAYS, SHARE_TESTS // len(objects)))
+    k = max(1, math.ceil(math.sqrt(w * h / rays)))
+    # (the render's camera_ray through each block's centre pixel)
+    xs = (2.0 * (np.arange(k / 2.0, w, k)) / w - 1.0) * tan_half * (w / h)
+    ys = (1.0 - 2.0 * (np.arange(k / 2.0, h, k)) / h) * tan_half
+    d = (forward[None, None, :] + xs[None, :, None] * right[None, None, :]
+         + ys[:, None, None] * up[None, None, :])
+    d /= np.linalg.norm(d, axis=-1, keepdims=True)
+    # a pixel's angle is largest at the film's centre: 2 atan(tan_half / h) across
+    widen = k * math.sqrt(2.0) * 2.0 * math.atan(tan_half / h)
+    spheres = [_bounding_sphere(o) for o in objects]
+    centres = np.array([c for c, _ in spheres], np.float64) - pos
+    radii = np.array([r for _, r in spheres], np.float64)
+    dist = np.linalg.norm(centres, axis=1)
+    if (dist <= radii).any():
+        return 1.0
+    # a ray sees a sphere when its angle to the centre is within the sphere's angular radius
+    # and the widening: its cosine at least the cosine of their sum (all in one product a
+    # block of spheres)
+    toward = centres / dist[:, None]
+    least = np.cos(np.minimum(np.arcsin(radii / dist) + widen, math.pi))
+    flat = d.reshape(-1, 3)
+    seen = np.zeros(len(flat), bool)
+    for i in range(0, len(spheres), 64):
+        seen |= (flat @ toward[i:i + 64].T >= least[i:i + 64]).any(axis=1)
+    return float(seen.mean())
+
+
+def frame_bias(scene, choices: dict | None = None) -> float:
+    """The bias ``auto``'s models add to the frame's relMSE, at most: over the materials it
+    renders with a biased model (``AutoChoice.expected_error`` > 0, their measured relMSE over
+    the object's pixels), Σ expected_error × ``frame_share`` of the material's objects, at most
+    the largest of them. ``render.target_error`` bounds the frame's relMSE, the samples' noise
+    and this together: the loop aims the noise at the target less it
+    (``renderer.film.adaptive.noise_target``). A method the scene names is the scene's choice,
+    and its bias is not counted. ``choices``: ``auto_choices(scene)``, where already made."""
+    choices = auto_choices(scene) if choices is None else choices
+    total = 0.0
+    largest = 0.0
+    for name, choice in choices.items():
+        if choice.expected_error > 0.0:
+            objects = [o for o in scene.objects if o.material == name]
+            total += choice.expected_error * frame_share(scene, objects)
+            largest = max(largest, choice.expected_error)
+    return min(total, largest)
+
+
 def auto_choices(scene) -> dict:
     """``auto_choice`` for every translucent material with method auto."""
     return {name: auto_choice(scene, name) for name, m in scene.materials.items()

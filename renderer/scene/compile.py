@@ -20,7 +20,7 @@ from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_orde
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds, spheres_alone
 from renderer.geometry.transform import rotation_matrix
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, ENVIRONMENT, POINT
-from renderer.materials.auto import auto_choice
+from renderer.materials.auto import auto_choice, frame_bias
 from renderer.materials.bsdf import (
     BACKLIGHT,
     CONDUCTOR,
@@ -108,6 +108,9 @@ class CompiledScene:
     seed: int
     stack_size: int
     target_error: float | None = None
+    # With a target: the bias auto's models add to the frame's relMSE, at most
+    # (renderer.materials.auto.frame_bias); the loop aims the samples' noise at the target less it
+    expected_bias: float = 0.0
     info: dict = field(default_factory=dict)
     # What ``derived`` has computed from ``arrays`` (a replaced copy starts without)
     _derived: dict = field(default_factory=dict, init=False, repr=False, compare=False)
@@ -412,6 +415,8 @@ def compile_scene(scene) -> CompiledScene:
         max_depth=scene.render.max_depth,
         seed=scene.render.seed,
         target_error=scene.render.target_error,
+        expected_bias=(frame_bias(scene, auto) if scene.render.target_error is not None
+                       else 0.0),
         stack_size=stack_size(int(bvh_levels)),
         info={
             "primitives": int(len(prim_kind)),

@@ -116,9 +116,16 @@ class JobPublic(BaseModel):
         default=None, description="the scene's render.target_error: the frame's expected relMSE "
                                   "asked for (docs/adaptive-sampling.md)")
     expected_error: float | None = Field(
-        default=None, description="the frames' expected relMSE estimated from the samples "
-                                  "merged so far, once every pixel has 2 (the quantity "
-                                  "target_error bounds; any job has it)")
+        default=None, description="the frames' expected relMSE: the samples' noise estimated "
+                                  "from the samples merged so far, once every pixel has 2, plus "
+                                  "expected_bias (the quantity target_error bounds; any job has "
+                                  "it)")
+    expected_bias: float = Field(
+        default=0.0, description="with render.target_error: the bias the models method auto "
+                                 "chose may add to the frames' relMSE, at most (their measured "
+                                 "error over their objects' pixels times the share of the frame "
+                                 "those may cover); the samples' noise is aimed at the target "
+                                 "less it (docs/adaptive-sampling.md)")
     waiting_for: str | None = Field(
         default=None, description="queued or running with no live worker that has its tags: "
                                   "'waiting for a worker with tags gpu'")

@@ -254,12 +254,18 @@ export function renderJob(view, jobId) {
     if (j.expected_error == null) {
       return FINAL.includes(j.status) ? asked : `${asked} · estimated once every pixel has samples`;
     }
+    // (where auto's models may add a bias, the estimate is the samples' noise and it together)
+    const parts = j.expected_bias
+      ? ` (the samples' noise ${digits3(j.expected_error - j.expected_bias)} and auto's bias, `
+        + `at most ${digits3(j.expected_bias)})`
+      : "";
     const est = digits3(j.expected_error);
-    if (j.status !== "done") return `${asked} · now ${est}`;
+    if (j.status !== "done") return `${asked} · now ${est}${parts}`;
     // (the farm stops a frame below its target: a done job above it ran into render.spp)
     return j.expected_error > j.target_error
-      ? `${asked} · ${est} (estimated): above the target, a pixel takes at most ${j.spp} samples`
-      : `${asked} · reached ${est} (estimated)`;
+      ? `${asked} · ${est} (estimated${parts ? `; ${parts.slice(2, -1)}` : ""}): above the `
+        + `target, a pixel takes at most ${j.spp} samples`
+      : `${asked} · reached ${est} (estimated${parts ? `; ${parts.slice(2, -1)}` : ""})`;
   }
 
   // A job without a target: the frames' expected relMSE from the samples merged so far

@@ -28,7 +28,7 @@ from typing import Any
 
 from celery import Celery
 
-from renderer.materials.auto import auto_choices, describe_choice
+from renderer.materials.auto import auto_choices, describe_choice, frame_bias
 from renderer.scene import Limits, SceneError, load_scene
 from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
@@ -109,6 +109,9 @@ class CheckedScene:
     frames_json: bytes | None = None  # a job of frames: their JSON Patches
     n_frames: int = 1
     target_error: float | None = None  # render.target_error (the frame's expected relMSE)
+    # with a target: the bias auto's models may add to it, the largest over the frames
+    # (renderer.materials.auto.frame_bias; the workers aim the samples' noise at the rest)
+    expected_bias: float = 0.0
     packet: bool = False  # the packet kernel covers the scene (asked on packet farms only)
 
 
@@ -146,6 +149,7 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
     except SceneError as err:
         return Refusal(422, [(scene_loc(p), m, "scene") for p, m in err.errors])
     errors: list[tuple[Loc, str, str]] = []
+    frame_scenes = []
     for i, patch in enumerate(frames or []):
         try:
             frame = apply_patch(scene, patch)
@@ -163,6 +167,7 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
             errors += [(["body", "frames", i, *scene_loc(p)[1:]], f"frame {i}: {m}", "scene")
                        for p, m in err.errors]
             continue
+        frame_scenes.append(fp)
         if (fp.film.width, fp.film.height, fp.render.spp) != \
                 (parsed.film.width, parsed.film.height, parsed.render.spp):
             errors.append((["body", "frames", i], f"frame {i}: a frame keeps the scene's film "
@@ -171,13 +176,18 @@ def check_scene(scene: Any, limits: Limits, blob_root: str | None = None,
     if errors:
         return Refusal(422, errors)
     # What `auto` picks for each material (the workers compile the same choice)
+    choices = auto_choices(parsed)
     methods = {name: f"{c.method}: {describe_choice(c.reason, c.expected_error)}"
-               for name, c in auto_choices(parsed).items()}
+               for name, c in choices.items()}
+    bias = 0.0
+    if parsed.render.target_error is not None and choices:
+        # (each frame's camera and objects may differ; cheap: no BVH)
+        bias = max([frame_bias(parsed, choices), *(frame_bias(fp) for fp in frame_scenes)])
     return CheckedScene(parsed.film.width, parsed.film.height, parsed.render.spp, methods,
                         json.dumps(scene).encode(),
                         json.dumps(frames).encode() if frames else None,
                         len(frames) if frames else 1, parsed.render.target_error,
-                        packet and packet_covers(parsed))
+                        packet=packet and packet_covers(parsed), expected_bias=bias)
 
 
 def queue_job(store: JobStore, records: Records, celery: Celery, settings: Settings,
@@ -245,7 +255,8 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     try:
         meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
                                 scene.methods, created.created_at, submitter, options.tags,
-                                scene.frames_json, scene.target_error, options.denoise)
+                                scene.frames_json, scene.target_error, options.denoise,
+                                scene.expected_bias)
     except Exception:
         with contextlib.suppress(RecordsUnavailable):
             records.delete(job_id)

@@ -23,7 +23,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from renderer.film.adaptive import frame_scale, pass_counts
+from renderer.film.adaptive import frame_scale, noise_target, pass_counts
 from renderer.film.buffer import SampleBuffer
 from services.farm.blocklist import no_eligible_reason
 from services.farm.merge import merge_pass
@@ -128,10 +128,13 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
     int32), a pure rule of the tile's merged buffer and the frame's scale from the job's tile
     summaries (``renderer.film.adaptive.pass_counts``, ``frame_scale``), nothing once the
     frame's estimated error from them (``JobMeta.expected_error``) is within the rule's slack of
-    its aim. Before the tile's first merge the rule sees an empty buffer and gives the pilot:
-    ``PILOT`` samples every pixel (at most the pass and ``render.spp``), as the local loop's,
-    not the whole first pass (a packet scene's first pass of 32 samples took the Cornell box to
-    0.07x a target of 0.1)."""
+    its aim: AIM × the target less the bias auto's models may add (``JobMeta.expected_bias``,
+    ``noise_target``), as the local loop's. Before the tile's first merge the rule sees an
+    empty buffer and gives the pilot: ``PILOT`` samples every pixel (at most the pass and
+    ``render.spp``), as the local loop's, not the whole first pass (a packet scene's first
+    pass of 32 samples took the Cornell box to 0.07x a target of 0.1)."""
+    # (the samples' noise's share of the target: auto's models may take some of it)
+    target_error = noise_target(target_error, meta.expected_bias)
     data = store.tile_buffer(meta.id, tile)
     buf = (SampleBuffer.empty(*meta.plan.tile_rect(tile)) if data is None
            else SampleBuffer.from_bytes(data))

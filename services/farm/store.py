@@ -329,15 +329,18 @@ class JobMeta:
     # render.target_error, and the sums of its tiles' summaries (renderer.film.adaptive
     # tile_summary, kept by every merge): a target job's scale, and every job's expected error
     target_error: float | None = None
+    # the bias auto's models may add to the frames' relMSE (renderer.materials.auto.frame_bias,
+    # the largest over the frames): the target less it is the samples' noise's share
+    expected_bias: float = 0.0
     err_sum: float = 0.0
     weight_sum: float = 0.0
     err_pixels: int = 0
 
     @property
     def expected_error(self) -> float | None:
-        """The frames' expected relMSE from their merged samples (the quantity target_error
-        bounds; every job's merges keep it), once every pixel has an estimate (2 samples); else
-        None."""
+        """The frames' expected relMSE from their merged samples' noise (with ``expected_bias``
+        the quantity target_error bounds; every job's merges keep it), once every pixel has an
+        estimate (2 samples); else None."""
         pixels = self.plan.width * self.plan.height * self.plan.frames
         if self.err_pixels < pixels or pixels == 0:
             return None
@@ -390,6 +393,7 @@ class JobMeta:
             tags=tuple(t for t in d.get("tags", "").split(",") if t),
             denoise=d.get("denoise") == "1",
             target_error=opt_float("target_error"),
+            expected_bias=float(d.get("expected_bias") or 0.0),
             err_sum=float(d.get("err_sum") or 0.0),
             weight_sum=float(d.get("weight_sum") or 0.0),
             err_pixels=int(float(d.get("err_pixels") or 0)),
@@ -416,7 +420,8 @@ class JobSnapshot:
         head = {"meta": {**{k: getattr(m, k) for k in (
                     "id", "name", "status", "priority", "tasks_merged", "samples_merged",
                     "dropped", "version", "created_at", "started_at", "finished_at", "error",
-                    "methods", "submitter", "tags", "denoise", "target_error")},
+                    "methods", "submitter", "tags", "denoise", "target_error",
+                    "expected_bias")},
                     "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
                              m.plan.spp_per_pass, m.plan.max_spp_per_pass, m.plan.frames,
                              m.plan.pass_growth]},
@@ -498,10 +503,11 @@ class JobStore:
                    scene_json: str | bytes, methods: dict[str, str] | None = None,
                    created_at: float | None = None, submitter: str | None = None,
                    tags: tuple[str, ...] = (), frames_json: bytes | None = None,
-                   target_error: float | None = None, denoise: bool = False) -> JobMeta:
+                   target_error: float | None = None, denoise: bool = False,
+                   expected_bias: float = 0.0) -> JobMeta:
         """Store a job, queued; ``frames_json``: the patches of a job of ``plan.frames``
         frames; ``target_error``: the scene's ``render.target_error`` (its merges then keep the
-        tiles' error summaries)."""
+        tiles' error summaries), ``expected_bias`` the share of it auto's models may take."""
         now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -510,6 +516,7 @@ class JobStore:
             "finished_at": "", "error": "", "methods": json.dumps(methods or {}),
             "submitter": submitter or "", "tags": ",".join(tags),
             "target_error": "" if target_error is None else target_error,
+            "expected_bias": expected_bias,
             "denoise": "1" if denoise else "",
         }
         pipe = self.r.pipeline()
@@ -698,6 +705,7 @@ class JobStore:
             "tags": ",".join(meta.tags),
             "denoise": "1" if meta.denoise else "",
             "target_error": "" if meta.target_error is None else meta.target_error,
+            "expected_bias": meta.expected_bias,
         }
         # The tiles' error summaries and the job's sums of them, as the merges kept them: each a
         # pure function of the tile's merged buffer, so computed again here rather than carried
@@ -752,6 +760,8 @@ class JobStore:
             out["denoise"] = True
         if meta is not None and meta.target_error is not None:
             out["target_error"] = meta.target_error
+            if meta.expected_bias:
+                out["expected_bias"] = meta.expected_bias
         if meta is not None and meta.expected_error is not None:
             out["expected_error"] = meta.expected_error
         estimates = self.tile_estimates(job_id)

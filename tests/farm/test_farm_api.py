@@ -598,6 +598,24 @@ def test_a_target_jobs_progress_is_how_far_its_error_has_fallen(client, store):
     assert job["progress"] == 1.0 and job["eta_seconds"] == 0.0
 
 
+def test_a_target_jobs_error_and_progress_count_the_bias_auto_may_add(client, store):
+    """Where auto's models may add a bias (JobMeta.expected_bias) the job's expected error is
+    the samples' noise plus it, and its progress how far the noise has fallen toward the
+    target less it: with target 0.02, bias 0.01 and the noise at 0.04, 0.05 and 1/4."""
+    plan = Plan(width=16, height=8, spp=4096, tile_size=8, spp_per_pass=8)
+    store.create_job(J1, "", 0, plan, "{}", target_error=0.02, expected_bias=0.01)
+    job = client.get(f"/api/jobs/{J1}").json()
+    assert job["expected_bias"] == 0.01 and job["expected_error"] is None
+    store.r.hset(store.job_key(J1), mapping={
+        "status": "running", "started_at": time.time() - 2.0, "samples_merged": 16 * 8 * 64,
+        "err_sum": 0.04 * 128, "err_pixels": 128})
+    job = client.get(f"/api/jobs/{J1}").json()
+    assert job["expected_error"] == pytest.approx(0.05)
+    assert job["progress"] == pytest.approx(0.25)  # not 0.02 / 0.05
+    assert job["eta_seconds"] == pytest.approx(16 * 8 * 64 * 3 / job["samples_per_second"],
+                                               rel=1e-6)
+
+
 def test_a_failed_tile_is_reported_once_in_errors(client, store):
     """The tile's error and the job's (the same words, "tile 1: ...") were both listed."""
     _job(store)

@@ -244,3 +244,30 @@ def test_lucent_submit_sweep_writes_a_numbered_file_a_frame(farm, farm_client, t
     job_id = capsys.readouterr().out.strip().splitlines()[-1]
     assert farm_client.delete(f"/api/jobs/{job_id}").status_code == 204
     assert lucent(["submit", str(tmp_path / "scene.json"), "--sweep", "render.seed"]) == 2
+
+
+def test_a_target_jobs_bias_is_its_frames_largest():
+    """check_scene keeps, for a job with a target, the bias auto's models may add over the frame
+    (renderer.materials.auto.frame_bias), the largest over its frames: a frame whose camera
+    comes close to dense wax (rendered as the opaque surface) raises it; without a target, none."""
+    from pathlib import Path
+
+    from renderer.materials.auto import frame_bias
+    from renderer.scene import Limits, load_scene
+    from services.farm.jobs import check_scene
+
+    root = Path(__file__).resolve().parents[2]
+    scene = json.loads((root / "examples" / "translucent_sphere.json").read_text())
+    scene["film"] = {"width": 32, "height": 24}
+    scene["materials"]["wax"].update(method="auto", albedo=[0.99] * 3, g=0.5, density=3000.0)
+    scene["render"]["target_error"] = 0.01
+    frames = [[], [{"op": "replace", "path": "/camera/position", "value": [0.0, -0.5, 1.3]},
+                   {"op": "replace", "path": "/camera/look_at", "value": [0.0, -0.5, 0.0]}]]
+    far = frame_bias(load_scene(scene))
+    near = frame_bias(load_scene(apply_patch(scene, frames[1])))
+    assert 0 < far < near
+    assert check_scene(scene, Limits()).expected_bias == pytest.approx(far, rel=1e-12)
+    assert check_scene(scene, Limits(), frames=frames).expected_bias == pytest.approx(near,
+                                                                                     rel=1e-12)
+    scene["render"].pop("target_error")
+    assert check_scene(scene, Limits(), frames=frames).expected_bias == 0.0

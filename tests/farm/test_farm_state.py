@@ -162,7 +162,8 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     rng = np.random.default_rng(7)
     plan = Plan(32, 16, 64, 16, 8)  # 2 tiles x 8 passes of 8
     job_id = uuid.uuid4().hex
-    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02)
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02,
+                     expected_bias=0.003)
     for t, passes in ((0, 2), (1, 1)):
         for p in range(passes):
             buf = SampleBuffer.empty(*plan.tile_rect(t))
@@ -175,13 +176,15 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     before = store.get_job(job_id)
     kept = store.r.hgetall(store.k("job", job_id, "tile_err"))
     assert before.target_error == 0.02 and before.expected_error is not None and len(kept) == 2
+    assert before.expected_bias == 0.003
 
     snap = store.snapshot(job_id)
     assert JobSnapshot.from_bytes(snap.to_bytes()).meta.target_error == 0.02
+    assert JobSnapshot.from_bytes(snap.to_bytes()).meta.expected_bias == 0.003
     assert store.delete_job(job_id, statuses=("queued", "running"))
     store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
     after = store.get_job(job_id)
-    assert after.target_error == 0.02
+    assert after.target_error == 0.02 and after.expected_bias == 0.003
     for name in ("err_sum", "weight_sum", "err_pixels"):
         assert getattr(after, name) == pytest.approx(getattr(before, name), rel=1e-12), name
     assert after.expected_error == pytest.approx(before.expected_error, rel=1e-12)
@@ -646,3 +649,9 @@ def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(s
     assert adaptive_counts(store, dataclasses.replace(meta, err_sum=1e9), 0, reached, 1).any()
     # a target the estimate does not reach: samples
     assert adaptive_counts(store, meta, 0, estimate / (AIM * 2.0), 1).any()
+    # the target the estimate is within reach of, where auto's models may add a bias of a
+    # quarter of it: the samples' noise aims at the rest, which the estimate does not reach
+    biased = dataclasses.replace(meta, expected_bias=0.25 * reached)
+    assert adaptive_counts(store, biased, 0, reached, 1).any()
+    # ... and with the target raised by the bias, the stop is where it was
+    assert not adaptive_counts(store, biased, 0, 1.25 * reached, 1).any()

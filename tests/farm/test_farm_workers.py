@@ -258,6 +258,47 @@ def test_a_target_job_runs_a_chain_of_passes_per_tile_not_every_planned_pass(
         0.02, job["expected_error"], 1.0)
 
 
+def test_a_target_job_aims_the_noise_at_the_target_less_autos_bias(farm, farm_client,
+                                                                   wait_for_job):
+    """A close-up of dense wax that auto renders as the opaque surface, with a target of 0.01:
+    the job keeps the bias the model may add over the frame (renderer.materials.auto.frame_bias,
+    most of the target here), its workers stop where the samples' noise is within the rule's
+    slack of AIM × (target − bias), and the job reports the noise and the bias together, within
+    the target; its record keeps the bias once it leaves Redis."""
+    from pathlib import Path
+
+    from renderer.film.adaptive import STOP_SLACK
+    from renderer.materials.auto import frame_bias
+    from renderer.scene import load_scene
+    from services.farm.archive import archive_job
+    from services.farm.blobs import open_blob_store
+
+    root = Path(__file__).resolve().parents[2]
+    scene = json.loads((root / "examples" / "translucent_sphere.json").read_text())
+    scene["film"] = {"width": 32, "height": 24}
+    scene["camera"].update(position=[0.0, -0.5, 1.3], look_at=[0.0, -0.5, 0.0])
+    scene["materials"]["wax"].update(method="auto", albedo=[0.99] * 3, g=0.5, density=3000.0)
+    scene["render"].update(spp=4096, target_error=0.01)
+    bias = frame_bias(load_scene(scene))
+    assert bias > 0.005
+    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 16, "spp_per_pass": 8,
+                                            "max_spp_per_pass": 64})
+    assert r.status_code == 201, r.text
+    assert r.json()["methods"]["wax"].startswith("opaque")
+    job = wait_for_job(farm_client, r.json()["id"])
+    assert job["status"] == "done", job
+    assert job["expected_bias"] == pytest.approx(bias, rel=1e-12)
+    noise = job["expected_error"] - bias
+    assert 0 < noise <= AIM * (0.01 - bias) * (1.0 + STOP_SLACK)
+    assert job["expected_error"] <= 0.01
+    store = farm.store()
+    assert archive_job(store, farm.records(), open_blob_store(farm.settings.blob_location),
+                       job["id"])
+    after = farm_client.get(f"/api/jobs/{job['id']}").json()
+    assert (after["expected_bias"], after["expected_error"]) == (job["expected_bias"],
+                                                                 job["expected_error"])
+
+
 def test_a_target_jobs_first_pass_is_the_pilot(farm, farm_client, wait_for_job, tiny_scene):
     """A job with a target renders PILOT samples a pixel in a tile's first pass, as the local
     loop's pilot, not the whole pass: the Cornell box (a packet scene, whose first pass is 32

@@ -144,6 +144,33 @@ def test_render_with_a_target_says_the_plan_and_what_it_reached(tmp_path, capsys
     assert 0 < reached <= 0.05
 
 
+def test_render_with_a_target_counts_the_bias_of_the_model_auto_chose(tmp_path, capsys):
+    """A close-up of dense wax that auto renders as the opaque surface, with a target: the plan
+    aims the samples' noise at the target less the bias the model may add over the frame, and
+    the line of what was reached gives the noise and the bias, their sum within the target."""
+    from renderer.materials.auto import frame_bias
+
+    data = json.loads((ROOT / "examples" / "translucent_sphere.json").read_text())
+    data["film"] = {"width": 32, "height": 24}
+    data["camera"].update(position=[0.0, -0.5, 1.3], look_at=[0.0, -0.5, 0.0])
+    data["materials"]["wax"].update(method="auto", albedo=[0.99] * 3, g=0.5, density=3000.0)
+    data["render"].update(spp=4096, target_error=0.01)
+    path = _write(tmp_path / "dense.json", data)
+    bias = frame_bias(load_scene_file(path))
+    assert main(["render", str(path), "-o", str(tmp_path / "x.npy"), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert "auto chose opaque for 'wax'" in err
+    assert (f"to reach an expected relMSE of {0.8 * (0.01 - bias):.3g} from the samples' noise "
+            f"(0.8 × {0.01 - bias:.3g}: the target less the bias auto's models may add, "
+            f"{bias:.3g})") in err
+    line = next(x for x in err.splitlines() if x.startswith("reached: expected relMSE"))
+    assert "(target 0.01; the samples' noise " in line
+    assert f" and the bias of auto's models, at most {bias:.3g})" in line
+    reached, noise = float(line.split()[3]), float(line.split()[9])
+    assert noise + bias == pytest.approx(reached, rel=2e-3)
+    assert noise <= 0.8 * (0.01 - bias) * 1.05 and reached <= 0.01
+
+
 def test_target_error_option_sets_and_drops_the_scenes_target(tmp_path, capsys):
     """--target-error T renders a scene without a target to T, --spp the most a pixel takes;
     --target-error none renders a scene with a target at its spp everywhere, the same frame as
@@ -240,12 +267,13 @@ def test_submit_target_error_option_sets_the_sent_scenes_target(tmp_path, monkey
     assert capsys.readouterr().out.split() == ["job1", "job2", "job3"]
 
 
-@pytest.mark.parametrize("expected, short", [(0.016, False), (0.03, True)])
+@pytest.mark.parametrize("expected, short, bias", [(0.016, False, 0.0), (0.03, True, 0.0),
+                                                   (0.016, False, 0.006)])
 def test_submit_says_when_a_job_stopped_at_its_spp_short_of_its_target(
-        tmp_path, monkeypatch, capsys, expected, short):
+        tmp_path, monkeypatch, capsys, expected, short, bias):
     """lucent submit --wait: a done job's estimate is given with its target, and where it is
     above the target (the farm stops a frame below it), that render.spp may be what stopped
-    it."""
+    it; where auto's models may add a bias, the samples' noise and that bias."""
     import services.client
 
     class Farm:
@@ -257,13 +285,16 @@ def test_submit_says_when_a_job_stopped_at_its_spp_short_of_its_target(
 
         def wait(self, job_id, progress=True):
             return {"id": job_id, "status": "done", "dropped_samples": 0, "frames": 1,
-                    "spp": 64, "target_error": 0.02, "expected_error": expected}
+                    "spp": 64, "target_error": 0.02, "expected_error": expected,
+                    "expected_bias": bias}
 
     monkeypatch.setattr(services.client, "Client", Farm)
     assert main(["submit", str(small_scene(tmp_path)), "--server", "http://farm", "--wait",
                  "-q"]) == 0
     line = next(x for x in capsys.readouterr().err.splitlines() if x.startswith("expected"))
-    assert line.startswith(f"expected relMSE {expected:g} (target 0.02)")
+    parts = (f"; the samples' noise {expected - bias:.3g} and the bias of auto's models, at most "
+             f"{bias:.3g}" if bias else "")
+    assert line.startswith(f"expected relMSE {expected:g} (target 0.02{parts})"), line
     assert line.endswith("; above the target: a pixel takes at most render.spp, 64 samples, "
                          "and more may reach it") is short
 

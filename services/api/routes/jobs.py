@@ -23,6 +23,7 @@ from fastapi import (
 from fastapi.responses import JSONResponse
 from starlette.concurrency import run_in_threadpool
 
+from renderer.film.adaptive import noise_target
 from services.api.deps import (
     BlobsDep,
     CeleryDep,
@@ -73,15 +74,20 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
     # (a job's record keeps them in its tiles' summary once it leaves Redis)
     target = (meta.target_error if meta.target_error is not None
               else meta.tiles_final.get("target_error"))
-    expected = (meta.expected_error if meta.expected_error is not None
-                else meta.tiles_final.get("expected_error"))
+    noise = (meta.expected_error if meta.expected_error is not None
+             else meta.tiles_final.get("expected_error"))
+    # (the bias auto's models may add, which the samples' noise comes on top of)
+    bias = meta.expected_bias or float(meta.tiles_final.get("expected_bias") or 0.0)
+    expected = None if noise is None else noise + bias
     if meta.status in ACTIVE and target is not None:
         # A job with a target error stops when its error is reached, not at render.spp: its
-        # progress is how far the error has fallen (it falls as 1 / samples, so target / error
-        # is the share of the samples it needs that it has), 0 before every pixel has an estimate
-        progress = min(1.0, target / expected) if expected else 0.0
-        if rate and expected:
-            eta = max(0.0, meta.samples_merged * (expected / target - 1.0)) / rate
+        # progress is how far the samples' noise has fallen toward its share of the target (it
+        # falls as 1 / samples, so share / noise is the share of the samples it needs that it
+        # has), 0 before every pixel has an estimate
+        share = noise_target(target, bias)
+        progress = min(1.0, share / noise) if noise else 0.0
+        if rate and noise:
+            eta = max(0.0, meta.samples_merged * (noise / share - 1.0)) / rate
     elif meta.status in ACTIVE and rate:
         eta = (meta.samples_planned - meta.samples_merged) / rate
     elif meta.status == "done":
@@ -103,7 +109,7 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         submitter=meta.submitter, tags=list(meta.tags),
         # (a job's record keeps them in its tiles' summary once it leaves Redis)
         denoise=meta.denoise or bool(meta.tiles_final.get("denoise")),
-        target_error=target, expected_error=expected,
+        target_error=target, expected_error=expected, expected_bias=bias,
         waiting_for=(waiting_for(meta.tags, live_tags)
                      if live_tags is not None and meta.status in ACTIVE else None),
     )
