@@ -413,10 +413,11 @@ SHARE_TESTS = 1 << 24
 def frame_share(scene, objects) -> float:
     """The share of the film's pixels that may see one of ``objects``: an upper bound of the
     pixels they cover, cheap (no BVH). A pixel counts when the ray through its centre passes
-    within a pixel's angle (its diagonal) of an object's bounding sphere, so that an object
-    smaller than a pixel, or a pixel its silhouette crosses off centre, still counts; occlusion
-    and the bounding sphere's slack only add to it. Beyond ``SHARE_RAYS`` pixels, one ray a
-    block of k×k pixels, each sphere widened by the block's diagonal, with fewer rays where
+    within half its diagonal (as an angle, the film's centre pixel's, the largest) of an
+    object's bounding sphere: every pixel the sphere's silhouette touches, so an object smaller
+    than a pixel still counts; occlusion and the bounding sphere's slack only add to it. Beyond
+    ``SHARE_RAYS`` pixels, one ray a block of k×k pixels (at the film's edges, the block's
+    pixels that are on it), widened by half the block's diagonal, with fewer rays where
     ``SHARE_TESTS`` would be passed (coarser, still a bound). 1 where the camera is inside a
     bounding sphere."""
     if not objects:
@@ -432,14 +433,17 @@ def frame_share(scene, objects) -> float:
     tan_half = math.tan(math.radians(cam.fov) / 2.0)
     rays = max(1024, min(SHARE_RAYS, SHARE_TESTS // len(objects)))
     k = max(1, math.ceil(math.sqrt(w * h / rays)))
-    # (the render's camera_ray through each block's centre pixel)
-    xs = (2.0 * (np.arange(k / 2.0, w, k)) / w - 1.0) * tan_half * (w / h)
-    ys = (1.0 - 2.0 * (np.arange(k / 2.0, h, k)) / h) * tan_half
+    # (the render's camera_ray through each block's centre; a block's pixels on the film)
+    x0, y0 = np.arange(0, w, k), np.arange(0, h, k)
+    bw, bh = np.minimum(k, w - x0), np.minimum(k, h - y0)
+    xs = (2.0 * (x0 + bw / 2.0) / w - 1.0) * tan_half * (w / h)
+    ys = (1.0 - 2.0 * (y0 + bh / 2.0) / h) * tan_half
     d = (forward[None, None, :] + xs[None, :, None] * right[None, None, :]
          + ys[:, None, None] * up[None, None, :])
     d /= np.linalg.norm(d, axis=-1, keepdims=True)
-    # a pixel's angle is largest at the film's centre: 2 atan(tan_half / h) across
-    widen = k * math.sqrt(2.0) * 2.0 * math.atan(tan_half / h)
+    # a pixel's angle is largest at the film's centre: 2 atan(tan_half / h) across; half a
+    # block's diagonal
+    widen = k * math.sqrt(2.0) * math.atan(tan_half / h)
     spheres = [_bounding_sphere(o) for o in objects]
     centres = np.array([c for c, _ in spheres], np.float64) - pos
     radii = np.array([r for _, r in spheres], np.float64)
@@ -455,7 +459,8 @@ def frame_share(scene, objects) -> float:
     seen = np.zeros(len(flat), bool)
     for i in range(0, len(spheres), 64):
         seen |= (flat @ toward[i:i + 64].T >= least[i:i + 64]).any(axis=1)
-    return float(seen.mean())
+    weight = (bh[:, None] * bw[None, :]).ravel()
+    return float(weight[seen].sum()) / (w * h)
 
 
 def frame_bias(scene, choices: dict | None = None) -> float:

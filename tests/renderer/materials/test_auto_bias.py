@@ -65,9 +65,9 @@ def covered_share(scene) -> float:
 @pytest.mark.parametrize("film", [(64, 48), (1600, 1200)])
 def test_frame_share_bounds_the_pixels_a_sphere_covers_and_not_by_much(position, film):
     """The share of pixels that may see the sphere is at least the share whose centre ray hits
-    it (a closed form per pixel), and at most that plus a band two pixels wide around its
-    silhouette (the widening, or on a film of 1.9 M pixels, one ray a block of 5×5, the block's
-    diagonal)."""
+    it (a closed form per pixel), and at most that plus a band around its silhouette as wide as
+    the widening, half a pixel's diagonal (on a film of 1.9 M pixels, one ray a block of 5×5:
+    half the block's), and a pixel for the grid's steps."""
     scene = load_scene(dense_scene(position, width=film[0], height=film[1],
                                    look_at=(0.0, -0.5, 0.0) if position[0] == 0 else
                                    (0.0, 0.0, 0.0)))
@@ -77,11 +77,11 @@ def test_frame_share_bounds_the_pixels_a_sphere_covers_and_not_by_much(position,
     assert covered > 0.01
     assert share >= covered
     # the silhouette's band: its perimeter (a circle of the covered area's radius, in pixels)
-    # times the widening each side
+    # times the widening and a pixel
     pixels = film[0] * film[1]
     k = max(1, math.ceil(math.sqrt(pixels / 65536)))
     radius = math.sqrt(covered * pixels / math.pi)
-    band = 2 * math.pi * radius * (2 * math.sqrt(2) * k + 1) / pixels
+    band = 2 * math.pi * radius * (math.sqrt(2) / 2 * k + 1) / pixels
     assert share <= covered + band, (share, covered, band)
 
 
