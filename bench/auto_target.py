@@ -1,13 +1,15 @@
 """``auto`` and a target error together: the bias of the model ``auto`` chose, and the loop's aim.
 
-    .venv/bin/python -m bench.auto_target [--targets 0.01 0.02] [--seeds 4] [--ref-spp 16384]
+    .venv/bin/python -m bench.auto_target [--targets 0.01 0.02] [--albedos 0.99 0.8] [--seeds 4]
+        [--ref-spp 16384]
 
-A dense wax sphere (albedo 0.99, g 0.5, ior 1.4, σt 3000: the opaque limit's worst case in
-docs/images/accuracy/opaque.csv) in the Cornell box of ``examples/translucent_sphere.json`` at
-64×48, with ``method: auto`` and ``render.target_error``, seen from three distances: the suite's
-view, and two close-ups of the sphere. ``auto`` renders it as the opaque surface, whose error
-against the medium is ``OPAQUE_ERROR`` at most on the object's pixels; the frame's relMSE is that
-bias on the pixels the sphere covers plus the samples' noise everywhere.
+A dense wax sphere (g 0.5, ior 1.4, σt 3000; grey albedo 0.99, the opaque limit's worst case in
+docs/images/accuracy/opaque.csv, and 0.8) in the Cornell box of
+``examples/translucent_sphere.json`` at 64×48, with ``method: auto`` and ``render.target_error``,
+seen from three distances: the suite's view, and two close-ups of the sphere. ``auto`` renders it
+as the opaque surface, whose error against the medium is at most ``opaque_error`` on the
+object's pixels (0.00847 at albedo 0.99, 0.00189 at 0.8); the frame's relMSE is that bias on the
+pixels the sphere covers plus the samples' noise everywhere.
 
 For each view and target it records the share of the frame the sphere may cover
 (``auto.frame_share``: bounding sphere, widened by a pixel) and the share it covers
@@ -38,38 +40,40 @@ ROOT = Path(__file__).resolve().parents[1]
 VIEWS = {"suite": ([0.0, 0.0, 3.9], [0.0, 0.0, 0.0]),
          "close 1.6": ([0.0, -0.5, 1.6], [0.0, -0.5, 0.0]),
          "close 1.3": ([0.0, -0.5, 1.3], [0.0, -0.5, 0.0])}
-MATERIAL = {"albedo": [0.99] * 3, "g": 0.5, "ior": 1.4, "density": 3000.0}
-FIELDS = ["view", "target", "auto_method", "share_bound", "share_covered", "frame_bias",
+MATERIAL = {"g": 0.5, "ior": 1.4, "density": 3000.0}
+FIELDS = ["albedo", "view", "target", "auto_method", "share_bound", "share_covered", "frame_bias",
           "seeds", "ignored_err", "ignored_err_over_target", "ignored_spp", "ignored_s",
           "aimed_err", "aimed_err_over_target", "aimed_spp", "aimed_s", "object_err_ignored",
           "object_err_aimed", "reference"]
 
 
-def scene_for(view: str, target: float | None, method: str = "auto", spp: int = 4096) -> dict:
+def scene_for(view: str, target: float | None, method: str = "auto", spp: int = 4096,
+              albedo: float = 0.99) -> dict:
     scene = _example("translucent_sphere")
     position, look_at = VIEWS[view]
     scene["camera"].update(position=position, look_at=look_at)
-    scene["materials"]["wax"].update(MATERIAL, method=method)
+    scene["materials"]["wax"].update(MATERIAL, albedo=[albedo] * 3, method=method)
     scene["render"].update(spp=spp, seed=7)
     if target is not None:
         scene["render"]["target_error"] = target
     return scene
 
 
-def run(view: str, target: float, seeds: int, ref_spp: int) -> dict:
+def run(view: str, target: float, seeds: int, ref_spp: int, albedo: float = 0.99) -> dict:
     from renderer.materials.auto import frame_share
     from renderer.render import render_buffer
     from renderer.scene import load_scene
     from renderer.scene.compile import compile_scene
 
-    scene = scene_for(view, target)
+    scene = scene_for(view, target, albedo=albedo)
     loaded = load_scene(scene)
     cs = compile_scene(loaded)
     # (one reference a view, whatever the target)
-    ref, source = reference(f"dense_wax_{view.replace(' ', '_')}", scene_for(view, None), "wax",
-                            ref_spp)
+    name = f"dense_wax_{view.replace(' ', '_')}" + ("" if albedo == 0.99 else f"_albedo_{albedo:g}")
+    ref, source = reference(name, scene_for(view, None, albedo=albedo), "wax", ref_spp)
     mask = object_mask(scene, "wax")
-    row = {"view": view, "target": target, "auto_method": cs.info["auto"]["wax"]["method"],
+    row = {"albedo": albedo, "view": view, "target": target,
+           "auto_method": cs.info["auto"]["wax"]["method"],
            "share_bound": frame_share(loaded, [o for o in loaded.objects if o.material == "wax"]),
            "share_covered": float(mask.mean()), "frame_bias": cs.expected_bias, "seeds": seeds,
            "reference": source}
@@ -94,11 +98,12 @@ def run(view: str, target: float, seeds: int, ref_spp: int) -> dict:
 
 
 def table(rows: list[dict]) -> str:
-    out = ["| view | target | share (bound / covered) | frame bias | bias ignored: err/target,"
-           " spp, s | bias aimed at: err/target, spp, s | object relMSE (ignored / aimed) |",
-           "|---|---|---|---|---|---|---|"]
+    out = ["| albedo | view | target | share (bound / covered) | frame bias | bias ignored: "
+           "err/target, spp, s | bias aimed at: err/target, spp, s | object relMSE "
+           "(ignored / aimed) |",
+           "|---|---|---|---|---|---|---|---|"]
     for r in rows:
-        out.append(f"| {r['view']} | {r['target']:g} | {r['share_bound']:.2f} / "
+        out.append(f"| {r['albedo']:g} | {r['view']} | {r['target']:g} | {r['share_bound']:.2f} / "
                    f"{r['share_covered']:.2f} | {r['frame_bias']:.4f} | "
                    f"**{r['ignored_err_over_target']:.2f}**, {r['ignored_spp']:.0f}, "
                    f"{r['ignored_s']:.2f} | **{r['aimed_err_over_target']:.2f}**, "
@@ -111,6 +116,7 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("--targets", type=float, nargs="+", default=[0.01, 0.02])
     parser.add_argument("--views", nargs="+", choices=list(VIEWS), default=list(VIEWS))
+    parser.add_argument("--albedos", type=float, nargs="+", default=[0.99, 0.8])
     parser.add_argument("--seeds", type=int, default=4)
     parser.add_argument("--ref-spp", type=int, default=16384)
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" /
@@ -118,11 +124,13 @@ def main(argv: list[str] | None = None) -> int:
     args = parser.parse_args(argv)
     start = time.perf_counter()
     rows = []
-    for view in args.views:
-        for target in args.targets:
-            rows.append(run(view, target, args.seeds, args.ref_spp))
-            print(f"  {view}, {target:g}: {rows[-1]['ignored_err_over_target']:.2f} -> "
-                  f"{rows[-1]['aimed_err_over_target']:.2f}", flush=True)
+    for albedo in args.albedos:
+        for view in args.views:
+            for target in args.targets:
+                rows.append(run(view, target, args.seeds, args.ref_spp, albedo))
+                print(f"  albedo {albedo:g}, {view}, {target:g}: "
+                      f"{rows[-1]['ignored_err_over_target']:.2f} -> "
+                      f"{rows[-1]['aimed_err_over_target']:.2f}", flush=True)
     args.out.parent.mkdir(parents=True, exist_ok=True)
     with args.out.open("w", newline="") as f:
         writer = csv.DictWriter(f, fieldnames=FIELDS)

@@ -11,8 +11,9 @@ choose ``opaque``) and ``volumetric`` render a ladder of 16, 64, 256 and ``--spp
 records the object pixels' relative MSE against the reference at the top rung, the seconds each
 takes to reach the default target (``auto.DEFAULT_TARGET``, read off the ladder as the accuracy
 suite does), writes ``opaque.csv`` and ``opaque.md`` to ``--out``, and prints the largest opaque
-error: ``auto``'s ``OPAQUE_ERROR`` (tests/renderer/materials/test_opaque.py ties the constant to
-the committed CSV).
+error: ``auto``'s ``OPAQUE_ERROR``, and the largest at each albedo, its
+``OPAQUE_ERROR_BY_ALBEDO`` (tests/renderer/materials/test_opaque.py ties both to the committed
+CSV).
 """
 
 from __future__ import annotations
@@ -150,6 +151,9 @@ def main(argv: list[str] | None = None) -> int:
               f"{rows[0]['reference']}.", ""]
     (args.out / "opaque.md").write_text("\n".join(lines))
     print(f"largest opaque relMSE {worst:.4g} -> renderer/materials/auto.py OPAQUE_ERROR")
+    by_albedo = {a: max(r["opaque_rel_mse"] for r in rows if r["albedo"] == a) for a in ALBEDOS}
+    print("largest at each albedo " + ", ".join(f"{a:g}: {e:.4g}" for a, e in by_albedo.items())
+          + " -> OPAQUE_ERROR_BY_ALBEDO")
     return 0
 
 

@@ -21,8 +21,9 @@ Three regimes need no subsurface model at all, and are rendered as what they are
   in (the radius of the ``diffusion`` method's profile that holds 99 % of its energy, against the
   width of a pixel at the object's distance from the camera) and within a tenth of the object's
   size: an opaque surface, a Fresnel coat over the semi-infinite medium's exact albedo
-  (renderer/materials/opaque.py), whose error against ``volumetric`` on dense spheres is
-  ``OPAQUE_ERROR`` (``python -m bench.opaque``, docs/images/accuracy/opaque.csv).
+  (renderer/materials/opaque.py), whose error against ``volumetric`` on dense spheres is at
+  most ``OPAQUE_ERROR``, and at most ``OPAQUE_ERROR_BY_ALBEDO``'s at the albedos and g measured
+  (``opaque_error``; ``python -m bench.opaque``, docs/images/accuracy/opaque.csv).
 
 A chromatic medium (σt per channel) is judged channel by channel (``channel_regimes``: each
 channel absorbing, clear, opaque or translucent, as a grey medium at that channel's albedo and σt
@@ -96,7 +97,27 @@ CHANNEL_REGIMES = ("absorbing", "clear", "opaque", "translucent")
 # Largest object relMSE of the opaque surface against volumetric over the dense spheres of
 # docs/images/accuracy/opaque.csv (tests/renderer/materials/test_opaque.py ties it to the CSV).
 OPAQUE_ERROR = 0.00847
+# The same at each albedo measured (over g 0 and 0.5 and both densities), rounded up: it grows
+# with the albedo (the light's walk is longer, its exit spread wider), so an albedo between two
+# takes the next one up's (opaque_error). test_opaque.py ties these to the CSV too.
+OPAQUE_ERROR_BY_ALBEDO = ((0.3, 0.000788), (0.8, 0.00189), (0.95, 0.00326), (0.99, 0.00847))
+# The largest g measured: beyond it (and beyond the largest albedo) the error is taken to be
+# OPAQUE_ERROR, unmeasured (forward scattering raised it at every albedo measured)
+OPAQUE_MEASURED_G = 0.5
 OPAQUE_QUANTILE = 0.99  # of the profile's energy that must leave within a pixel
+
+
+def opaque_error(albedo, g: float) -> float:
+    """The opaque surface's expected error (object relMSE against ``volumetric``) for a medium of
+    this ``albedo`` (one number or one per channel, the largest counts) and ``g``: the measured
+    error at the smallest albedo measured at or above it (``OPAQUE_ERROR_BY_ALBEDO``, the
+    largest over the g measured), ``OPAQUE_ERROR`` beyond the albedos or the g measured."""
+    a = float(np.max(albedo))
+    if abs(g) <= OPAQUE_MEASURED_G:
+        for measured, error in OPAQUE_ERROR_BY_ALBEDO:
+            if a <= measured:
+                return min(error, OPAQUE_ERROR)
+    return OPAQUE_ERROR
 
 
 def format_rgb(v) -> str:
@@ -149,13 +170,15 @@ def channel_regimes(albedo, density, size: float, target: float, *, g: float = 0
     and σt alone, as if the medium were grey at them: "absorbing" (albedo 0), "clear" (the
     scattered fraction albedo·σt·size at or below the target), "opaque" (``OPAQUE_QUANTILE`` of
     its light leaves within ``opaque_limit``: a pixel and a tenth of the object; only with a
-    known ``footprint`` and ``OPAQUE_ERROR`` within the target), else "translucent"."""
+    known ``footprint`` and the channel's ``opaque_error`` within the target), else
+    "translucent"."""
     a = np.broadcast_to(np.asarray(albedo, dtype=np.float64), (3,))
     sigma_t = np.broadcast_to(np.asarray(density, dtype=np.float64), (3,))
     reach = None
-    if footprint > 0.0 and OPAQUE_ERROR <= target and a.max() > 0.0:
+    if footprint > 0.0 and a.max() > 0.0:
         _, d, _ = diffusion_parameters(a, sigma_t, g, ior)
-        reach = [float(burley_r_max(float(x), OPAQUE_QUANTILE)) for x in d]
+        reach = [float(burley_r_max(float(x), OPAQUE_QUANTILE)) if opaque_error(a[k], g) <= target
+                 else math.inf for k, x in enumerate(d)]
     out = []
     for k in range(3):
         if a[k] == 0.0:
@@ -220,13 +243,14 @@ def choose_method(albedo, density, size: float, target: float | None, *, g: floa
     if rough:
         return AutoChoice("volumetric", f"{where}: a rough boundary (no approximation's floor "
                           "was measured behind a rough coat)", 0.0)
-    if footprint > 0.0 and OPAQUE_ERROR <= target:
+    error = opaque_error(albedo, g)
+    if footprint > 0.0 and error <= target:
         reach = opaque_reach(albedo, sigma_t, g, ior)
         if reach <= opaque_limit(footprint, size):
             return AutoChoice("opaque", f"{where}: effectively opaque, {OPAQUE_QUANTILE:.0%} of "
                               f"the light leaves within {reach:.3g} of where it entered, under a "
-                              f"pixel ({footprint:.3g}); measured error {OPAQUE_ERROR:g} <= target "
-                              f"{target:g}", OPAQUE_ERROR)
+                              f"pixel ({footprint:.3g}); measured error {error:g} <= target "
+                              f"{target:g}", error)
     floors = {method: expected_floor(method, regimes) for method in BIAS_FLOOR}
     kind = "" if regimes is None else f" ({', '.join(sorted({'solid', *regimes}))})"
     return cheapest_within(floors, target, where, f"measured bias floor{kind}")
@@ -242,7 +266,7 @@ def choose_chromatic(albedo, sigma_t, size: float, target: float, *, g: float, i
       channel (exact where albedo is 0; the scattered fraction, the largest albedo·σt·size, where
       clear);
     - a rough boundary: ``volumetric``;
-    - every channel opaque: the ``opaque`` surface (``OPAQUE_ERROR``);
+    - every channel opaque: the ``opaque`` surface (``opaque_error`` at its largest albedo);
     - every channel translucent: an approximation whose floor over the chromatic suite and the
       grey suite's scenes of the scene's regimes (``CHROMATIC_FLOOR``) meets the target;
     - translucent and opaque channels (nearly opaque in blue, deep in red): the same, with the
@@ -266,9 +290,10 @@ def choose_chromatic(albedo, sigma_t, size: float, target: float, *, g: float, i
         return AutoChoice("volumetric", f"{where}: a rough boundary (no approximation's floor "
                           "was measured behind a rough coat)", 0.0)
     if present == {"opaque"}:
+        error = opaque_error(a, g)
         return AutoChoice("opaque", f"{where}: every channel effectively opaque, under a pixel "
-                          f"({footprint:.3g}); measured error {OPAQUE_ERROR:g} <= target "
-                          f"{target:g}", OPAQUE_ERROR)
+                          f"({footprint:.3g}); measured error {error:g} <= target "
+                          f"{target:g}", error)
     if not present <= {"opaque", "translucent"}:
         return AutoChoice("volumetric", f"{where}: a clear or absorbing channel beside a "
                           "scattering one, where no approximation's floor was measured", 0.0)

@@ -50,3 +50,8 @@ def test_run_renders_each_seed_with_the_bias_ignored_and_aimed_at(monkeypatch):
     assert row["aimed_err"] == pytest.approx(ignored * (1.0 + 1e3 * bias), rel=1e-6)
     assert row["object_err_aimed"] == pytest.approx(row["aimed_err"], rel=1e-6)
     assert row["ignored_spp"] == row["aimed_spp"] == 10.0
+    # albedo 0.8: its own reference, and the opaque surface's smaller error at that albedo
+    row = at.run("close 1.3", 0.01, seeds=1, ref_spp=64, albedo=0.8)
+    assert refs[-1] == ("dense_wax_close_1.3_albedo_0.8", False, 64)
+    assert row["albedo"] == 0.8 and row["auto_method"] == "opaque"
+    assert row["frame_bias"] == pytest.approx(bias * 0.00189 / 0.00847, rel=1e-9)
