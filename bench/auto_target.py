@@ -1,6 +1,6 @@
 """``auto`` and a target error together: the bias of the model ``auto`` chose, and the loop's aim.
 
-    .venv/bin/python -m bench.auto_target [--targets 0.01 0.02] [--albedos 0.99 0.8] [--seeds 4]
+    .venv/bin/python -m bench.auto_target [--targets 0.01 0.02] [--albedos 0.99 0.8] [--seeds 32]
         [--ref-spp 16384]
 
 A dense wax sphere (g 0.5, ior 1.4, σt 3000; grey albedo 0.99, the opaque limit's worst case in
@@ -15,10 +15,11 @@ For each view and target it records the share of the frame the sphere may cover
 (``auto.frame_share``: bounding sphere, widened by a pixel) and the share it covers
 (``bench.accuracy.object_mask``), ``auto.frame_bias``, and the frame's relMSE against Mitsuba 3's
 volpath image of the medium (``--ref-spp``; Lucent's ``volumetric`` without Mitsuba), the mean
-over ``--seeds`` seeds, of two loops: one aiming the samples' noise at the target as if the
-model had no bias (``expected_bias`` set to 0), and the render's own, which aims it at the target
-less ``frame_bias`` (``adaptive.noise_target``). Writes ``--out`` (CSV) and prints a Markdown
-table (docs/adaptive-sampling.md, "auto and the target").
+over ``--seeds`` seeds with its standard error (a coat lit by a small light has rare bright
+samples: a few seeds read below the mean), of two loops: one aiming the samples' noise at the
+target as if the model had no bias (``expected_bias`` set to 0), and the render's own, which
+aims it at the target less ``frame_bias`` (``adaptive.noise_target``). Writes ``--out`` (CSV)
+and prints a Markdown table (docs/adaptive-sampling.md, "What the target means").
 """
 
 from __future__ import annotations
@@ -26,6 +27,7 @@ from __future__ import annotations
 import argparse
 import csv
 import dataclasses
+import math
 import platform
 import time
 from pathlib import Path
@@ -42,8 +44,9 @@ VIEWS = {"suite": ([0.0, 0.0, 3.9], [0.0, 0.0, 0.0]),
          "close 1.3": ([0.0, -0.5, 1.3], [0.0, -0.5, 0.0])}
 MATERIAL = {"g": 0.5, "ior": 1.4, "density": 3000.0}
 FIELDS = ["albedo", "view", "target", "auto_method", "share_bound", "share_covered", "frame_bias",
-          "seeds", "ignored_err", "ignored_err_over_target", "ignored_spp", "ignored_s",
-          "aimed_err", "aimed_err_over_target", "aimed_spp", "aimed_s", "object_err_ignored",
+          "seeds", "ignored_err", "ignored_err_over_target", "ignored_se", "ignored_spp",
+          "ignored_s", "aimed_err", "aimed_err_over_target", "aimed_se", "aimed_spp", "aimed_s",
+          "object_err_ignored",
           "object_err_aimed", "reference"]
 
 
@@ -91,6 +94,9 @@ def run(view: str, target: float, seeds: int, ref_spp: int, albedo: float = 0.99
             spps.append(float(buf.count.mean()))
         row[f"{label}_err"] = float(np.mean(errs))
         row[f"{label}_err_over_target"] = float(np.mean(errs)) / target
+        # (the standard error of that mean over the seeds, of err/target)
+        row[f"{label}_se"] = (float(np.std(errs, ddof=1) / np.sqrt(len(errs))) / target
+                              if len(errs) > 1 else math.nan)
         row[f"{label}_spp"] = float(np.mean(spps))
         row[f"{label}_s"] = float(np.mean(secs))
         row[f"object_err_{label}"] = float(np.mean(objs))
@@ -99,14 +105,15 @@ def run(view: str, target: float, seeds: int, ref_spp: int, albedo: float = 0.99
 
 def table(rows: list[dict]) -> str:
     out = ["| albedo | view | target | share (bound / covered) | frame bias | bias ignored: "
-           "err/target, spp, s | bias aimed at: err/target, spp, s | object relMSE "
+           "err/target ± s.e., spp, s | bias aimed at: err/target ± s.e., spp, s | object relMSE "
            "(ignored / aimed) |",
            "|---|---|---|---|---|---|---|---|"]
     for r in rows:
         out.append(f"| {r['albedo']:g} | {r['view']} | {r['target']:g} | {r['share_bound']:.2f} / "
                    f"{r['share_covered']:.2f} | {r['frame_bias']:.4f} | "
-                   f"**{r['ignored_err_over_target']:.2f}**, {r['ignored_spp']:.0f}, "
-                   f"{r['ignored_s']:.2f} | **{r['aimed_err_over_target']:.2f}**, "
+                   f"**{r['ignored_err_over_target']:.2f}** ± {r['ignored_se']:.2f}, "
+                   f"{r['ignored_spp']:.0f}, {r['ignored_s']:.2f} | "
+                   f"**{r['aimed_err_over_target']:.2f}** ± {r['aimed_se']:.2f}, "
                    f"{r['aimed_spp']:.0f}, {r['aimed_s']:.2f} | {r['object_err_ignored']:.4f} / "
                    f"{r['object_err_aimed']:.4f} |")
     return "\n".join(out)
@@ -117,7 +124,7 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--targets", type=float, nargs="+", default=[0.01, 0.02])
     parser.add_argument("--views", nargs="+", choices=list(VIEWS), default=list(VIEWS))
     parser.add_argument("--albedos", type=float, nargs="+", default=[0.99, 0.8])
-    parser.add_argument("--seeds", type=int, default=4)
+    parser.add_argument("--seeds", type=int, default=32)
     parser.add_argument("--ref-spp", type=int, default=16384)
     parser.add_argument("--out", type=Path, default=ROOT / "bench" / "results" /
                         "auto_target.csv")

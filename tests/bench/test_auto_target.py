@@ -48,6 +48,8 @@ def test_run_renders_each_seed_with_the_bias_ignored_and_aimed_at(monkeypatch):
     assert row["ignored_err"] == pytest.approx(ignored, rel=1e-6)
     assert row["ignored_err_over_target"] == pytest.approx(ignored / 0.01, rel=1e-6)
     assert row["aimed_err"] == pytest.approx(ignored * (1.0 + 1e3 * bias), rel=1e-6)
+    # the standard error of the mean err/target over the seeds (errors 0.01 and 0.04 × rel)
+    assert row["ignored_se"] == pytest.approx(0.015 * rel / 0.01, rel=1e-6)
     assert row["object_err_aimed"] == pytest.approx(row["aimed_err"], rel=1e-6)
     assert row["ignored_spp"] == row["aimed_spp"] == 10.0
     # albedo 0.8: its own reference, and the opaque surface's smaller error at that albedo
