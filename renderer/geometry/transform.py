@@ -1,5 +1,6 @@
-"""Host-side transforms of scene placement (``rotate`` on boxes and meshes): used by the scene
-compiler and by ``auto``'s bounding spheres, so that neither imports the other for it."""
+"""Host-side transforms of scene placement (``rotate`` on boxes and meshes) and the camera's
+frame: used by the scene compiler and by ``auto``'s bounding spheres and frame share, so that
+neither imports the other for them."""
 
 from __future__ import annotations
 
@@ -26,3 +27,16 @@ def placement(scale, rotate, translate) -> tuple[np.ndarray, np.ndarray]:
         m = rotation_matrix(rotate.axis, rotate.angle) @ m
     t = np.zeros(3) if translate is None else np.asarray(translate, dtype=np.float64)
     return m, t
+
+
+def camera_array(cam, width: int, height: int) -> np.ndarray:
+    """The pinhole camera as the renderer reads it (``camera_ray``): position (0–2), forward
+    (3–5), right (6–8) and up (9–11), unit vectors, tan(fov / 2) (12) and the aspect (13)."""
+    pos = np.asarray(cam.position, dtype=np.float64)
+    forward = np.asarray(cam.look_at, dtype=np.float64) - pos
+    forward /= np.linalg.norm(forward)
+    right = np.cross(forward, np.asarray(cam.up, dtype=np.float64))
+    right /= np.linalg.norm(right)
+    up = np.cross(right, forward)
+    tan_half = math.tan(math.radians(cam.fov) / 2.0)
+    return np.concatenate([pos, forward, right, up, [tan_half, width / height]])

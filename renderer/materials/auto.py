@@ -42,7 +42,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from renderer.geometry.transform import rotation_matrix
+from renderer.geometry.transform import camera_array, rotation_matrix
 from renderer.materials.burley import burley_r_max
 from renderer.materials.diffusion import diffusion_parameters
 
@@ -447,15 +447,9 @@ def frame_share(scene, objects) -> float:
     bounding sphere."""
     if not objects:
         return 0.0
-    cam, film = scene.camera, scene.film
-    w, h = film.width, film.height
-    pos = np.asarray(cam.position, np.float64)
-    forward = np.asarray(cam.look_at, np.float64) - pos
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(cam.up, np.float64))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    tan_half = math.tan(math.radians(cam.fov) / 2.0)
+    w, h = scene.film.width, scene.film.height
+    cam = camera_array(scene.camera, w, h)
+    pos, forward, right, up, tan_half = cam[0:3], cam[3:6], cam[6:9], cam[9:12], float(cam[12])
     rays = max(1024, min(SHARE_RAYS, SHARE_TESTS // len(objects)))
     k = max(1, math.ceil(math.sqrt(w * h / rays)))
     # (the render's camera_ray through each block's centre; a block's pixels on the film)

@@ -18,7 +18,7 @@ from renderer.environment import build_environment, no_environment
 from renderer.geometry.bvh import BVH_WIDTH, MAX_LEAF, build_bvh, stack_size, widen_bvh
 from renderer.geometry.flat import FLAT_MAX, FLAT_ROWS, flat_geometry, flat_order
 from renderer.geometry.shapes import QUAD, SPHERE, TRIANGLE, prim_bounds, spheres_alone
-from renderer.geometry.transform import rotation_matrix
+from renderer.geometry.transform import camera_array, rotation_matrix
 from renderer.lights import AREA, BACKGROUND, DIRECTIONAL, ENVIRONMENT, POINT
 from renderer.materials.auto import auto_choice, frame_bias
 from renderer.materials.bsdf import (
@@ -198,17 +198,6 @@ def _material_row(name: str, m) -> tuple[int, np.ndarray]:
     p = np.zeros(N_PARAMS)
     pack(p, m)
     return kind, p
-
-
-def _camera(cam, width: int, height: int) -> np.ndarray:
-    pos = np.asarray(cam.position, dtype=np.float64)
-    forward = np.asarray(cam.look_at, dtype=np.float64) - pos
-    forward /= np.linalg.norm(forward)
-    right = np.cross(forward, np.asarray(cam.up, dtype=np.float64))
-    right /= np.linalg.norm(right)
-    up = np.cross(right, forward)
-    tan_half = math.tan(math.radians(cam.fov) / 2.0)
-    return np.concatenate([pos, forward, right, up, [tan_half, width / height]])
 
 
 @np.errstate(over="ignore")  # light powers of absurd radiances: see _selection_pmf
@@ -396,7 +385,7 @@ def compile_scene(scene) -> CompiledScene:
         light_cdf=light_cdf, light_pmf=light_pmf, env_light=np.array([env_light], np.int64),
         env_image=env_arrays[0], env_marginal=env_arrays[1], env_conditional=env_arrays[2],
         env_rotation=env_arrays[3],
-        camera=_camera(scene.camera, scene.film.width, scene.film.height),
+        camera=camera_array(scene.camera, scene.film.width, scene.film.height),
         background=background,
         null_media=np.array([bool(np.any(
             ((mat_kind == TRANSLUCENT) & (mat_param[:, IOR] == 1.0)) | (mat_kind == SINGLE_SCATTER)
