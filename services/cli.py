@@ -168,6 +168,11 @@ def cmd_render(args: argparse.Namespace) -> int:
                    f"{AIM * noise_target(target, bias):.3g} from the samples' noise ({AIM:g} × "
                    f"{noise_target(target, bias):.3g}: the target less the bias auto's models "
                    f"may add, {bias:.3g})")
+            if mean_spp < min(PILOT, spp):
+                # (the loop stopped at the pilot's first look: those samples reach the aim)
+                bar.write(f"target relMSE {target:g}: the pilot's first {mean_spp:.0f} spp a "
+                          f"pixel already reach an expected relMSE of {aim}", file=sys.stderr)
+                return
             bar.write(f"target relMSE {target:g}: after the pilot the allocation plans "
                       f"{mean_spp:.0f} spp a pixel on average (at most {spp}) to reach an "
                       f"expected relMSE of {aim}", file=sys.stderr)

@@ -43,7 +43,11 @@ bright paths, seen in some windows and not in others) it comes out low: 1.65× l
 0.01 on the caustic floor, which an ad-hoc correction for few samples (1 + 3/√n, as this rule
 had) did not follow from scene to scene.
 
-**Pilot, rounds, stop.** Every pixel first takes ``PILOT`` samples; before every pass the
+**Pilot, rounds, stop.** Every pixel first takes ``PILOT`` samples, in two passes: after the
+first ``FIRST_LOOK`` the loop stops where the frame's estimated error plus ``FIRST_LOOK_Z``
+standard errors of it over the pixels is within the aim (``first_look_reached``; at 4 samples a
+pixel the estimate alone is low in some runs where a few pixels' rare bright paths carry it).
+Then before every pass the
 allocation is recomputed from all the samples so far, a round adding at most as much work as the
 frame has had, the first round after the pilot evenly (every pixel the same count: the pilot's
 estimates do not yet shape the counts), a later round shaped only where the shape, priced by
@@ -54,8 +58,9 @@ the render stops when the estimated error is within
 bench.target_error``: docs/adaptive-sampling.md).
 
 The farm uses the same rule on a tile's merged buffer (``pass_counts``), a pure function of it
-and of the frame's scale λ and estimated error, which the merge keeps up to date from every
-tile's summary (``tile_summary``, ``frame_scale``), and stops as the loop does.
+and of the frame's scale λ, estimated error and first-look bound, which the merge keeps up to
+date from every tile's summary (``tile_summary``, ``frame_scale``, ``first_look_bound``), and
+stops as the loop does (at the first look, on the tile's own bound until every tile has one).
 """
 
 from __future__ import annotations
@@ -71,6 +76,11 @@ EPSILON = 0.01
 # Samples every pixel takes before any allocation (the pilot); the variance estimates of the
 # first allocation pool 24 neighbours × PILOT samples.
 PILOT = 8
+# The pilot's first half, after which the loop may stop where the estimate is known well enough
+# (``first_look_reached``): its upper bound, FIRST_LOOK_Z standard errors over the pixels' terms
+# above it, within the aim
+FIRST_LOOK = 4
+FIRST_LOOK_Z = 2.0
 # The allocation aims at AIM × target: achieved/target measured over the chart suite and the
 # targets 0.1 … 0.002 (python -m bench.target_error; docs/adaptive-sampling.md).
 AIM = 0.8
@@ -320,6 +330,36 @@ def aim_reached(error: float, target: float) -> bool:
     return error <= AIM * target * (1.0 + STOP_SLACK)
 
 
+def first_look_bound(err_sum: float, err_sq_sum: float, pixels: int) -> float:
+    """The bound the stop after the pilot's first half takes (``first_look_reached``), from the
+    sums of the frame's (or a tile's) ``error_terms`` e_p and of their squares over its
+    ``pixels``: their mean plus ``FIRST_LOOK_Z`` standard errors of it, the terms' spread over
+    the pixels (the population one) over √pixels; inf without pixels."""
+    if pixels <= 0:
+        return math.inf
+    mean = err_sum / pixels
+    spread = math.sqrt(max(err_sq_sum / pixels - mean * mean, 0.0))
+    return mean + FIRST_LOOK_Z * spread / math.sqrt(pixels)
+
+
+def _look_sums(terms: np.ndarray) -> tuple[float, float, int]:
+    """``first_look_bound``'s sums of ``terms``: (Σ e, Σ e², pixels)."""
+    t = np.asarray(terms, np.float64).ravel()
+    return float(t.sum()), float(np.dot(t, t)), t.size
+
+
+def first_look_reached(terms: np.ndarray, target: float) -> bool:
+    """The stop after the pilot's first half (``FIRST_LOOK`` samples a pixel), from its
+    ``error_terms``: their mean, the frame's estimated error, plus ``FIRST_LOOK_Z`` standard
+    errors of it over the pixels (``first_look_bound``), within the aim (``aim_reached``). At 4
+    samples a pixel the mean alone is unreliable where a few pixels' rare bright paths carry
+    it: on the caustic floor and the sphere of albedo 0.5 it came out 0.42-0.49x the error in
+    some runs, which stopped at 1.4-1.8x the target; there the terms' relative standard error is
+    0.24-0.90, on the diffuse Cornell box, whose estimate was 0.92-1.05x its error, 0.05-0.11 (12
+    seeds each, docs/adaptive-sampling.md)."""
+    return aim_reached(first_look_bound(*_look_sums(terms)), target)
+
+
 @inline_kernel
 def _clamped_count(lam, root, lo, cap):
     """A pixel's count at scale ``lam``: clamp(⌈λ root⌉, lo, cap), what ``allocate``'s counts
@@ -510,21 +550,23 @@ def stopping_error(buf: SampleBuffer) -> float:
     return float(error_terms(buf).mean())
 
 
-def tile_summary(buf: SampleBuffer) -> tuple[float, float, int]:
+def tile_summary(buf: SampleBuffer) -> tuple[float, float, int, float]:
     """What the farm keeps of a tile's merged buffer for the frame's allocation and its error:
-    (Σ e_p, Σ w_p, pixels) over the pixels with at least 2 samples: e_p = ``error_terms``, and
-    w_p = s_p / √ṽ_p, the pixel's own relative variance s_p over the root of the floored
-    neighbour estimate ṽ_p that ``pass_counts`` shapes its count with (0 where ṽ_p is 0), so that
-    counts n_p = λ √ṽ_p give the tile the expected error Σ w_p / λ (``frame_scale``)."""
+    (Σ e_p, Σ w_p, pixels, Σ e_p²) over the pixels with at least 2 samples: e_p =
+    ``error_terms``; w_p = s_p / √ṽ_p, the pixel's own relative variance s_p over the root of the
+    floored neighbour estimate ṽ_p that ``pass_counts`` shapes its count with (0 where ṽ_p is 0),
+    so that counts n_p = λ √ṽ_p give the tile the expected error Σ w_p / λ (``frame_scale``);
+    and the squares, for the first look's bound (``first_look_bound``)."""
     ok = buf.count >= 2
     if not ok.any():
-        return 0.0, 0.0, 0
+        return 0.0, 0.0, 0, 0.0
     own = sample_variance(buf)[ok]
     shape = neighbour_variance(buf)[ok]
     n = buf.count[ok].astype(np.float64)
     with np.errstate(invalid="ignore", divide="ignore"):
         w = np.where(shape > 0, own / np.sqrt(shape), 0.0)
-    return float((own / n).sum()), float(w.sum()), int(ok.sum())
+    e = own / n
+    return float(e.sum()), float(w.sum()), int(ok.sum()), float(np.dot(e, e))
 
 
 def frame_scale(weight_sum: float, pixels: int, target: float) -> float:
@@ -662,11 +704,16 @@ def _gate(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have: np.
 
 
 def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
-                scale: float | None = None, frame_error: float | None = None) -> np.ndarray:
+                scale: float | None = None, frame_error: float | None = None,
+                frame_bound: float | None = None) -> np.ndarray:
     """The farm's rule, a pure function of a tile's merged buffer (and the frame's ``scale``,
-    ``frame_scale`` of the job's tile summaries, and its estimated error, their error sum over
-    their pixels, when known): the samples each pixel takes of the next pass of
-    ``pass_samples``, (h, w) int32. Every pixel up to ``PILOT``; then nothing once the
+    ``frame_scale`` of the job's tile summaries, its estimated error, their error sum over
+    their pixels, and its ``first_look_bound``, when known): the samples each pixel takes of the
+    next pass of ``pass_samples``, (h, w) int32. Every pixel up to ``FIRST_LOOK``, the pilot's
+    first half; then, as the local loop, nothing where the first look's bound is within the aim
+    (the frame's, or before every tile has merged its first look the tile's own, which its
+    re-check once the frame's is known, ``settle_converged``, replaces), else every pixel up to
+    ``PILOT``; then nothing once the
     frame's estimated error is within ``STOP_SLACK`` of AIM × target (the local loop's stop:
     the frame's λ counts every pixel at its share, a pixel that already has more too, so the
     counts alone would go on past the aim); else each pixel its deficit against ``allocate``
@@ -675,8 +722,17 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     finds that shape no cheaper than even counts at the same error of the tile (priced by its
     pixels' own variances), every pixel its deficit against the one count that reaches it."""
     count = buf.count
-    if int(count.min(initial=PILOT)) < PILOT:
-        # The pilot (the local loop's): PILOT samples every pixel before anything is estimated
+    low = int(count.min(initial=PILOT))
+    look = min(FIRST_LOOK, PILOT, cap)
+    if low < look:
+        # The pilot's first half (the local loop's first look), before anything is estimated
+        want = np.full(count.shape, look, np.int64)
+    elif low < min(PILOT, cap):
+        # The first look: a stop where its bound is within the aim, else the rest of the pilot
+        bound = (frame_bound if frame_bound is not None else
+                 first_look_bound(*_look_sums(error_terms(buf))))
+        if aim_reached(bound, target):
+            return np.zeros(count.shape, np.int32)
         want = np.full(count.shape, min(PILOT, cap), np.int64)
     elif frame_error is not None and aim_reached(frame_error, target):
         return np.zeros(count.shape, np.int32)
@@ -730,7 +786,8 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
                      max_rounds: int = 64, even: bool = False) -> SampleBuffer:
     """The local renderer's loop, given ``render_pass(index, counts) -> SampleBuffer`` that adds
     samples [index, index + counts[p]) to each pixel p of a frame of ``shape`` (h, w): a pilot of
-    ``PILOT`` samples a pixel, then rounds, each one pass of every pixel's deficit against the
+    ``PILOT`` samples a pixel in two passes, with a stop after the first ``FIRST_LOOK``
+    (``first_look_reached``), then rounds, each one pass of every pixel's deficit against the
     allocation (the first of them even: every pixel the same count; a later one shaped only
     where ``shape_pays``, else even too; at most as much work,
     samples × cost, as the frame has had: the estimates improve before more is committed on
@@ -744,9 +801,22 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
     h, w = shape
     frame = SampleBuffer.empty(0, 0, w, h)
     pilot = min(PILOT, spp)
-    frame.add(render_pass(0, np.full((h, w), pilot, np.int32)))
-    index = pilot
     aim = AIM * target
+    # The pilot in two passes: after its first half (FIRST_LOOK samples a pixel) the stop is
+    # checked once, so a loose target that so few samples already reach stops there (the
+    # diffuse Cornell box at 0.1: the whole pilot took it to 0.28x the target)
+    look = min(FIRST_LOOK, pilot)
+    frame.add(render_pass(0, np.full((h, w), look, np.int32)))
+    if look < pilot:
+        if first_look_reached(error_terms(frame), target):
+            if plan is not None:
+                plan(float(frame.count.mean()))
+            if progress is not None:
+                total = int(frame.count.sum())
+                progress(total, total)
+            return frame
+        frame.add(render_pass(look, np.full((h, w), pilot - look, np.int32)))
+    index = pilot
     for _ in range(max_rounds):
         # Stop once the frame's estimated error (stopping_error: each pixel's own variance, which
         # did not shape its count) is within STOP_SLACK of the aim (chasing the last few samples

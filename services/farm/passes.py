@@ -130,9 +130,12 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
     frame's estimated error from them (``JobMeta.expected_error``) is within the rule's slack of
     its aim: AIM × the target less the bias auto's models may add (``JobMeta.expected_bias``,
     ``noise_target``), as the local loop's. Before the tile's first merge the rule sees an
-    empty buffer and gives the pilot: ``PILOT`` samples every pixel (at most the pass and
-    ``render.spp``), as the local loop's, not the whole first pass (a packet scene's first
-    pass of 32 samples took the Cornell box to 0.07x a target of 0.1)."""
+    empty buffer and gives the pilot's first half: ``FIRST_LOOK`` samples every pixel (at most
+    the pass and ``render.spp``), as the local loop's, not the whole first pass (a packet
+    scene's first pass of 32 samples took the Cornell box to 0.07x a target of 0.1); after it,
+    nothing where the first look's bound is within the aim (the frame's,
+    ``JobMeta.first_look_bound``, once every tile has merged its first look; before, the
+    tile's own), else the rest of the pilot, ``PILOT`` samples a pixel."""
     # (the samples' noise's share of the target: auto's models may take some of it)
     target_error = noise_target(target_error, meta.expected_bias)
     data = store.tile_buffer(meta.id, tile)
@@ -143,7 +146,7 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
         # Every pixel of the frames has an estimate: the frame-wide allocation
         scale = frame_scale(meta.weight_sum, meta.err_pixels, target_error)
     return pass_counts(buf, target_error, meta.plan.spp, pass_samples, scale,
-                       meta.expected_error)
+                       meta.expected_error, meta.first_look_bound)
 
 
 def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],

@@ -49,7 +49,7 @@ from typing import Any
 
 import redis
 
-from renderer.film.adaptive import tile_summary
+from renderer.film.adaptive import first_look_bound, tile_summary
 from renderer.film.buffer import SampleBuffer
 from services.farm.planner import Plan
 
@@ -250,24 +250,25 @@ def _plan_fields(plan: Plan) -> dict[str, Any]:
 
 # The job-hash fields that sum its tiles' error summaries, in the order of
 # ``renderer.film.adaptive.tile_summary``'s tuple, and a summary as its ``tile_err`` entry
-ERROR_SUMS = ("err_sum", "weight_sum", "err_pixels")
+ERROR_SUMS = ("err_sum", "weight_sum", "err_pixels", "err_sq_sum")
 
 
-def _summary_text(summary: tuple[float, float, int]) -> str:
+def _summary_text(summary: tuple[float, float, int, float]) -> str:
     return " ".join(repr(float(x)) for x in summary)
 
 
 def _summary_values(text: str | None) -> list[float]:
-    """A tile's stored summary as numbers (zeros for none). A summary of four numbers is the
-    earlier rule's (Σ e with a small-sample correction, Σ √v, Σ v^¼, pixels), merged into a job
-    that is still running by a worker from before the error came from the pixels' own samples:
-    its error sum and pixels are taken back out, and it took out no weight (the job's
-    ``weight_sum`` starts at zero with the new rule)."""
+    """A tile's stored summary as numbers (zeros for none). A summary of three numbers is the
+    previous rule's, without the squares of the error terms (a worker from before the pilot's
+    first look merged it into a job that is still running): their sum is taken as 0, which
+    only the first look's bound reads, and such a tile is past its first look. (The rule before
+    that, whose summaries were four other numbers, Σ e with a small-sample correction, Σ √v,
+    Σ v^¼ and pixels, is no longer read: a job running since then is read as this rule's.)"""
     if not text:
         return [0.0] * len(ERROR_SUMS)
     values = [float(x) for x in text.split()]
-    if len(values) == 4:
-        return [values[0], 0.0, values[3]]
+    if len(values) == 3:
+        return [*values, 0.0]
     return values
 
 
@@ -275,7 +276,7 @@ def _estimates(summaries: dict) -> dict[int, float]:
     """``JobStore.tile_estimates`` from the ``tile_err`` hash as read."""
     out = {}
     for tile, text in summaries.items():
-        err_sum, _, pixels = _summary_values(_s(text))
+        err_sum, _, pixels, _ = _summary_values(_s(text))
         if pixels > 0:
             out[int(tile)] = err_sum / pixels
     return out
@@ -335,6 +336,7 @@ class JobMeta:
     err_sum: float = 0.0
     weight_sum: float = 0.0
     err_pixels: int = 0
+    err_sq_sum: float = 0.0
 
     @property
     def expected_error(self) -> float | None:
@@ -345,6 +347,15 @@ class JobMeta:
         if self.err_pixels < pixels or pixels == 0:
             return None
         return self.err_sum / self.err_pixels
+
+    @property
+    def first_look_bound(self) -> float | None:
+        """The frames' first-look bound (``renderer.film.adaptive.first_look_bound``: the
+        expected error plus a multiple of its standard error over the pixels), once every pixel
+        has an estimate; else None."""
+        if self.expected_error is None:
+            return None
+        return first_look_bound(self.err_sum, self.err_sq_sum, self.err_pixels)
 
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
@@ -397,6 +408,7 @@ class JobMeta:
             err_sum=float(d.get("err_sum") or 0.0),
             weight_sum=float(d.get("weight_sum") or 0.0),
             err_pixels=int(float(d.get("err_pixels") or 0)),
+            err_sq_sum=float(d.get("err_sq_sum") or 0.0),
         )
 
 

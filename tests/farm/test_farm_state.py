@@ -272,11 +272,11 @@ def test_a_job_reports_each_tiles_estimate_while_in_redis_and_archived(store, ta
     assert store.job_view(nothing)[5] == {} and "estimates" not in store.tiles_final(nothing, 3)
 
 
-def test_a_tile_summary_of_the_earlier_rule_is_taken_back_out(store):
-    """A job with a target running across the upgrade: a tile whose stored summary is the earlier
-    rule's four numbers (Σ e, Σ √v, Σ v^¼, pixels), its error sum and pixels in the job's sums,
-    merges again under the new rule: the job's sums are then the new summary's, the old error
-    and pixels taken back out, no weight taken out (none was added)."""
+def test_a_tile_summary_of_the_previous_rule_is_taken_back_out(store):
+    """A job with a target running across the upgrade: a tile whose stored summary is the
+    previous rule's three numbers (Σ e, Σ w, pixels; no squares of the terms), in the job's
+    sums, merges again under the new rule: the job's sums are then the new summary's, the old
+    ones taken back out and the squares added (none was before)."""
     import numpy as np
 
     from renderer.film.adaptive import tile_summary
@@ -296,15 +296,17 @@ def test_a_tile_summary_of_the_earlier_rule_is_taken_back_out(store):
 
     one_pass(0)
     job_key = store.k("job", job_id)
-    # what a worker of the earlier rule left: its summary, and the job's sums of it
-    store.r.hset(store.k("job", job_id, "tile_err"), "0", "0.5 12.0 7.0 256.0")
-    store.r.hset(job_key, mapping={"err_sum": 0.5, "weight_sum": 0.0, "err_pixels": 256})
+    # what a worker of the previous rule left: its summary of three, without the squares, and
+    # the job's sums of it
+    store.r.hset(store.k("job", job_id, "tile_err"), "0", "0.5 12.0 256.0")
+    store.r.hset(job_key, mapping={"err_sum": 0.5, "weight_sum": 12.0, "err_pixels": 256})
+    store.r.hdel(job_key, "err_sq_sum")
     one_pass(1)
     merged = SampleBuffer.from_bytes(store.tile_buffer(job_id, 0))
-    e, weight, pixels = tile_summary(merged)
+    e, weight, pixels, e_sq = tile_summary(merged)
     after = store.get_job(job_id)
-    assert (after.err_sum, after.weight_sum, after.err_pixels) == pytest.approx(
-        (e, weight, pixels), rel=1e-9)
+    assert (after.err_sum, after.weight_sum, after.err_pixels, after.err_sq_sum) == pytest.approx(
+        (e, weight, pixels, e_sq), rel=1e-9)
 
 
 def test_listing_pages_and_filters_in_the_database(client, settings):
@@ -612,6 +614,61 @@ def test_converged_tiles_are_asked_again_once_no_tile_renders(store, noise, aske
         assert store.is_merged(job_id, 0, plan.n_passes - 1)
 
 
+def test_a_target_jobs_first_look_takes_the_frames_bound_once_every_tile_has_one(store):
+    """After a tile's first look (``FIRST_LOOK`` samples a pixel) the farm's rule stops as the
+    local loop's does, on the first look's bound (the error terms' mean plus ``FIRST_LOOK_Z``
+    standard errors): the tile's own before every tile has merged its first look, then the
+    frame's, from the job's sums (``JobMeta.first_look_bound``, the same as the bound of every
+    pixel's terms together). A tile of even noise beside one whose noise four bright samples
+    carry: alone, the even tile would stop at a target its bound reaches; once the other has
+    merged, the frame's bound does not reach it, and the even tile takes the rest of the
+    pilot."""
+    import numpy as np
+
+    from renderer.film.adaptive import (
+        AIM,
+        FIRST_LOOK,
+        PILOT,
+        STOP_SLACK,
+        error_terms,
+        first_look_bound,
+    )
+    from renderer.film.buffer import SampleBuffer
+    from services.farm.passes import adaptive_counts
+
+    rng = np.random.default_rng(9)
+    plan = Plan(32, 16, 256, 16, 8)  # 2 tiles of 16 px, passes of 8
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.5)
+    even = SampleBuffer.empty(*plan.tile_rect(0))
+    x = rng.exponential(1.0, size=(FIRST_LOOK,) + even.sum.shape)
+    even.sum[:], even.sum_sq[:], even.count[:] = x.sum(axis=0), (x * x).sum(axis=0), FIRST_LOOK
+    terms = error_terms(even).ravel()
+    own = first_look_bound(terms.sum(), float(terms @ terms), terms.size)
+    loose = 1.02 * own / (AIM * (1 + STOP_SLACK))
+    few = SampleBuffer.empty(*plan.tile_rect(1))
+    y = np.ones((FIRST_LOOK,) + few.sum.shape)
+    y[0, [3, 3, 12, 12], [3, 12, 3, 12], :] = 1.0 + np.sqrt(4.0 * terms.sum() * 1.01)
+    few.sum[:], few.sum_sq[:], few.count[:] = y.sum(axis=0), (y * y).sum(axis=0), FIRST_LOOK
+    store.put_pass(job_id, 0, 0, even.to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(job_id, 0, 0)
+    meta = store.get_job(job_id)
+    assert meta.first_look_bound is None  # (tile 1 has not merged: the tile's own decides)
+    assert not adaptive_counts(store, meta, 0, loose, 8).any()
+    store.put_pass(job_id, 1, 0, few.to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(job_id, 1, 0)
+    meta = store.get_job(job_id)
+    both = np.concatenate([terms, error_terms(few).ravel()])
+    assert meta.first_look_bound == pytest.approx(
+        both.mean() + 2.0 * both.std() / np.sqrt(both.size), rel=1e-9)
+    assert meta.expected_error <= AIM * loose  # (the frame's mean alone would stop)
+    assert (adaptive_counts(store, meta, 0, loose, 8) == PILOT - FIRST_LOOK).all()
+    # a target the frame's bound is within: both stop
+    far = 1.02 * meta.first_look_bound / (AIM * (1 + STOP_SLACK))
+    assert not adaptive_counts(store, meta, 0, far, 8).any()
+    assert not adaptive_counts(store, meta, 1, far, 8).any()
+
+
 def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(store):
     """The farm's stop (services.farm.passes.adaptive_counts): once every pixel has an estimate,
     a tile takes no samples when the frame's estimated error from the job's tile summaries
@@ -620,7 +677,7 @@ def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(s
     the tile takes samples."""
     import numpy as np
 
-    from renderer.film.adaptive import AIM, PILOT, STOP_SLACK
+    from renderer.film.adaptive import AIM, FIRST_LOOK, STOP_SLACK
     from renderer.film.buffer import SampleBuffer
     from services.farm.passes import adaptive_counts
 
@@ -628,10 +685,11 @@ def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(s
     plan = Plan(40, 16, 4096, 16, 32)  # 3 tiles (16, 16 and 8 px wide) x passes of 32
     job_id = uuid.uuid4().hex
     store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.01)
-    # Before a tile's first merge: the pilot, PILOT samples every pixel of it, not the pass
+    # Before a tile's first merge: the pilot's first half, FIRST_LOOK samples every pixel of it,
+    # not the pass
     pilot = adaptive_counts(store, store.get_job(job_id), 2, 0.01, 32)
-    assert pilot.shape == (16, 8) and (pilot == PILOT).all()
-    assert (adaptive_counts(store, store.get_job(job_id), 2, 0.01, 4) == 4).all()
+    assert pilot.shape == (16, 8) and (pilot == FIRST_LOOK).all()
+    assert (adaptive_counts(store, store.get_job(job_id), 2, 0.01, 3) == 3).all()
     for t in range(3):
         buf = SampleBuffer.empty(*plan.tile_rect(t))
         x = rng.exponential(1.0, size=(32,) + buf.sum.shape)

@@ -299,12 +299,14 @@ def test_a_target_job_aims_the_noise_at_the_target_less_autos_bias(farm, farm_cl
                                                                  job["expected_error"])
 
 
-def test_a_target_jobs_first_pass_is_the_pilot(farm, farm_client, wait_for_job, tiny_scene):
-    """A job with a target renders PILOT samples a pixel in a tile's first pass, as the local
-    loop's pilot, not the whole pass: the Cornell box (a packet scene, whose first pass is 32
-    samples by default) at a target its pilot alone reaches stops with PILOT samples in every
-    pixel (it took 32, 0.07x the target, when the first pass was rendered whole)."""
-    from renderer.film.adaptive import PILOT
+def test_a_target_jobs_first_pass_is_the_pilots_first_look(farm, farm_client, wait_for_job,
+                                                            tiny_scene):
+    """A job with a target renders FIRST_LOOK samples a pixel in a tile's first pass, as the
+    local loop's first look, not the whole pass: the Cornell box (a packet scene, whose first
+    pass is 32 samples by default) at a target its first look reaches stops with FIRST_LOOK
+    samples in every pixel (it took 32, 0.07x the target, when the first pass was rendered
+    whole; 8, the whole pilot, before the first look)."""
+    from renderer.film.adaptive import FIRST_LOOK
 
     scene = copy.deepcopy(tiny_scene)
     scene["render"].update(spp=256, target_error=0.5)
@@ -313,17 +315,17 @@ def test_a_target_jobs_first_pass_is_the_pilot(farm, farm_client, wait_for_job, 
     job = wait_for_job(farm_client, r.json()["id"])
     assert job["status"] == "done" and job["spp_per_pass"] == 32, job
     frame, _ = assemble(farm.store(), job["id"])
-    assert ((frame.count + frame.dropped) == PILOT).all()
+    assert ((frame.count + frame.dropped) == FIRST_LOOK).all()
     assert job["expected_error"] <= AIM * 0.5
 
 
 def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job, tiny_scene):
     """With render.target_error, each pass renders only the pixels whose allocation lacks
     samples (renderer.film.adaptive.pass_counts on the tile's merged buffer, at the frame's scale
-    from the tiles' summaries): the job completes as planned, the black border's tiles stop at
-    the pilot while the noisy ones go on, no pixel has fewer than the pilot, and the job's
-    answer reports the target and the expected error it reached."""
-    from renderer.film.adaptive import PILOT
+    from the tiles' summaries): the job completes as planned, the black border's tiles stop
+    early while the noisy ones go on, no pixel has fewer than the pilot's first look, and the
+    job's answer reports the target and the expected error it reached."""
+    from renderer.film.adaptive import FIRST_LOOK
 
     scene = copy.deepcopy(tiny_scene)
     scene["render"].update(spp=256, target_error=0.02)
@@ -333,7 +335,7 @@ def test_adaptive_sampling_stops_converged_tiles(farm, farm_client, wait_for_job
     assert job["status"] == "done", job
     frame, _ = assemble(farm.store(), job["id"])
     samples = frame.count + frame.dropped
-    assert samples.min() >= PILOT
+    assert samples.min() >= FIRST_LOOK
     assert samples.min() < 256 and samples.max() <= 256
     assert job["target_error"] == 0.02
     assert job["expected_error"] is not None and 0 < job["expected_error"] <= 0.02

@@ -144,6 +144,25 @@ def test_render_with_a_target_says_the_plan_and_what_it_reached(tmp_path, capsys
     assert 0 < reached <= 0.05
 
 
+def test_render_with_a_loose_target_says_the_first_look_reached_it(tmp_path, capsys):
+    """A target the pilot's first look reaches: the CLI says that its samples already reach the
+    aim (not an allocation's plan), and the frame has FIRST_LOOK samples a pixel."""
+    from renderer.film.adaptive import FIRST_LOOK
+
+    data = json.loads(small_scene(tmp_path).read_text())
+    data["render"].update(spp=2048, target_error=0.5)
+    path = tmp_path / "target.json"
+    path.write_text(json.dumps(data))
+    out = tmp_path / "x.npy"
+    assert main(["render", str(path), "-o", str(out), "-q"]) == 0
+    err = capsys.readouterr().err
+    assert (f"target relMSE 0.5: the pilot's first {FIRST_LOOK} spp a pixel already reach an "
+            "expected relMSE of 0.4 (0.8 × target)") in err
+    assert "after the pilot the allocation plans" not in err
+    line = next(x for x in err.splitlines() if x.startswith("reached: expected relMSE"))
+    assert f"{FIRST_LOOK} spp a pixel on average ({FIRST_LOOK}–{FIRST_LOOK})" in line, line
+
+
 def test_render_with_a_target_counts_the_bias_of_the_model_auto_chose(tmp_path, capsys):
     """A close-up of dense wax that auto renders as the opaque surface, with a target: the plan
     aims the samples' noise at the target less the bias the model may add over the frame, and
