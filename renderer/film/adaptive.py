@@ -45,8 +45,9 @@ had) did not follow from scene to scene.
 
 **Pilot, rounds, stop.** Every pixel first takes ``PILOT`` samples, in two passes: after the
 first ``FIRST_LOOK`` the loop stops where the frame's estimated error plus ``FIRST_LOOK_Z``
-standard errors of it over the pixels is within the aim (``first_look_reached``; at 4 samples a
-pixel the estimate alone is low in some runs where a few pixels' rare bright paths carry it).
+standard errors of it over the pixels is within the aim and at least ``FIRST_LOOK_PIXELS``
+pixels carry it (``first_look_reached``; at 4 samples a pixel the estimate alone is low in some
+runs where a few pixels' rare bright paths carry it).
 Then before every pass the
 allocation is recomputed from all the samples so far, a round adding at most as much work as the
 frame has had, the first round after the pilot evenly (every pixel the same count: the pilot's
@@ -81,6 +82,9 @@ PILOT = 8
 # above it, within the aim
 FIRST_LOOK = 4
 FIRST_LOOK_Z = 2.0
+# ... where at least this many pixels carry the estimate: the effective number (Σ e)² / Σ e² of
+# its terms e (a normal approximation of their mean is not trusted on fewer)
+FIRST_LOOK_PIXELS = 30
 # The allocation aims at AIM × target: achieved/target measured over the chart suite and the
 # targets 0.1 … 0.002 (python -m bench.target_error; docs/adaptive-sampling.md).
 AIM = 0.8
@@ -334,8 +338,13 @@ def first_look_bound(err_sum: float, err_sq_sum: float, pixels: int) -> float:
     """The bound the stop after the pilot's first half takes (``first_look_reached``), from the
     sums of the frame's (or a tile's) ``error_terms`` e_p and of their squares over its
     ``pixels``: their mean plus ``FIRST_LOOK_Z`` standard errors of it, the terms' spread over
-    the pixels (the population one) over √pixels; inf without pixels."""
-    if pixels <= 0:
+    the pixels (the population one) over √pixels. inf (no stop) where fewer than
+    ``FIRST_LOOK_PIXELS`` pixels carry the terms, (Σ e)² / Σ e² (a frame of no variance
+    included): the normal approximation behind the bound needs many, and where a few pixels'
+    rare bright paths carry the estimate it is low in some runs (the caustic floor at 4 samples
+    a pixel, over 32 seeds: one run's estimate 0.25x its error, carried by about 3 pixels, its
+    bound 0.87 of the aim at target 0.1; the Cornell box's carried by 74-330)."""
+    if pixels <= 0 or err_sq_sum <= 0.0 or err_sum * err_sum < FIRST_LOOK_PIXELS * err_sq_sum:
         return math.inf
     mean = err_sum / pixels
     spread = math.sqrt(max(err_sq_sum / pixels - mean * mean, 0.0))
@@ -351,12 +360,13 @@ def _look_sums(terms: np.ndarray) -> tuple[float, float, int]:
 def first_look_reached(terms: np.ndarray, target: float) -> bool:
     """The stop after the pilot's first half (``FIRST_LOOK`` samples a pixel), from its
     ``error_terms``: their mean, the frame's estimated error, plus ``FIRST_LOOK_Z`` standard
-    errors of it over the pixels (``first_look_bound``), within the aim (``aim_reached``). At 4
-    samples a pixel the mean alone is unreliable where a few pixels' rare bright paths carry
-    it: on the caustic floor and the sphere of albedo 0.5 it came out 0.42-0.49x the error in
-    some runs, which stopped at 1.4-1.8x the target; there the terms' relative standard error is
-    0.24-0.90, on the diffuse Cornell box, whose estimate was 0.92-1.05x its error, 0.05-0.11 (12
-    seeds each, docs/adaptive-sampling.md)."""
+    errors of it over the pixels (``first_look_bound``: none where fewer than
+    ``FIRST_LOOK_PIXELS`` pixels carry it), within the aim (``aim_reached``). At 4 samples a
+    pixel the mean alone is unreliable where a few pixels' rare bright paths carry it: on the
+    caustic floor and the sphere of albedo 0.5 it came out 0.25-0.49x the error in some runs,
+    which stopped at 1.3-1.8x the target; there the terms' relative standard error is 0.24-0.90,
+    on the diffuse Cornell box, whose estimate was 0.84-1.09x its error, 0.05-0.12 (32 seeds,
+    docs/adaptive-sampling.md)."""
     return aim_reached(first_look_bound(*_look_sums(terms)), target)
 
 

@@ -619,10 +619,10 @@ def test_a_target_jobs_first_look_takes_the_frames_bound_once_every_tile_has_one
     local loop's does, on the first look's bound (the error terms' mean plus ``FIRST_LOOK_Z``
     standard errors): the tile's own before every tile has merged its first look, then the
     frame's, from the job's sums (``JobMeta.first_look_bound``, the same as the bound of every
-    pixel's terms together). A tile of even noise beside one whose noise four bright samples
-    carry: alone, the even tile would stop at a target its bound reaches; once the other has
-    merged, the frame's bound does not reach it, and the even tile takes the rest of the
-    pilot."""
+    pixel's terms together). A tile of even noise beside one four times as noisy: alone, the
+    even tile stops at a target its bound reaches; once the other has merged, the frame's bound
+    does not reach it, and the even tile takes the rest of the pilot; at a target the frame's
+    bound reaches, both stop."""
     import numpy as np
 
     from renderer.film.adaptive import (
@@ -640,28 +640,30 @@ def test_a_target_jobs_first_look_takes_the_frames_bound_once_every_tile_has_one
     plan = Plan(32, 16, 256, 16, 8)  # 2 tiles of 16 px, passes of 8
     job_id = uuid.uuid4().hex
     store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.5)
-    even = SampleBuffer.empty(*plan.tile_rect(0))
-    x = rng.exponential(1.0, size=(FIRST_LOOK,) + even.sum.shape)
-    even.sum[:], even.sum_sq[:], even.count[:] = x.sum(axis=0), (x * x).sum(axis=0), FIRST_LOOK
+
+    def tile(t: int, x: np.ndarray) -> SampleBuffer:
+        buf = SampleBuffer.empty(*plan.tile_rect(t))
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), FIRST_LOOK
+        return buf
+
+    shape = (FIRST_LOOK, 16, 16, 3)
+    even = tile(0, rng.exponential(1.0, shape))  # relative variance 1
+    noisy = tile(1, rng.gamma(0.25, 4.0, shape))  # relative variance 4
     terms = error_terms(even).ravel()
     own = first_look_bound(terms.sum(), float(terms @ terms), terms.size)
     loose = 1.02 * own / (AIM * (1 + STOP_SLACK))
-    few = SampleBuffer.empty(*plan.tile_rect(1))
-    y = np.ones((FIRST_LOOK,) + few.sum.shape)
-    y[0, [3, 3, 12, 12], [3, 12, 3, 12], :] = 1.0 + np.sqrt(4.0 * terms.sum() * 1.01)
-    few.sum[:], few.sum_sq[:], few.count[:] = y.sum(axis=0), (y * y).sum(axis=0), FIRST_LOOK
     store.put_pass(job_id, 0, 0, even.to_bytes(), ttl=60)
     assert store.merge_pass_buffer(job_id, 0, 0)
     meta = store.get_job(job_id)
     assert meta.first_look_bound is None  # (tile 1 has not merged: the tile's own decides)
     assert not adaptive_counts(store, meta, 0, loose, 8).any()
-    store.put_pass(job_id, 1, 0, few.to_bytes(), ttl=60)
+    store.put_pass(job_id, 1, 0, noisy.to_bytes(), ttl=60)
     assert store.merge_pass_buffer(job_id, 1, 0)
     meta = store.get_job(job_id)
-    both = np.concatenate([terms, error_terms(few).ravel()])
+    both = np.concatenate([terms, error_terms(noisy).ravel()])
     assert meta.first_look_bound == pytest.approx(
         both.mean() + 2.0 * both.std() / np.sqrt(both.size), rel=1e-9)
-    assert meta.expected_error <= AIM * loose  # (the frame's mean alone would stop)
+    assert meta.first_look_bound > 1.5 * own
     assert (adaptive_counts(store, meta, 0, loose, 8) == PILOT - FIRST_LOOK).all()
     # a target the frame's bound is within: both stop
     far = 1.02 * meta.first_look_bound / (AIM * (1 + STOP_SLACK))

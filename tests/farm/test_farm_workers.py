@@ -305,12 +305,14 @@ def test_a_target_jobs_first_pass_is_the_pilots_first_look(farm, farm_client, wa
     local loop's first look, not the whole pass: the Cornell box (a packet scene, whose first
     pass is 32 samples by default) at a target its first look reaches stops with FIRST_LOOK
     samples in every pixel (it took 32, 0.07x the target, when the first pass was rendered
-    whole; 8, the whole pilot, before the first look)."""
+    whole; 8, the whole pilot, before the first look). At 64×48 in one tile: its pixels carry
+    the estimate (on smaller tiles a few pixels at the light may, and the tile goes on)."""
     from renderer.film.adaptive import FIRST_LOOK
 
     scene = copy.deepcopy(tiny_scene)
+    scene["film"] = {"width": 64, "height": 48}
     scene["render"].update(spp=256, target_error=0.5)
-    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 16})
+    r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 64})
     assert r.status_code == 201, r.text
     job = wait_for_job(farm_client, r.json()["id"])
     assert job["status"] == "done" and job["spp_per_pass"] == 32, job

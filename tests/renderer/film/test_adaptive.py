@@ -14,6 +14,7 @@ from renderer.film.adaptive import (
     AIM,
     EPSILON,
     FIRST_LOOK,
+    FIRST_LOOK_PIXELS,
     FIRST_LOOK_Z,
     PILOT,
     STOP_SLACK,
@@ -597,6 +598,13 @@ def test_the_first_look_stops_only_where_its_bound_is_within_the_aim():
     assert first_look_reached(t, bound / (AIM * (1 + STOP_SLACK)) * 1.001)
     assert not first_look_reached(t, bound / (AIM * (1 + STOP_SLACK)) * 0.999)
     assert not first_look_reached(np.zeros((0, 0)), target)
+    # no bound where fewer than FIRST_LOOK_PIXELS pixels carry the terms, (Σ e)² / Σ e²: k
+    # equal terms are carried by k pixels
+    for k in (FIRST_LOOK_PIXELS - 1, FIRST_LOOK_PIXELS):
+        t = np.zeros(1000)
+        t[:k] = 0.5
+        assert first_look_reached(t, target) == (k >= FIRST_LOOK_PIXELS), k
+    assert first_look_bound(0.0, 0.0, 100) == float("inf")  # (no variance: nothing carries it)
 
 
 def look_pass(heavy: bool, seed: int, passes: list[int], w: int = 32):
@@ -756,7 +764,9 @@ def test_tile_rule_pilots_every_pixel_then_allocates():
     np.testing.assert_array_equal(pass_counts(look, 0.01, 256, 32), PILOT - FIRST_LOOK)
     np.testing.assert_array_equal(pass_counts(look, 0.01, 6, 32), 6 - FIRST_LOOK)  # (the cap)
     flat = synthetic(np.ones((4, 4, FIRST_LOOK)))
-    assert tile_converged(flat, 0.01, 256)  # no variance anywhere: done at the first look
+    # no variance anywhere: no pixel carries the first look's bound, the rest of the pilot...
+    np.testing.assert_array_equal(pass_counts(flat, 0.01, 256, 32), PILOT - FIRST_LOOK)
+    assert tile_converged(synthetic(np.ones((4, 4, PILOT))), 0.01, 256)  # ... then done
     noisy = synthetic(rng.exponential(1.0, (4, 4, PILOT)))
     counts = pass_counts(noisy, 0.01, 256, 32)
     assert counts.all() and counts.max() <= 32  # at most the pass
@@ -794,8 +804,11 @@ def test_tile_rule_takes_the_first_look_as_the_loop_does():
     # the frame's bound, where known, decides
     assert pass_counts(even, loose, 4096, 64, frame_bound=AIM * loose * 2).all()
     assert not pass_counts(few, loose, 4096, 64, frame_bound=0.5 * AIM * loose).any()
-    # the bound from the sums is the terms' mean plus Z standard errors
+    # the bound from the sums is the terms' mean plus Z standard errors (where enough pixels
+    # carry them: the even tile's, not the four pixels')
     t = error_terms(few).ravel()
+    assert first_look_bound(t.sum(), float(np.dot(t, t)), t.size) == float("inf")
+    t = terms.ravel()
     assert first_look_bound(t.sum(), float(np.dot(t, t)), t.size) == pytest.approx(
         t.mean() + FIRST_LOOK_Z * t.std() / np.sqrt(t.size), rel=1e-12)
     assert first_look_bound(0.0, 0.0, 0) == float("inf")
