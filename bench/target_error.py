@@ -28,8 +28,9 @@ are the means over them (one seed's error is noisy where rare bright paths carry
 image). "uniform s" is the uniform time at the target run's achieved error, interpolated on the
 uniform log–log curve (slope −1 beyond its ends; the
 runs at 4 and 8 spp put a frame of a few milliseconds, where a target run takes the pilot's
-first look of 4 spp, its 8 or a little more, between measured points: extrapolated down from 16 spp, time ∝ spp
-shrinks the fixed cost of a render too, and uniform sampling looked faster than it is);
+first look of 4 spp, its 8 or a little more, between measured points: extrapolated down from
+16 spp, time ∝ spp shrinks the fixed cost of a render too, and uniform sampling looked faster
+than it is);
 "time ratio" is the target run's time over it (below 1: the target run was faster at equal
 error). "error/target" should lie in [0.5, 1.1]. ``--even`` runs each target a second time with
 every round even, uniform sampling with the loop's pilot, rounds and stop (its frame is the
