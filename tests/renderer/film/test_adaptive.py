@@ -847,17 +847,36 @@ def test_tile_rule_takes_the_loops_gate():
         even = synthetic(rng.exponential(1.0, (32, 32, 32)))
         own = sample_variance(even)
         shape = neighbour_variance(even)
-        for scale in (200.0, None):
-            counts = pass_counts(even, 0.01, 4096, 4096, scale=scale)
+        # (scales and a target within a doubling of the 32 samples the tile has: a pass adds
+        # at most as many as a pixel has)
+        for scale in (50.0, None):
+            counts = pass_counts(even, 0.03, 4096, 4096, scale=scale)
             assert counts.min() == counts.max() > 0, (scale, counts.min(), counts.max())
             n = 32 + int(counts[0, 0])
             aim = (np.mean(own / np.maximum(32, scale * np.sqrt(shape))) if scale
-                   else AIM * 0.01)
+                   else AIM * 0.03)
             assert np.mean(own / n) <= aim < np.mean(own / (n - 1))
     scale_of = np.where(np.arange(16) < 8, 1.0, 0.05)[None, :, None]
     half = synthetic(1.0 + scale_of * (rng.exponential(1.0, (16, 16, 32)) - 1.0))
-    counts = pass_counts(half, 0.01, 4096, 4096, scale=200.0)
+    counts = pass_counts(half, 0.01, 4096, 4096, scale=60.0)
     assert counts[:, :8].mean() > 3 * counts[:, 8:].mean()
+
+
+def test_tile_rule_past_the_pilot_at_most_doubles_a_pixels_samples():
+    """Past the pilot a pass gives a pixel at most as many samples as it has (the local loop's
+    rounds add at most as much work again), whatever the pass holds and the frame's scale asks;
+    the pilot and its first look are not held to it."""
+    rng = np.random.default_rng(23)
+    noisy = synthetic(rng.exponential(1.0, (8, 8, PILOT)))
+    for scale in (1e4, None):
+        counts = pass_counts(noisy, 1e-4, 1 << 20, 4096, scale=scale)
+        np.testing.assert_array_equal(counts, PILOT)
+    lagging = synthetic(rng.exponential(1.0, (8, 8, 24)))
+    lagging.count[:4] = 12  # (half the rows with fewer samples)
+    counts = pass_counts(lagging, 1e-4, 1 << 20, 4096, scale=1e4)
+    np.testing.assert_array_equal(counts, lagging.count)
+    np.testing.assert_array_equal(pass_counts(synthetic(np.ones((4, 4, 1))), 0.01, 256, 32),
+                                  FIRST_LOOK - 1)
 
 
 def test_frame_scale_solves_the_error_of_the_summaries():
