@@ -743,9 +743,8 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
         want = np.full(count.shape, look, np.int64)
     elif low < min(PILOT, cap):
         # The first look: a stop where its bound is within the aim, else the rest of the pilot
-        bound = (frame_bound if frame_bound is not None else
-                 first_look_bound(*_look_sums(error_terms(buf))))
-        if aim_reached(bound, target):
+        if (aim_reached(frame_bound, target) if frame_bound is not None
+                else first_look_reached(error_terms(buf), target)):
             return np.zeros(count.shape, np.int32)
         want = np.full(count.shape, min(PILOT, cap), np.int64)
     elif frame_error is not None and aim_reached(frame_error, target):
