@@ -151,7 +151,8 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     """A job with render.target_error keeps, beside its tiles, the target and the sums of its
     tiles' error summaries (the frame's scale and expected error come from them). Parked and
     restored (a retry), it has the same target, the same sums and the same per-tile summaries
-    that its merges kept: each is a function of the tile's merged buffer. Without them the
+    that its merges kept: each is a function of the tile's merged buffer; and the sums of its
+    tiles' first looks, which is not, carried by the snapshot. Without them the
     retry would send every unmerged pass (not one chain a tile) and the frame's estimate would
     count only the tiles merged after it."""
     import numpy as np
@@ -185,9 +186,13 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
     after = store.get_job(job_id)
     assert after.target_error == 0.02 and after.expected_bias == 0.003
-    for name in ("err_sum", "weight_sum", "err_pixels"):
+    # (and the sums of the tiles' first looks, which the merged buffers no longer tell)
+    assert before.look_pixels == 32 * 16 and before.first_look_bound is not None
+    for name in ("err_sum", "weight_sum", "err_pixels", "look_sum", "look_sq_sum",
+                 "look_pixels"):
         assert getattr(after, name) == pytest.approx(getattr(before, name), rel=1e-12), name
     assert after.expected_error == pytest.approx(before.expected_error, rel=1e-12)
+    assert after.first_look_bound == pytest.approx(before.first_look_bound, rel=1e-12)
     restored = store.r.hgetall(store.k("job", job_id, "tile_err"))
     assert restored.keys() == kept.keys()
     for t, summary in kept.items():
@@ -669,6 +674,69 @@ def test_a_target_jobs_first_look_takes_the_frames_bound_once_every_tile_has_one
     far = 1.02 * meta.first_look_bound / (AIM * (1 + STOP_SLACK))
     assert not adaptive_counts(store, meta, 0, far, 8).any()
     assert not adaptive_counts(store, meta, 1, far, 8).any()
+
+
+def test_a_tile_stopped_on_its_own_first_look_is_asked_again_on_the_frames(store):
+    """The frame's first-look bound is the bound of every tile's first look, each tile's first
+    merged pass (``JobMeta.first_look_bound``), not of the job's sums after later passes: a tile
+    of even noise stops on its own bound before the other tile has merged; the other, four
+    times as noisy at its first look, then merges a pass of 200 samples a pixel, which takes
+    the job's sums (and a bound on them) within the aim. Once no tile renders, the first tile
+    is asked again (``settle_converged``) on the frames' first look, which is not within the
+    aim, and is queued for the rest of its pilot, as the local loop, whose first look saw the
+    whole frame, would have gone on."""
+    import numpy as np
+
+    from renderer.film.adaptive import (
+        AIM,
+        FIRST_LOOK,
+        STOP_SLACK,
+        aim_reached,
+        error_terms,
+        first_look_bound,
+    )
+    from renderer.film.buffer import SampleBuffer
+    from services.farm.passes import adaptive_counts, settle_converged
+
+    rng = np.random.default_rng(21)
+    plan = Plan(32, 16, 256, 16, 8)  # 2 tiles of 16 px, passes of 8
+    job_id = uuid.uuid4().hex
+
+    def tile(t: int, x: np.ndarray) -> SampleBuffer:
+        buf = SampleBuffer.empty(*plan.tile_rect(t))
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), len(x)
+        return buf
+
+    shape = (FIRST_LOOK, 16, 16, 3)
+    even = tile(0, rng.exponential(1.0, shape))  # relative variance 1
+    noisy = tile(1, rng.gamma(0.25, 4.0, shape))  # relative variance 4
+    terms = error_terms(even).ravel()
+    own = first_look_bound(terms.sum(), float((terms * terms).sum()), terms.size)
+    loose = float(1.02 * own / (AIM * (1 + STOP_SLACK)))
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=loose)
+    store.put_pass(job_id, 0, 0, even.to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(job_id, 0, 0)
+    assert not adaptive_counts(store, store.get_job(job_id), 0, loose, 8).any()
+    store.set_tile_state(job_id, 0, "converged")  # as the worker that found nothing to add
+    store.put_pass(job_id, 1, 0, noisy.to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(job_id, 1, 0)
+    look = np.concatenate([terms, error_terms(noisy).ravel()])
+    want = first_look_bound(look.sum(), float((look * look).sum()), look.size)
+    assert not aim_reached(want, loose)
+    assert store.get_job(job_id).first_look_bound == pytest.approx(want, rel=1e-9)
+    store.put_pass(job_id, 1, 1, tile(1, 1.0 + 0.01 * rng.standard_normal(
+        (200, 16, 16, 3))).to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(job_id, 1, 1)
+    meta = store.get_job(job_id)
+    assert meta.first_look_bound == pytest.approx(want, rel=1e-9)  # the first looks' still
+    # (on the job's sums now the bound would be within the aim: tile 0 would stay stopped)
+    assert aim_reached(first_look_bound(meta.err_sum, meta.err_sq_sum, meta.err_pixels), loose)
+    assert not adaptive_counts(store, meta, 1, loose, 8).any()
+    store.set_tile_state(job_id, 1, "converged")
+    sent: list[tuple[int, int]] = []
+    assert settle_converged(store, lambda todo, m: sent.extend(todo), job_id) == [(0, 1)]
+    assert sent == [(0, 1)] and store.tile_states(job_id)[0] == "queued"
+    assert (adaptive_counts(store, store.get_job(job_id), 0, loose, 8) > 0).all()
 
 
 def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(store):
