@@ -619,6 +619,32 @@ def test_converged_tiles_are_asked_again_once_no_tile_renders(store, noise, aske
         assert store.is_merged(job_id, 0, plan.n_passes - 1)
 
 
+# The first-look tests' job: 2 tiles of 16 px, passes of 8
+LOOK_PLAN = Plan(32, 16, 256, 16, 8)
+
+
+def look_tile(t: int, x):
+    """Tile ``t`` of ``LOOK_PLAN``'s buffer of the grey samples ``x`` (n, 16, 16, 3)."""
+    from renderer.film.buffer import SampleBuffer
+
+    buf = SampleBuffer.empty(*LOOK_PLAN.tile_rect(t))
+    buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), len(x)
+    return buf
+
+
+def first_looks(rng):
+    """Two first looks (``FIRST_LOOK`` samples a pixel) of ``LOOK_PLAN``'s tiles: tile 0 of even
+    noise (relative variance 1), tile 1 four times as noisy; and tile 0's own first-look
+    bound."""
+    from renderer.film.adaptive import FIRST_LOOK, error_terms, first_look_bound
+
+    shape = (FIRST_LOOK, 16, 16, 3)
+    even = look_tile(0, rng.exponential(1.0, shape))
+    noisy = look_tile(1, rng.gamma(0.25, 4.0, shape))
+    terms = error_terms(even).ravel()
+    return even, noisy, first_look_bound(terms.sum(), float((terms * terms).sum()), terms.size)
+
+
 def test_a_target_jobs_first_look_takes_the_frames_bound_once_every_tile_has_one(store):
     """After a tile's first look (``FIRST_LOOK`` samples a pixel) the farm's rule stops as the
     local loop's does, on the first look's bound (the error terms' mean plus ``FIRST_LOOK_Z``
@@ -630,32 +656,15 @@ def test_a_target_jobs_first_look_takes_the_frames_bound_once_every_tile_has_one
     bound reaches, both stop."""
     import numpy as np
 
-    from renderer.film.adaptive import (
-        AIM,
-        FIRST_LOOK,
-        PILOT,
-        STOP_SLACK,
-        error_terms,
-        first_look_bound,
-    )
-    from renderer.film.buffer import SampleBuffer
+    from renderer.film.adaptive import AIM, FIRST_LOOK, PILOT, STOP_SLACK, error_terms
     from services.farm.passes import adaptive_counts
 
     rng = np.random.default_rng(9)
-    plan = Plan(32, 16, 256, 16, 8)  # 2 tiles of 16 px, passes of 8
+    plan = LOOK_PLAN
     job_id = uuid.uuid4().hex
     store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.5)
-
-    def tile(t: int, x: np.ndarray) -> SampleBuffer:
-        buf = SampleBuffer.empty(*plan.tile_rect(t))
-        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), FIRST_LOOK
-        return buf
-
-    shape = (FIRST_LOOK, 16, 16, 3)
-    even = tile(0, rng.exponential(1.0, shape))  # relative variance 1
-    noisy = tile(1, rng.gamma(0.25, 4.0, shape))  # relative variance 4
+    even, noisy, own = first_looks(rng)
     terms = error_terms(even).ravel()
-    own = first_look_bound(terms.sum(), float(terms @ terms), terms.size)
     loose = 1.02 * own / (AIM * (1 + STOP_SLACK))
     store.put_pass(job_id, 0, 0, even.to_bytes(), ttl=60)
     assert store.merge_pass_buffer(job_id, 0, 0)
@@ -689,30 +698,19 @@ def test_a_tile_stopped_on_its_own_first_look_is_asked_again_on_the_frames(store
 
     from renderer.film.adaptive import (
         AIM,
-        FIRST_LOOK,
         STOP_SLACK,
         aim_reached,
         error_terms,
         first_look_bound,
     )
-    from renderer.film.buffer import SampleBuffer
     from services.farm.passes import adaptive_counts, settle_converged
 
     rng = np.random.default_rng(21)
-    plan = Plan(32, 16, 256, 16, 8)  # 2 tiles of 16 px, passes of 8
     job_id = uuid.uuid4().hex
-
-    def tile(t: int, x: np.ndarray) -> SampleBuffer:
-        buf = SampleBuffer.empty(*plan.tile_rect(t))
-        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), len(x)
-        return buf
-
-    shape = (FIRST_LOOK, 16, 16, 3)
-    even = tile(0, rng.exponential(1.0, shape))  # relative variance 1
-    noisy = tile(1, rng.gamma(0.25, 4.0, shape))  # relative variance 4
+    even, noisy, own = first_looks(rng)
     terms = error_terms(even).ravel()
-    own = first_look_bound(terms.sum(), float((terms * terms).sum()), terms.size)
     loose = float(1.02 * own / (AIM * (1 + STOP_SLACK)))
+    plan = LOOK_PLAN
     store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=loose)
     store.put_pass(job_id, 0, 0, even.to_bytes(), ttl=60)
     assert store.merge_pass_buffer(job_id, 0, 0)
@@ -724,7 +722,7 @@ def test_a_tile_stopped_on_its_own_first_look_is_asked_again_on_the_frames(store
     want = first_look_bound(look.sum(), float((look * look).sum()), look.size)
     assert not aim_reached(want, loose)
     assert store.get_job(job_id).first_look_bound == pytest.approx(want, rel=1e-9)
-    store.put_pass(job_id, 1, 1, tile(1, 1.0 + 0.01 * rng.standard_normal(
+    store.put_pass(job_id, 1, 1, look_tile(1, 1.0 + 0.01 * rng.standard_normal(
         (200, 16, 16, 3))).to_bytes(), ttl=60)
     assert store.merge_pass_buffer(job_id, 1, 1)
     meta = store.get_job(job_id)
