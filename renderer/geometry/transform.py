@@ -29,6 +29,18 @@ def placement(scale, rotate, translate) -> tuple[np.ndarray, np.ndarray]:
     return m, t
 
 
+def apply_linear(points: np.ndarray, m: np.ndarray) -> np.ndarray:
+    """``points @ m.T`` for points (N, 3) and a 3×3 ``m``, as three multiply-adds over the
+    columns, not a matrix product: numpy hands a (N, 3) @ (3, 3) product to the BLAS library,
+    which for a large N runs it on its own threads, and they spin after it, taking a core from
+    the render that follows: after placing 100 000 or a million vertices, the process used 0.34
+    and 0.27 of a core over the next 0.3 s of sleep, and 0.00 after this. The product itself
+    took 5.5 and 142 ms, this 11 and 104 ms (scratch, 2 cores beside another run, OpenBLAS
+    0.3.31)."""
+    p = np.asarray(points, np.float64)
+    return p[:, 0:1] * m[:, 0] + p[:, 1:2] * m[:, 1] + p[:, 2:3] * m[:, 2]
+
+
 def camera_array(cam, width: int, height: int) -> np.ndarray:
     """The pinhole camera as the renderer reads it (``camera_ray``): position (0–2), forward
     (3–5), right (6–8) and up (9–11), unit vectors, tan(fov / 2) (12) and the aspect (13)."""

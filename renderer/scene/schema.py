@@ -830,11 +830,11 @@ class Mesh(ObjectBase):
         if self.scale is None and self.rotate is None and self.translate is None:
             return model, triangles
         if self._world_vertices is None:
-            from renderer.geometry.transform import placement
+            from renderer.geometry.transform import apply_linear, placement
 
             m, t = placement(self.scale, self.rotate, self.translate)
             with np.errstate(over="ignore", invalid="ignore"):  # load_scene names overflow
-                world = model @ m.T + t
+                world = apply_linear(model, m) + t
             world.flags.writeable = False
             self._world_vertices = world
         return self._world_vertices, triangles
@@ -861,10 +861,10 @@ class Mesh(ObjectBase):
         if self._world_normals is None:
             normals = self._normals_array
             if self.scale is not None or self.rotate is not None:
-                from renderer.geometry.transform import placement
+                from renderer.geometry.transform import apply_linear, placement
 
                 m, _ = placement(self.scale, self.rotate, self.translate)
-                normals = normals @ np.linalg.inv(m)  # (M⁻ᵀ n)ᵀ = nᵀ M⁻¹
+                normals = apply_linear(normals, np.linalg.inv(m).T)  # (M⁻ᵀ n)ᵀ = nᵀ M⁻¹
             with np.errstate(invalid="ignore", divide="ignore"):
                 normals = normals / np.linalg.norm(normals, axis=1, keepdims=True)
             normals.flags.writeable = False
