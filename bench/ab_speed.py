@@ -1,6 +1,6 @@
 """A/B: the renderer's speed in the working tree against a commit, and whether images changed.
 
-    .venv/bin/python -m bench.ab_speed [--base HEAD] [--rounds 3] [--kernel scalar|wavefront]
+    .venv/bin/python -m bench.ab_speed [--base HEAD] [--rounds 3] [--kernel scalar|packet|wavefront]
         [--scenes cornell_box ...]
 
 On a shared 2-core VM one render's time moves by ±5 % from run to run, more than most single
@@ -89,7 +89,8 @@ def main() -> int:
     parser.add_argument("--base", default="HEAD", help="commit to compare the working tree with")
     parser.add_argument("--rounds", type=int, default=3)
     parser.add_argument("--scenes", nargs="+", default=list(SCENES))
-    parser.add_argument("--kernel", default="scalar", choices=("scalar", "wavefront", "gpu"),
+    parser.add_argument("--kernel", default="scalar",
+                        choices=("scalar", "packet", "wavefront", "gpu"),
                         help="render_tile's kernel on both sides")
     parser.add_argument("--measure", metavar="OUT", help=argparse.SUPPRESS)
     args = parser.parse_args()
