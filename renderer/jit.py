@@ -57,7 +57,8 @@ from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
 
 from numba import njit
-from numba.core import types
+from numba.core import cgutils, types
+from numba.extending import intrinsic, overload
 
 JIT_OPTIONS = {"cache": True, "nogil": True, "fastmath": False, "error_model": "numpy"}
 
@@ -125,6 +126,46 @@ def run_chunks(fn: Callable[[int], None], n: int) -> None:
         wait(futures)  # the others write into the caller's arrays: never return before them
     for future in futures:
         future.result()
+
+
+@intrinsic
+def _fetch_add(typingctx, counter, value):
+    """LLVM's ``atomicrmw add`` on ``counter[0]`` (an int64 array): its value before the add."""
+    sig = types.int64(counter, value)
+
+    def codegen(context, builder, signature, args):
+        ary, val = args
+        aryty = signature.args[0]
+        array = context.make_array(aryty)(context, builder, ary)
+        ptr = cgutils.get_item_pointer(context, builder, aryty, array,
+                                       [context.get_constant(types.intp, 0)])
+        val = context.cast(builder, val, signature.args[1], types.int64)
+        return builder.atomic_rmw("add", ptr, val, "seq_cst")
+
+    return sig, codegen
+
+
+_claim_lock = threading.Lock()
+
+
+def claim_row(counter) -> int:
+    """The next row of a pass for the thread that asks: ``counter[0]`` (int64), then one more,
+    in one atomic step, so that the threads of a pass take its rows in turn as each finishes
+    one (``run_chunks``' kernels), rather than each a fixed share that may hold the costly part
+    of the frame. In compiled code an atomic add (``_fetch_add``); as Python (under
+    ``NUMBA_DISABLE_JIT``, the CUDA simulator's tests) the same under a lock."""
+    with _claim_lock:
+        row = int(counter[0])
+        counter[0] = row + 1
+    return row
+
+
+@overload(claim_row, jit_options={"cache": True})
+def _claim_row_compiled(counter):
+    def impl(counter):
+        return _fetch_add(counter, 1)
+
+    return impl
 
 
 def alloc_kernel(fn):

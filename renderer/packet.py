@@ -67,7 +67,7 @@ from renderer.geometry.shapes import QUAD, TRIANGLE, prim_bounds
 from renderer.integrators.path import camera_ray
 from renderer.integrators.roulette import RR_DEPTH, RR_MAX
 from renderer.integrators.sampler import PIXEL_SEED_SALT, SOBOL_BLOCKS, SOBOL_VERTICES
-from renderer.jit import JIT_OPTIONS, kernel, run_chunks
+from renderer.jit import JIT_OPTIONS, claim_row, kernel, run_chunks
 from renderer.lights import AREA
 from renderer.materials.bsdf import DIFFUSE, SINGLE_SCATTER
 from renderer.materials.diffuse import ALBEDO
@@ -810,15 +810,17 @@ def _add_light(P, Q):
 
 @kernel
 def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_depth, eps, x0, y0,
-                tile_w, tile_h, first_row, row_step, sample_start, counts, out_sum, out_sum_sq,
+                tile_w, tile_h, next_row, sample_start, counts, out_sum, out_sum_sq,
                 out_count, out_dropped, out_segments, sobol, media, P, Q, rng, lane_pixel, SD,
                 sob, seed_pixel):
-    """The paths of rows first_row, first_row + row_step, … of a tile, a packet at a time:
-    each pixel's samples [sample_start, sample_start + counts[pixel]) in turn. Under the
+    """The paths of the rows of a tile this thread claims (``claim_row`` on ``next_row``, int64
+    (1,), which the pass's threads share; the next when it has handed out the last path of
+    one), a packet at a time: each pixel's samples [sample_start, sample_start + counts[pixel])
+    in turn. Under the
     ``sobol`` sampler, ``sob`` (SOBOL_BLOCKS, 3) holds the sequence seeds of the pixel the
     thread is at, ``SD`` (SEED_ROWS × LANES) those of each lane's, ``seed_pixel`` (LANES) whose
     they are."""
-    row = first_row
+    row = claim_row(next_row)
     col = 0
     s = 0
     live = 0
@@ -847,7 +849,7 @@ def packet_rows(prims, light_prim, light_cdf, cam, width, height, seed, max_dept
                 col += 1
                 if col == tile_w:
                     col = 0
-                    row += row_step
+                    row = claim_row(next_row)
             if row >= tile_h:
                 continue
             x, y = x0 + col, y0 + row
@@ -942,10 +944,11 @@ def render_tile_packet(scene, x0: int, y0: int, width: int, height: int, sample_
     light_cdf = np.ascontiguousarray(S.light_cdf, np.float64)
     counts = np.ascontiguousarray(counts, np.int32)
     n_chunks = max(1, min(height, numba.get_num_threads()))
+    next_row = np.zeros(1, np.int64)
 
     def chunk(c: int) -> None:
         packet_rows(prims, light_prim, light_cdf, S.camera, scene.width, scene.height,
-                    scene.seed, scene.max_depth, eps, x0, y0, width, height, c, n_chunks,
+                    scene.seed, scene.max_depth, eps, x0, y0, width, height, next_row,
                     sample_start, counts, buf.sum, buf.sum_sq, buf.count, buf.dropped,
                     buf.segments, S.sampler[0] == 1, bool(prims[SINGLE].any()),
                     np.zeros(FLOAT_ROWS * LANES, F32),

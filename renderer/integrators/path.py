@@ -43,7 +43,7 @@ from renderer.integrators.subsurface.diffuse_entry import entry_direct, entry_sc
 from renderer.integrators.subsurface.diffusion import diffusion_exit
 from renderer.integrators.subsurface.single_scatter import after_the_event, passes_straight
 from renderer.integrators.subsurface.volumetric import ENDED, SCATTERED, medium_segment
-from renderer.jit import block, inline_kernel, kernel, run_chunks
+from renderer.jit import block, claim_row, inline_kernel, kernel, run_chunks
 from renderer.lights import ENVIRONMENT, area_light_pdf
 from renderer.materials.bsdf import (
     DIELECTRIC,
@@ -315,14 +315,19 @@ def camera_sample(S, width, height, x, y, s, key, sob):
 
 
 @kernel
-def render_rows(S, width, height, seed, max_depth, x0, y0, tile_w, tile_h, first_row, row_step,
+def render_rows(S, width, height, seed, max_depth, x0, y0, tile_w, tile_h, next_row,
                 sample_start, sample_count, active, out_sum, out_sum_sq, out_count, out_dropped,
                 out_segments, stack, sob, scratch):
-    """Add the samples of rows ``first_row``, ``first_row + row_step``, … of a tile: one thread's
-    share of ``render_tile_kernel``. ``stack`` is a ``traversal_stack``, ``sob`` (SOBOL_BLOCKS,
-    3) scratch for the sobol sampler's seeds of a pixel, ``scratch`` (N_PARAMS) for a textured
-    material's row; the caller owns them (this kernel runs without numba's runtime)."""
-    for row in range(first_row, tile_h, row_step):
+    """Add the samples of the rows of a tile this thread claims (``claim_row`` on ``next_row``,
+    int64 (1,), which the pass's threads share), one after the other until none is left: one
+    thread's share of ``render_tile_kernel``. ``stack`` is a ``traversal_stack``, ``sob``
+    (SOBOL_BLOCKS, 3) scratch for the sobol sampler's seeds of a pixel, ``scratch`` (N_PARAMS)
+    for a textured material's row; the caller owns them (this kernel runs without numba's
+    runtime)."""
+    while True:
+        row = claim_row(next_row)
+        if row >= tile_h:
+            break
         y = y0 + row
         for col in range(tile_w):
             n_samples = min(sample_count, active[row, col])
@@ -375,16 +380,19 @@ def render_tile_kernel(S, width, height, seed, max_depth, stack_size, x0, y0, ti
     (tile_h, tile_w) int32 is how many of the samples each pixel takes (the first
     min(sample_count, active) of the range; adaptive sampling: 0 for a pixel that takes none).
     """
-    # Rows are dealt out in turn (thread c takes rows c, c + n, c + 2n, …) rather than in n
-    # contiguous blocks, so a thread whose block holds the costly part of the frame (a translucent
-    # object filling the lower half) does not leave the others idle at the end. Threads of this
+    # Each thread claims the next row when it has finished one (claim_row), rather than taking
+    # a fixed share: rows c, c + n, c + 2n, … left one of two threads 15 % behind the other on
+    # the translucent sphere at 64×48 (scratch), and n contiguous blocks would leave the others
+    # idle where one holds the costly part of the frame. Threads of this
     # process (renderer.jit.run_chunks), not a prange on numba's pool: a parallel kernel is one
     # more module that links in and optimizes trace_path's code again, a quarter of a cold
     # compile (docs/performance.md, "Start-up: JIT compile and cache")
     n_chunks = max(1, min(tile_h, n_threads))
 
+    next_row = np.zeros(1, np.int64)
+
     def chunk(c: int) -> None:
-        render_rows(S, width, height, seed, max_depth, x0, y0, tile_w, tile_h, c, n_chunks,
+        render_rows(S, width, height, seed, max_depth, x0, y0, tile_w, tile_h, next_row,
                     sample_start, sample_count, active, out_sum, out_sum_sq, out_count,
                     out_dropped, out_segments, traversal_stack(stack_size),
                     np.zeros((SOBOL_BLOCKS, 3), np.uint64), np.zeros(N_PARAMS))
