@@ -174,3 +174,37 @@ def test_inline_kernels_are_typed_once_and_inlined_by_llvm(tmp_path):
     assert "alwaysinline" in report["folded"]
     assert "alwaysinline" not in report["stays_a_call"]
     assert not any("folded" in name for name in report["calls_left"])
+
+
+def test_claim_row_hands_every_row_out_once():
+    """``claim_row``, the rows' counter that a pass's threads share: two threads claiming as fast
+    as they can, 10⁶ claims in all, each in a compiled loop and each index claimed once (an add
+    that is not atomic, a read and a write, hands some out twice and skips none); as Python
+    (``NUMBA_DISABLE_JIT``'s path, under a lock) the same, and a claim past the end is past it."""
+    import numpy as np
+
+    from renderer.jit import claim_row, kernel, run_chunks
+
+    @kernel
+    def claim_all(counter, n, out):
+        got = 0
+        while True:
+            row = claim_row(counter)
+            if row >= n:
+                return got
+            out[row] += 1
+            got += 1
+
+    n = 1_000_000
+    counter = np.zeros(1, np.int64)
+    out = np.zeros(n, np.int64)
+    got = [0, 0]
+
+    def chunk(c: int) -> None:
+        got[c] = claim_all(counter, n, out)
+
+    run_chunks(chunk, 2)
+    assert sum(got) == n and (out == 1).all()
+    assert counter[0] == n + 2  # (each thread's last claim, past the end)
+    counter[0] = 5
+    assert [claim_row(counter) for _ in range(3)] == [5, 6, 7] and counter[0] == 8
