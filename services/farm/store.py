@@ -365,8 +365,7 @@ class JobMeta:
         whatever the tiles have merged since: on the job's sums now, tiles that went on would
         lower the estimate below what the frame's first look showed, and a tile stopped at its
         first look on its own bound, whose few samples had not yet met the rare bright paths
-        around it, would stay stopped (the caustic floor at 0.03: one job of 8 ended at 8
-        samples a pixel and 2.1x the target, its estimate 0.39x its error)."""
+        around it, would stay stopped (tests/farm/test_farm_state.py)."""
         pixels = self.plan.width * self.plan.height * self.plan.frames
         if pixels == 0 or self.look_pixels < pixels:
             return None
