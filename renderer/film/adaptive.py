@@ -585,8 +585,9 @@ def expected_error(buf: SampleBuffer) -> float:
 def stopping_error(buf: SampleBuffer) -> float:
     """The frame's expected relMSE as the loop judges it (what it stops on, the CLI reports and
     the farm's tile summaries add up): the mean of ``error_terms``, a pixel below 2 samples
-    adding nothing."""
-    return float(error_terms(buf).mean())
+    adding nothing; from ``error_sums``' Σ e_p, the very sum ``sample_to_target`` stops on."""
+    pixels = buf.count.size
+    return error_sums(buf)[1] / pixels if pixels else math.nan
 
 
 def tile_summary(buf: SampleBuffer) -> tuple[float, float, int, float]:
@@ -873,6 +874,7 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         # did not shape its count) is within STOP_SLACK of the aim (chasing the last few samples
         # of a few pixels would change the error by less than its own noise); the estimates
         # that shape the counts are needed only to go on (and for the pilot's plan)
+        # (stopping_error's sum, with the variances and Σ v the round needs from the same pass)
         v_error, err_sum, _, v_sum = error_sums(frame)
         met = aim_reached(err_sum / max(pixels, 1), target)
         if plan is not None:  # (the first round's, after the pilot: the allocation's total)
