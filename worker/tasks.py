@@ -30,11 +30,13 @@ from services.farm.passes import (
     end_pass,
     pass_failed,
     settle_converged,
+    wake_converged,
 )
 from services.farm.planner import celery_priority
 from services.farm.pools import queue_for
 from services.farm.queue import continue_chain
 from services.farm.settings import get_settings
+from services.farm.store import FRAME_LOOKED
 from worker import runtime
 from worker.celery_app import app
 
@@ -222,6 +224,10 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
                            SampleBuffer.empty(x0, y0, w, h)):
                 return "duplicate"  # the delivery that merged it decided for the tile
             store.set_tile_state(job_id, tile, "converged")
+            if meta.pilot_error is None:
+                # (stopped on its own first look, or to wait for the frames' pilot: a merge that
+                # completed them while it was being marked did not see it converged)
+                wake_converged(store, _send_passes, job_id, [tile])
             settle_converged(store, _send_passes, job_id)
             return "converged"
     t0 = time.perf_counter()
@@ -232,6 +238,10 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
     state.count_pass(paths, seconds)
 
     merged = deliver(store, state.settings, job_id, tile, pass_index, buf)
+    if merged & FRAME_LOOKED and meta.target_error is not None:
+        # This merge completed the frames' first look or pilot: the tiles that stopped before it
+        # on their own look, or to wait for it, are asked again on the frames'
+        wake_converged(store, _send_passes, job_id)
     if merged and meta.target_error is not None and pass_index + 1 < meta.plan.n_passes:
         # A job with a target error: the tile's next pass, queued once (by the merge that
         # counted this one); it stops the tile when it finds nothing to add. A process that dies

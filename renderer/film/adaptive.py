@@ -61,7 +61,8 @@ bench.target_error``: docs/adaptive-sampling.md).
 The farm uses the same rule on a tile's merged buffer (``pass_counts``), a pure function of it
 and of the frame's scale λ, estimated error and first-look bound, which the merge keeps up to
 date from every tile's summary (``tile_summary``, ``frame_scale``, ``first_look_bound``), and
-stops as the loop does (at the first look, on the tile's own bound until every tile has one).
+stops as the loop does (at the first look, on the tile's own bound until every tile has one;
+at the end of the pilot, on the frame's estimate there, or takes the loop's even round).
 """
 
 from __future__ import annotations
@@ -746,7 +747,8 @@ def _gate(v: np.ndarray, cost: np.ndarray | None, v_error: np.ndarray, have: np.
 
 def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
                 scale: float | None = None, frame_error: float | None = None,
-                frame_bound: float | None = None) -> np.ndarray:
+                frame_bound: float | None = None, pilot_error: float | None = None
+                ) -> np.ndarray:
     """The farm's rule, a pure function of a tile's merged buffer (and the frame's ``scale``,
     ``frame_scale`` of the job's tile summaries, its estimated error, their error sum over
     their pixels, and its ``first_look_bound``, when known): the samples each pixel takes of the
@@ -774,6 +776,22 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
                 else first_look_reached(error_terms(buf), target)):
             return np.zeros(count.shape, np.int32)
         want = np.full(count.shape, min(PILOT, cap), np.int64)
+    elif low == int(count.max()) == PILOT < cap:
+        # The end of the tile's pilot, as the local loop's, on the frame's estimated error at the
+        # end of its pilot (nothing until every tile has ended its pilot: the tile waits,
+        # converged, and is asked again once it is known, services.farm.passes.wake_converged):
+        # a stop, else every pixel one count, the least that takes that error to the aim, at
+        # most twice the pilot (the loop's first round). Not the job's running estimate, nor a
+        # shape from the pilot, nor the tile's own estimate: each sent the pass to the tiles
+        # that had met the rare bright paths, the running estimate fell as they took it, and the
+        # tiles that ended their pilot later stopped on it with their paths unmet
+        # (docs/adaptive-sampling.md).
+        if pilot_error is None or aim_reached(pilot_error, target):
+            return np.zeros(count.shape, np.int32)
+        pixels = count.size
+        want = np.full(count.shape, _even_count(pilot_error * pixels * low, pixels,
+                                                AIM * target, low, cap, float(pixels * low)),
+                       np.int64)
     elif frame_error is not None and aim_reached(frame_error, target):
         return np.zeros(count.shape, np.int32)
     else:

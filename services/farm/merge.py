@@ -44,25 +44,27 @@ from renderer.film.buffer import SampleBuffer
 from services.farm.lost_workers import requeue_lost
 from services.farm.planner import chain_heads
 from services.farm.queue import continue_chain, enqueue, waiting_ahead
-from services.farm.store import MERGED_LAST, JobStore
+from services.farm.store import FRAME_LOOKED, MERGED_LAST, JobStore
 
 log = logging.getLogger(__name__)
 
 
 def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int,
-               data: bytes | None = None, ttl: float | None = None) -> bool:
+               data: bytes | None = None, ttl: float | None = None) -> int:
     """Merge one pass buffer into its tile's accumulation if not merged yet (``data``: its bytes
     as stored, when the caller has them; with ``ttl``, not stored yet: the merge stores them
-    first, for ``ttl`` seconds). True if this call merged it; False if it was merged already or
+    first, for ``ttl`` seconds). Non-zero if this call merged it: 1, with ``FRAME_LOOKED`` added
+    where the merge completed the frames' first look or pilot (the tiles stopped before it are
+    to be asked again: ``services.farm.passes.wake_converged``); 0 if it was merged already or
     there is no buffer to merge."""
     merged = store.merge_pass_buffer(job_id, tile, pass_index, data, ttl)
     if not merged:
-        return False
-    if merged == MERGED_LAST:
+        return 0
+    if merged & MERGED_LAST:
         # After the transaction, idempotent by itself (and redone by the sweeper if this process
         # dies first): the job done once every pass is merged.
         store.finish_if_complete(job_id)
-    return True
+    return 1 | (merged & FRAME_LOOKED)
 
 
 @dataclass(frozen=True)

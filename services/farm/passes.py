@@ -14,6 +14,8 @@ the rules are here, beside the store they read and write.
   (both in the merge's round trips).
 - ``settle_converged``: a job with a target error whose tiles have all converged or ended asks
   its converged tiles again under the frame's final scale.
+- ``wake_converged``: ... and once the frames' first look or pilot is known, those that stopped
+  before it.
 """
 
 from __future__ import annotations
@@ -135,7 +137,9 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
     scene's first pass of 32 samples took the Cornell box to 0.07x a target of 0.1); after it,
     nothing where the first look's bound is within the aim (the frame's,
     ``JobMeta.first_look_bound``, once every tile has merged its first look; before, the
-    tile's own), else the rest of the pilot, ``PILOT`` samples a pixel."""
+    tile's own), else the rest of the pilot, ``PILOT`` samples a pixel; after that, a stop or
+    every pixel one count, on the frame's estimate at the end of its pilot
+    (``JobMeta.pilot_error``, once every tile has ended its pilot; before, the tile's own)."""
     # (the samples' noise's share of the target: auto's models may take some of it)
     target_error = noise_target(target_error, meta.expected_bias)
     data = store.tile_buffer(meta.id, tile)
@@ -146,7 +150,7 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
         # Every pixel of the frames has an estimate: the frame-wide allocation
         scale = frame_scale(meta.weight_sum, meta.err_pixels, target_error)
     return pass_counts(buf, target_error, meta.plan.spp, pass_samples, scale,
-                       meta.expected_error, meta.first_look_bound)
+                       meta.expected_error, meta.first_look_bound, meta.pilot_error)
 
 
 def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
@@ -167,16 +171,8 @@ def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], Job
     states = store.tile_states(job_id)
     if any(states.get(tile) != "converged" for tile in heads):
         return []
-    again = []
-    for tile, pass_index in heads.items():
-        counts = adaptive_counts(store, meta, tile, meta.target_error,
-                                 meta.plan.sample_range(pass_index)[1])
-        if counts.any():
-            again.append((tile, pass_index))
+    again = _ask_again(store, send, meta, heads)
     if again:
-        for tile, _ in again:
-            store.set_tile_state(job_id, tile, "queued")
-        send(again, meta)
         return again
     for tile, pass_index in heads.items():
         store.skip_passes(job_id, tile, pass_index, meta.plan.n_passes)
@@ -189,10 +185,51 @@ def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], Job
     return []
 
 
+def _ask_again(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
+               meta: JobMeta, heads: dict[int, int]) -> list[tuple[int, int]]:
+    """Run the rule again on each converged tile of ``heads`` (tile: its next pass) and queue
+    those it now gives samples at that pass; returns them."""
+    again: list[tuple[int, int]] = []
+    if meta.target_error is None:
+        return again
+    for tile, pass_index in heads.items():
+        counts = adaptive_counts(store, meta, tile, meta.target_error,
+                                 meta.plan.sample_range(pass_index)[1])
+        if counts.any():
+            again.append((tile, pass_index))
+    for tile, _ in again:
+        store.set_tile_state(meta.id, tile, "queued")
+    if again:
+        send(again, meta)
+    return again
+
+
+def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
+                   job_id: str, tiles: list[int] | None = None) -> list[tuple[int, int]]:
+    """A job with a target error whose frames' first look or pilot became known (a merge that
+    completed them: ``FRAME_LOOKED``): its converged tiles (or those of ``tiles`` that are)
+    asked again on it at once, not at the end of the job (``settle_converged``), and those the
+    rule now gives samples queued at their next pass (``send``). They stopped on their own
+    first look's bound, or at the end of their pilot to wait for the frames' estimate there
+    (``renderer.film.adaptive.pass_counts``). Returns the passes sent. ``tiles``: a tile that
+    stopped to wait asks for itself after it is marked converged, so that a merge that
+    completed the frames' pilot meanwhile, and asked before it was marked, does not leave it
+    waiting. Two calls at once send a pass twice at most, and a pass is merged once."""
+    meta = store.get_job(job_id)
+    if (meta is None or meta.target_error is None or meta.status not in ("queued", "running")
+            or meta.first_look_bound is None):
+        return []
+    states = store.tile_states(job_id)
+    heads = {tile: p for tile, p in chain_heads(store.unmerged(job_id, meta.plan))
+             if states.get(tile) == "converged" and (tiles is None or tile in tiles)}
+    return _ask_again(store, send, meta, heads)
+
+
 def deliver(store: JobStore, settings: Settings, job_id: str, tile: int, pass_index: int,
-            buf: SampleBuffer) -> bool:
-    """Store the pass's buffer under its deterministic key and merge it; True if this call
-    merged it (False: a duplicate). The merge's first read stores it (``put_pass``'s keys, one
-    round trip fewer), so that the sweeper merges it should this process die before the
-    merge's EXEC."""
+            buf: SampleBuffer) -> int:
+    """Store the pass's buffer under its deterministic key and merge it; non-zero if this call
+    merged it (0: a duplicate), with ``FRAME_LOOKED`` added where the merge completed the frames'
+    first look or pilot (``wake_converged``). The merge's first read stores it (``put_pass``'s
+    keys, one round trip fewer), so that the sweeper merges it should this process die before
+    the merge's EXEC."""
     return merge_pass(store, job_id, tile, pass_index, buf.to_bytes(), ttl=settings.pass_ttl)

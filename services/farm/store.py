@@ -49,7 +49,7 @@ from typing import Any
 
 import redis
 
-from renderer.film.adaptive import first_look_bound, tile_summary
+from renderer.film.adaptive import PILOT, first_look_bound, tile_summary
 from renderer.film.buffer import SampleBuffer
 from services.farm.planner import Plan
 
@@ -199,12 +199,13 @@ return n
 # ARGV: the pass's member of the merged set, the tile, '1' when the caller has the pass's bytes,
 # and to store them first as ``put_pass`` does, their time to live in ms and the bytes, else
 # ''): whether the pass is merged, the pass buffer (or only whether it exists: 1 or 0), the
-# job's status, spp and tasks_total, the accumulation, and the tile's samples,
-# state and error summary. The buffer is stored only for a pass not merged of a job not done:
-# for the sweeper, should this process die before its EXEC.
+# job's status, spp, tasks_total and frame size (width, height, frames), the accumulation, and
+# the tile's samples, state and error summary. The buffer is stored only for a pass not merged
+# of a job not done: for the sweeper, should this process die before its EXEC.
 _MERGE_READ = """
 local merged = redis.call('SISMEMBER', KEYS[1], ARGV[1])
-local job = redis.call('HMGET', KEYS[3], 'status', 'spp', 'tasks_total')
+local job = redis.call('HMGET', KEYS[3], 'status', 'spp', 'tasks_total', 'width', 'height',
+                      'frames')
 if ARGV[4] ~= '' and merged == 0 and job[1] and job[1] ~= 'done' then
   redis.call('SET', KEYS[2], ARGV[5], 'PX', ARGV[4])
   redis.call('SADD', KEYS[8], KEYS[2])
@@ -255,6 +256,10 @@ ERROR_SUMS = ("err_sum", "weight_sum", "err_pixels", "err_sq_sum")
 # pass (``JobMeta.first_look_bound``): Σ e_p and Σ e_p² of that pass's error terms and the tile's
 # pixels
 LOOK_SUMS = ("look_sum", "look_sq_sum", "look_pixels")
+# ... and their pilots, each tile's once, at the merge that gives its every pixel the pilot's
+# samples (``renderer.film.adaptive.PILOT``, at most render.spp; ``JobMeta.pilot_error``): Σ e_p
+# of the tile's error terms then and its pixels
+PILOT_SUMS = ("pilot_sum", "pilot_pixels")
 
 
 def _summary_text(summary: tuple[float, float, int, float]) -> str:
@@ -288,6 +293,11 @@ def _estimates(summaries: dict) -> dict[int, float]:
 
 # ``merge_pass_buffer``'s answer when its merge counted the job's last task
 MERGED_LAST = 2
+# ... a flag added to it (1 | FRAME_LOOKED, MERGED_LAST | FRAME_LOOKED) when its merge completed
+# the frames' first look or their pilot (the job's ``LOOK_SUMS`` or ``PILOT_SUMS`` then hold
+# every tile's): the tiles that stopped before it, on their own, are to be asked again on the
+# frames' (``services.farm.passes.wake_converged``)
+FRAME_LOOKED = 4
 
 # A job id as ``submit_job`` makes it (``uuid4().hex``). The API refuses any other form before it
 # becomes part of a key: ``<id>:scene`` would otherwise name the job's other keys.
@@ -345,6 +355,9 @@ class JobMeta:
     look_sum: float = 0.0
     look_sq_sum: float = 0.0
     look_pixels: int = 0
+    # the sums of its tiles' pilots (PILOT_SUMS), added once a tile at the merge that ends it
+    pilot_sum: float = 0.0
+    pilot_pixels: int = 0
 
     @property
     def expected_error(self) -> float | None:
@@ -370,6 +383,22 @@ class JobMeta:
         if pixels == 0 or self.look_pixels < pixels:
             return None
         return first_look_bound(self.look_sum, self.look_sq_sum, self.look_pixels)
+
+    @property
+    def pilot_error(self) -> float | None:
+        """The frames' estimated error at the end of the pilot (``PILOT_SUMS``: every tile's
+        terms as they were at the merge that gave its pixels the pilot's samples), once every
+        tile has ended its pilot; else None. The local loop's estimate of the frame at
+        ``PILOT`` samples a pixel, on which it stops or takes its first, even, round
+        (``renderer.film.adaptive.pass_counts``), whatever the tiles have merged since: the
+        job's running estimate falls as the first tiles take that round, and the caustic
+        floor's tiles that ended their pilot later stopped on it at 8 samples a pixel, their
+        rare bright paths unmet (a job at 1.97x the target 0.1, its estimate 0.0836 where its
+        tiles' pilots had estimated 0.159)."""
+        pixels = self.plan.width * self.plan.height * self.plan.frames
+        if pixels == 0 or self.pilot_pixels < pixels:
+            return None
+        return self.pilot_sum / self.pilot_pixels
 
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
@@ -426,6 +455,8 @@ class JobMeta:
             look_sum=float(d.get("look_sum") or 0.0),
             look_sq_sum=float(d.get("look_sq_sum") or 0.0),
             look_pixels=int(float(d.get("look_pixels") or 0)),
+            pilot_sum=float(d.get("pilot_sum") or 0.0),
+            pilot_pixels=int(float(d.get("pilot_pixels") or 0)),
         )
 
 
@@ -450,7 +481,7 @@ class JobSnapshot:
                     "id", "name", "status", "priority", "tasks_merged", "samples_merged",
                     "dropped", "version", "created_at", "started_at", "finished_at", "error",
                     "methods", "submitter", "tags", "denoise", "target_error",
-                    "expected_bias", *LOOK_SUMS)},
+                    "expected_bias", *LOOK_SUMS, *PILOT_SUMS)},
                     "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
                              m.plan.spp_per_pass, m.plan.max_spp_per_pass, m.plan.frames,
                              m.plan.pass_growth]},
@@ -737,7 +768,7 @@ class JobStore:
             "expected_bias": meta.expected_bias,
             # (the tiles' first looks: their first passes, which the merged buffers no longer
             # tell apart, kept by the snapshot as they were summed)
-            **{name: getattr(meta, name) for name in LOOK_SUMS},
+            **{name: getattr(meta, name) for name in (*LOOK_SUMS, *PILOT_SUMS)},
         }
         # The tiles' error summaries and the job's sums of them, as the merges kept them: each a
         # pure function of the tile's merged buffer, so computed again here rather than carried
@@ -967,7 +998,8 @@ class JobStore:
         merged, update the tile's samples and state and the job's counters, in one transaction
         (WATCH on the tile's buffer and the merged set, retried on a conflict). 0 (false) if it
         was merged already, there is no buffer, or the job is gone (the pass buffer is then
-        dropped); else 1, or ``MERGED_LAST`` when this merge counted the job's last task.
+        dropped); else 1, or ``MERGED_LAST`` when this merge counted the job's last task,
+        either with ``FRAME_LOOKED`` added when it completed the frames' first look or pilot.
         ``data``: the pass buffer's bytes as stored (``put_pass``), when the caller has them,
         so that the merge does not read them back (it still requires the stored buffer).
         ``ttl`` with ``data``: the caller has not stored them; the merge stores them first as
@@ -990,8 +1022,8 @@ class JobStore:
                     pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
                     put = ("", b"") if data is None or ttl is None else (int(ttl * 1000), data)
                     ttl = None  # stored by the first read; a retry after a conflict need not
-                    (is_merged, stored, (status, spp, total), acc_bytes, tile_samples,
-                     tile_state, old_summary) = pipe.eval(
+                    (is_merged, stored, (status, spp, total, width, height, frames), acc_bytes,
+                     tile_samples, tile_state, old_summary) = pipe.eval(
                         _MERGE_READ, 8, merged_key, pass_key, job_key, acc_key, samples_key,
                         state_key, err_key, self.k("pending"), member, str(tile),
                         "1" if data is not None else "", *put)
@@ -1011,9 +1043,15 @@ class JobStore:
                     buf = SampleBuffer.from_bytes(data)
                     if acc_bytes is None:
                         acc = buf
+                        had = 0
                     else:
                         acc = SampleBuffer.from_bytes(acc_bytes)
+                        had = int(acc.count.min()) if acc.count.size else 0
                         acc.add(buf)
+                    # (this merge ends the tile's pilot: its every pixel has the pilot's
+                    # samples, which before it one had not)
+                    pilot = min(PILOT, int(spp or 0))
+                    ends_pilot = bool(acc.count.size) and had < pilot <= int(acc.count.min())
                     # Samples per pixel this pass planned: drawn ones, added or dropped as
                     # non-finite.
                     spp_added = int((buf.count + buf.dropped).max()) if buf.count.size else 0
@@ -1050,18 +1088,32 @@ class JobStore:
                     pipe.hset(err_key, str(tile), _summary_text(summary))
                     for name, d in zip(ERROR_SUMS, delta, strict=True):
                         pipe.hincrbyfloat(job_key, name, d)
+                    # (the replies' indices of the new look and pilot pixel counts, and what
+                    # each adds)
+                    counted = []
                     if acc_bytes is None:
                         # the tile's first merged pass, its first look: its terms once
                         # (JobMeta.first_look_bound; the sums over the tile's every pixel, as
                         # the local loop's over the frame's, a pixel below 2 samples adding 0)
                         pipe.hincrbyfloat(job_key, "look_sum", summary[0])
                         pipe.hincrbyfloat(job_key, "look_sq_sum", summary[3])
+                        counted.append((len(pipe.command_stack), buf.count.size))
                         pipe.hincrby(job_key, "look_pixels", int(buf.count.size))
+                    if ends_pilot:
+                        # (JobMeta.pilot_error: the tile's terms at the end of its pilot, once)
+                        pipe.hincrbyfloat(job_key, "pilot_sum", summary[0])
+                        counted.append((len(pipe.command_stack), acc.count.size))
+                        pipe.hincrby(job_key, "pilot_pixels", int(acc.count.size))
                     replies = pipe.execute()
                     break
                 except redis.WatchError:
                     continue
-        return MERGED_LAST if int(replies[merged_at]) >= int(total or 0) else 1
+        answer = MERGED_LAST if int(replies[merged_at]) >= int(total or 0) else 1
+        # (this merge's pixels took the frames' look or pilot sums to every pixel of them)
+        pixels = int(width or 0) * int(height or 0) * int(frames or 1)
+        if any(int(replies[i]) >= pixels > int(replies[i]) - n for i, n in counted):
+            answer |= FRAME_LOOKED
+        return answer
 
     def tile_buffer(self, job_id: str, tile: int) -> bytes | None:
         """The tile's merged buffer (``SampleBuffer.to_bytes``); None before its first merge."""

@@ -1064,6 +1064,36 @@ def test_a_lost_nodes_pass_is_requeued_once_its_heartbeat_expires(own_redis, pre
         nodes.stop()
 
 
+def test_a_tile_waiting_at_the_end_of_its_pilot_is_woken_by_the_merge_that_ends_the_frames(
+        in_process_worker, prefix, cornell, monkeypatch):
+    """A job with a target error, two tiles: tile 0 ends its pilot first and, the frame's
+    estimate there not known yet, waits (its next pass finds nothing to add: ``converged``);
+    the worker whose merge ends tile 1's pilot completes the frame's (``FRAME_LOOKED``) and
+    queues tile 0's next pass itself (``wake_converged``), not once tile 1's chain has ended.
+    Seen failing without the worker's call."""
+    from worker import tasks
+
+    w = in_process_worker
+    scene = _scene(cornell, 32, 16, 64)
+    scene["render"]["target_error"] = 0.01  # (far below what 8 samples a pixel reach)
+    with _api(w.server.url, prefix) as api:
+        job_id = _submit(api, scene, 16, 8)  # 2 tiles, 8 passes of 8 samples
+    published = []
+    monkeypatch.setattr(tasks.render_pass, "apply_async",
+                        lambda args, **kwargs: published.append(tuple(args)))
+    assert tasks.render_pass(job_id, 0, 0) == "merged"  # the first look
+    assert tasks.render_pass(job_id, 0, 1) == "merged"  # the rest of the pilot
+    assert tasks.render_pass(job_id, 0, 2) == "converged"  # waits
+    assert w.store.tile_states(job_id)[0] == "converged"
+    assert tasks.render_pass(job_id, 1, 0) == "merged"
+    assert (job_id, 0, 3) not in published
+    assert tasks.render_pass(job_id, 1, 1) == "merged"  # ends the frame's pilot
+    # tile 0's next pass (pass 2 merged empty when it found nothing), then tile 1's chain
+    assert published[-2:] == [(job_id, 0, 3), (job_id, 1, 2)]
+    assert w.store.tile_states(job_id)[0] == "queued"
+    assert tasks.render_pass(job_id, 0, 3) == "merged"
+
+
 def _one_pass_with_kernel(worker, prefix, cornell, monkeypatch, kernel: str):
     """Tile 0's first pass of a 16×16 Cornell box (one tile, 4 spp) rendered by an in-process
     worker whose ``worker_kernel`` is ``kernel`` (a failed pass fails the test); the merged

@@ -186,10 +186,12 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
     after = store.get_job(job_id)
     assert after.target_error == 0.02 and after.expected_bias == 0.003
-    # (and the sums of the tiles' first looks, which the merged buffers no longer tell)
+    # (and the sums of the tiles' first looks and pilots, which the merged buffers no longer
+    # tell)
     assert before.look_pixels == 32 * 16 and before.first_look_bound is not None
+    assert before.pilot_pixels == 32 * 16 and before.pilot_error is not None
     for name in ("err_sum", "weight_sum", "err_pixels", "look_sum", "look_sq_sum",
-                 "look_pixels"):
+                 "look_pixels", "pilot_sum", "pilot_pixels"):
         assert getattr(after, name) == pytest.approx(getattr(before, name), rel=1e-12), name
     assert after.expected_error == pytest.approx(before.expected_error, rel=1e-12)
     assert after.first_look_bound == pytest.approx(before.first_look_bound, rel=1e-12)
@@ -735,6 +737,62 @@ def test_a_tile_stopped_on_its_own_first_look_is_asked_again_on_the_frames(store
     assert settle_converged(store, lambda todo, m: sent.extend(todo), job_id) == [(0, 1)]
     assert sent == [(0, 1)] and store.tile_states(job_id)[0] == "queued"
     assert (adaptive_counts(store, store.get_job(job_id), 0, loose, 8) > 0).all()
+
+
+def test_a_target_jobs_tiles_end_their_pilot_on_the_frames_estimate_there(store):
+    """The end of a tile's pilot (``PILOT`` samples every pixel) waits for the frame's estimate
+    there, the sums of every tile's error terms at the merge that ended its pilot
+    (``JobMeta.pilot_error``), and takes one count a pixel from it, as the local loop's first
+    round after the frame's pilot, whatever the job's running estimate has become since: tile 0
+    ends its pilot first and waits, converged; the merge that ends tile 1's completes the sums
+    (``FRAME_LOOKED``, as did the one that completed the first looks, and no other) and
+    ``wake_converged`` queues tile 0 at once; tile 1 then merges 200 samples a pixel, which
+    take the job's running estimate within the aim, and tile 0 still takes its even count.
+    Seen failing with the running estimate in the rule, and with the pilot sums added at every
+    merge."""
+    import numpy as np
+
+    from renderer.film.adaptive import AIM, FIRST_LOOK, PILOT, aim_reached, error_terms
+    from services.farm.passes import adaptive_counts, wake_converged
+    from services.farm.store import FRAME_LOOKED
+
+    rng = np.random.default_rng(31)
+    job_id = uuid.uuid4().hex
+    # each tile's first look and the rest of its pilot, of even noise
+    looks = [look_tile(t, rng.exponential(1.0, (FIRST_LOOK, 16, 16, 3))) for t in (0, 1)]
+    rests = [look_tile(t, rng.exponential(1.0, (PILOT - FIRST_LOOK, 16, 16, 3))) for t in (0, 1)]
+    pilots = []
+    for t, (look, rest) in enumerate(zip(looks, rests, strict=True)):
+        both = look_tile(t, np.zeros((0, 16, 16, 3)))
+        both.add(look)
+        both.add(rest)
+        pilots.append(both)
+    e = float(np.concatenate([error_terms(b).ravel() for b in pilots]).mean())
+    target = e / (1.4 * AIM)  # the frame's pilot estimate 1.4x the aim: 12 samples a pixel
+    store.create_job(job_id, "", 0, LOOK_PLAN, b"{}", {}, time.time(), target_error=target)
+    flags = []
+    for t, p, buf in ((0, 0, looks[0]), (0, 1, rests[0]), (1, 0, looks[1]), (1, 1, rests[1])):
+        store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
+        flags.append(store.merge_pass_buffer(job_id, t, p))
+        if (t, p) == (0, 1):
+            meta = store.get_job(job_id)
+            assert meta.pilot_error is None
+            assert not adaptive_counts(store, meta, 0, target, 8).any()  # it waits
+            store.set_tile_state(job_id, 0, "converged")
+    assert [bool(f & FRAME_LOOKED) for f in flags] == [False, False, True, True]
+    meta = store.get_job(job_id)
+    assert meta.pilot_error == pytest.approx(e, rel=1e-9)
+    sent: list[tuple[int, int]] = []
+    assert wake_converged(store, lambda todo, m: sent.extend(todo), job_id) == [(0, 2)]
+    assert sent == [(0, 2)] and store.tile_states(job_id)[0] == "queued"
+    np.testing.assert_array_equal(adaptive_counts(store, meta, 0, target, 16), 12 - PILOT)
+    store.put_pass(job_id, 1, 2, look_tile(1, 1.0 + 0.01 * rng.standard_normal(
+        (200, 16, 16, 3))).to_bytes(), ttl=60)
+    assert not store.merge_pass_buffer(job_id, 1, 2) & FRAME_LOOKED
+    meta = store.get_job(job_id)
+    assert aim_reached(meta.expected_error, target)  # the running estimate: within the aim
+    assert meta.pilot_error == pytest.approx(e, rel=1e-9)  # the pilot's: still 1.4x
+    np.testing.assert_array_equal(adaptive_counts(store, meta, 0, target, 16), 12 - PILOT)
 
 
 def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(store):

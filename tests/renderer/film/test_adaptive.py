@@ -816,9 +816,15 @@ def test_tile_rule_pilots_every_pixel_then_allocates():
     np.testing.assert_array_equal(pass_counts(flat, 0.01, 256, 32), PILOT - FIRST_LOOK)
     assert tile_converged(synthetic(np.ones((4, 4, PILOT))), 0.01, 256)  # ... then done
     noisy = synthetic(rng.exponential(1.0, (4, 4, PILOT)))
-    counts = pass_counts(noisy, 0.01, 256, 32)
-    assert counts.all() and counts.max() <= 32  # at most the pass
+    # the end of the pilot: nothing until the frame's estimate there is known (the tile waits
+    # for it), then every pixel one count, here twice the pilot (the target far off)
+    assert not pass_counts(noisy, 0.01, 256, 32).any()
+    np.testing.assert_array_equal(
+        pass_counts(noisy, 0.01, 256, 32, pilot_error=expected_error(noisy)), PILOT)
     assert tile_converged(noisy, 0.01, PILOT)  # the cap
+    past = synthetic(rng.exponential(1.0, (4, 4, PILOT + 1)))
+    counts = pass_counts(past, 0.01, 256, 32)
+    assert counts.all() and counts.max() <= PILOT + 1  # at most as many as a pixel has
     # converged: its estimate below AIM × target, no pixel lacks samples
     many = synthetic(rng.exponential(1.0, (4, 4, 4096)))
     assert expected_error(many) < AIM * 0.01
@@ -860,6 +866,37 @@ def test_tile_rule_takes_the_first_look_as_the_loop_does():
     assert first_look_bound(t.sum(), float(np.dot(t, t)), t.size) == pytest.approx(
         t.mean() + FIRST_LOOK_Z * t.std() / np.sqrt(t.size), rel=1e-12)
     assert first_look_bound(0.0, 0.0, 0) == float("inf")
+
+
+def test_tile_rule_ends_its_pilot_on_the_frames_estimate_there():
+    """At the end of a tile's pilot (``PILOT`` samples every pixel) the farm's rule does what the
+    local loop does after the frame's pilot, on the frame's estimated error then (the job's
+    ``pilot_error``): nothing before it is known; a stop where it is within the aim; else every
+    pixel one count, ``allocate``'s even count for that error (the least n with
+    PILOT × error / n within the aim, at most twice the pilot), whatever the frame's running
+    estimate (which the tiles that took that pass first have lowered) and scale say. Seen
+    failing with the running estimate's stop first, and with the pilot's shape."""
+    rng = np.random.default_rng(17)
+    tile = synthetic(rng.exponential(1.0, (16, 16, PILOT)))
+    target = 0.05
+    aim = AIM * target
+    assert not pass_counts(tile, target, 4096, 64).any()  # (not known: the tile waits)
+    assert not pass_counts(tile, target, 4096, 64, pilot_error=aim * (1 + STOP_SLACK)).any()
+    # 1.4 × the aim: 8 × 1.4 = 11.2, so 12 samples a pixel, 4 more
+    error = 1.4 * aim
+    counts = pass_counts(tile, target, 4096, 64, pilot_error=error)
+    np.testing.assert_array_equal(counts, 12 - PILOT)
+    # the running estimate within the aim, a frame scale: the same count
+    np.testing.assert_array_equal(
+        pass_counts(tile, target, 4096, 64, 50.0, 0.5 * aim, 0.5 * aim, error), counts)
+    # far off: twice the pilot; render.spp caps it
+    np.testing.assert_array_equal(pass_counts(tile, target, 4096, 64, pilot_error=9 * aim),
+                                  PILOT)
+    np.testing.assert_array_equal(pass_counts(tile, target, 11, 64, pilot_error=9 * aim),
+                                  11 - PILOT)
+    # a tile past it (a pixel with more) is shaped as before, on the running estimate
+    tile.count[0, 0] += 1
+    assert not pass_counts(tile, target, 4096, 64, 50.0, 0.5 * aim, 0.5 * aim, error).any()
 
 
 def test_tile_rule_stops_when_the_frames_error_is_within_the_slack_of_its_aim():
@@ -916,8 +953,9 @@ def test_tile_rule_past_the_pilot_at_most_doubles_a_pixels_samples():
     the pilot and its first look are not held to it."""
     rng = np.random.default_rng(23)
     noisy = synthetic(rng.exponential(1.0, (8, 8, PILOT)))
-    for scale in (1e4, None):
-        counts = pass_counts(noisy, 1e-4, 1 << 20, 4096, scale=scale)
+    for scale in (1e4, None):  # (the end of the pilot: on the frame's estimate there)
+        counts = pass_counts(noisy, 1e-4, 1 << 20, 4096, scale=scale,
+                             pilot_error=expected_error(noisy))
         np.testing.assert_array_equal(counts, PILOT)
     lagging = synthetic(rng.exponential(1.0, (8, 8, 24)))
     lagging.count[:4] = 12  # (half the rows with fewer samples)
