@@ -139,7 +139,8 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
     ``JobMeta.first_look_bound``, once every tile has merged its first look; before, the
     tile's own), else the rest of the pilot, ``PILOT`` samples a pixel; after that, a stop or
     every pixel one count, on the frame's estimate at the end of its pilot
-    (``JobMeta.pilot_error``, once every tile has ended its pilot; before, the tile's own)."""
+    (``JobMeta.pilot_error``, once every tile has ended its pilot; before, nothing: the tile
+    waits, ``wake_converged``)."""
     # (the samples' noise's share of the target: auto's models may take some of it)
     target_error = noise_target(target_error, meta.expected_bias)
     data = store.tile_buffer(meta.id, tile)
