@@ -751,12 +751,15 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
                 ) -> np.ndarray:
     """The farm's rule, a pure function of a tile's merged buffer (and the frame's ``scale``,
     ``frame_scale`` of the job's tile summaries, its estimated error, their error sum over
-    their pixels, and its ``first_look_bound``, when known): the samples each pixel takes of the
-    next pass of ``pass_samples``, (h, w) int32. Every pixel up to ``FIRST_LOOK``, the pilot's
-    first half; then, as the local loop, nothing where the first look's bound is within the aim
-    (the frame's, or before every tile has merged its first look the tile's own, which its
-    re-check once the frame's is known, ``settle_converged``, replaces), else every pixel up to
-    ``PILOT``; then nothing once the
+    their pixels, its ``first_look_bound`` and its estimated error at the end of its pilot,
+    ``pilot_error``, when known): the samples each pixel takes of the next pass of
+    ``pass_samples``, (h, w) int32. Every pixel up to ``FIRST_LOOK``, the pilot's first half;
+    then, as the local loop, nothing where the first look's bound is within the aim (the
+    frame's, or before every tile has merged its first look the tile's own, which its re-check
+    once the frame's is known replaces), else every pixel up to ``PILOT``; at the end of the
+    pilot nothing until ``pilot_error`` is known, then nothing where it is within the aim, else
+    every pixel the even count that takes it to the aim, at most twice the pilot (the local
+    loop's first round); past that, nothing once the
     frame's estimated error is within ``STOP_SLACK`` of AIM × target (the local loop's stop:
     the frame's λ counts every pixel at its share, a pixel that already has more too, so the
     counts alone would go on past the aim); else each pixel its deficit against ``allocate``

@@ -132,15 +132,6 @@ def requeue_stalled(store: JobStore, rule: StallRule, job_id: str,
     return todo
 
 
-def wake_chains(store: JobStore, celery: Celery, job_id: str) -> list[tuple[int, int]]:
-    """``services.farm.passes.wake_converged`` for a merge that completed a job's first look or
-    pilot, its passes sent with ``celery`` (the sweeper's). Returns them."""
-    from services.farm.passes import wake_converged  # (which imports this module)
-
-    return wake_converged(store, lambda todo, meta: enqueue(celery, meta.id, todo, meta.priority,
-                                                            meta.tags), job_id)
-
-
 def sweep(store: JobStore, stall: StallRule | None = None) -> int:
     """Merge every pass buffer listed as pending; finish jobs whose last merge was interrupted;
     with a ``stall`` rule, re-queue the passes of stalled jobs. Returns how many passes this
@@ -154,15 +145,10 @@ def sweep(store: JobStore, stall: StallRule | None = None) -> int:
             continue
         try:
             job_id, tile, pass_index = parts[1], int(parts[3]), int(parts[4])
-            flags = merge_pass(store, job_id, tile, pass_index)
-            if flags:
+            if merge_pass(store, job_id, tile, pass_index):
                 merged += 1
                 if stall is not None:
                     continue_chain(store, stall.celery, job_id, tile, pass_index)
-                    if flags & FRAME_LOOKED:
-                        # It completed the frames' first look or pilot: the tiles that stopped
-                        # before it are asked again, as the worker would have
-                        wake_chains(store, stall.celery, job_id)
         except Exception:  # a corrupt buffer must not stop the sweeper
             log.exception("cannot merge %s", key)
     if stall is not None:

@@ -417,45 +417,6 @@ def test_a_target_job_queues_only_each_tiles_first_pass(own_redis, prefix, tiny_
         assert len(_queued_passes(store, 0)) == job["tiles"] * job["passes"]
 
 
-def test_a_sweeper_merge_that_ends_the_frames_pilot_wakes_the_waiting_tiles(own_redis, prefix):
-    """A job with a target error, two tiles: tile 0 has ended its pilot and waits, converged,
-    for the frame's estimate there; tile 1's pass that ends the frame's pilot was rendered by a
-    worker that died before merging it. The sweeper merges it and, as that worker would have,
-    queues tile 1's next pass and tile 0's (``wake_chains``). Seen failing without the wake."""
-    from renderer.film.adaptive import FIRST_LOOK, PILOT
-    from renderer.film.buffer import SampleBuffer
-    from services.farm.merge import sweep
-
-    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None, **TIMINGS)
-    store = JobStore.from_url(own_redis.url, prefix)
-    rule = StallRule(celery_client(settings), settings.stall_timeout,
-                     settings.max_stall_requeues)
-    plan = Plan(32, 16, 256, 16, 8)  # 2 tiles of 16 px, passes of 8
-    priority = 5
-    store.create_job("w", "", priority, plan, "{}", target_error=0.02)
-    rng = np.random.default_rng(3)
-
-    def pass_buffer(tile: int, n: int) -> bytes:  # n noisy grey samples a pixel
-        buf = SampleBuffer.empty(*plan.tile_rect(tile))
-        x = rng.exponential(1.0, (n, 16, 16, 1))
-        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), n
-        return buf.to_bytes()
-
-    for tile, p, n in ((0, 0, FIRST_LOOK), (0, 1, PILOT - FIRST_LOOK), (1, 0, FIRST_LOOK)):
-        store.put_pass("w", tile, p, pass_buffer(tile, n), ttl=60)
-        assert store.merge_pass_buffer("w", tile, p)
-    store.set_tile_state("w", 0, "converged")  # (as its worker, finding nothing yet)
-    store.put_pass("w", 1, 1, pass_buffer(1, PILOT - FIRST_LOOK), ttl=60)  # left behind
-    try:
-        assert sweep(store, rule) == 1
-        assert store.get_job("w").pilot_error is not None
-        assert sorted(_queued_passes(store, priority)) == [("w", 0, 2), ("w", 1, 2)]
-        assert store.tile_states("w")[0] == "queued"
-    finally:
-        store.r.delete(*_queue_keys(priority))
-        store.close()
-
-
 def test_a_target_job_requeues_and_sweeps_one_pass_a_tile(own_redis, prefix):
     """A job with a target error runs each tile's passes as a chain (each queues the next:
     ``planner.chain_heads``). So the stall rule sends each tile's first unmerged pass only, the
