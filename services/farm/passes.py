@@ -147,7 +147,7 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
     buf = (SampleBuffer.empty(*meta.plan.tile_rect(tile)) if data is None
            else SampleBuffer.from_bytes(data))
     scale = None
-    if meta.err_pixels >= meta.plan.width * meta.plan.height * meta.plan.frames:
+    if meta.err_pixels >= meta.frame_pixels:
         # Every pixel of the frames has an estimate: the frame-wide allocation
         scale = frame_scale(meta.weight_sum, meta.err_pixels, target_error)
     return pass_counts(buf, target_error, meta.plan.spp, pass_samples, scale,

@@ -360,12 +360,22 @@ class JobMeta:
     pilot_pixels: int = 0
 
     @property
+    def frame_pixels(self) -> int:
+        """The pixels of all its frames: what the job's error, first-look and pilot sums must
+        each count before the frames' estimate from them is known."""
+        return self.plan.width * self.plan.height * self.plan.frames
+
+    def _all_counted(self, counted: int) -> bool:
+        """Whether sums over ``counted`` pixels hold every pixel of the frames (none: never)."""
+        pixels = self.frame_pixels
+        return pixels > 0 and counted >= pixels
+
+    @property
     def expected_error(self) -> float | None:
         """The frames' expected relMSE from their merged samples' noise (with ``expected_bias``
         the quantity target_error bounds; every job's merges keep it), once every pixel has an
         estimate (2 samples); else None."""
-        pixels = self.plan.width * self.plan.height * self.plan.frames
-        if self.err_pixels < pixels or pixels == 0:
+        if not self._all_counted(self.err_pixels):
             return None
         return self.err_sum / self.err_pixels
 
@@ -379,8 +389,7 @@ class JobMeta:
         lower the estimate below what the frame's first look showed, and a tile stopped at its
         first look on its own bound, whose few samples had not yet met the rare bright paths
         around it, would stay stopped (tests/farm/test_farm_state.py)."""
-        pixels = self.plan.width * self.plan.height * self.plan.frames
-        if pixels == 0 or self.look_pixels < pixels:
+        if not self._all_counted(self.look_pixels):
             return None
         return first_look_bound(self.look_sum, self.look_sq_sum, self.look_pixels)
 
@@ -395,8 +404,7 @@ class JobMeta:
         floor's tiles that ended their pilot later stopped on it at 8 samples a pixel, their
         rare bright paths unmet (a job at 1.97x the target 0.1, its estimate 0.0836 where its
         tiles' pilots had estimated 0.159)."""
-        pixels = self.plan.width * self.plan.height * self.plan.frames
-        if pixels == 0 or self.pilot_pixels < pixels:
+        if not self._all_counted(self.pilot_pixels):
             return None
         return self.pilot_sum / self.pilot_pixels
 
