@@ -21,22 +21,13 @@ from kombu.exceptions import OperationalError
 from renderer.film.buffer import SampleBuffer
 from services.farm.blocklist import HAND_BACK_PAUSE
 from services.farm.frames import PatchError, apply_patch
-from services.farm.passes import (
-    Delivery,
-    HandBack,
-    adaptive_counts,
-    begin_pass,
-    deliver,
-    end_pass,
-    pass_failed,
-    settle_converged,
-    wake_converged,
-)
+from services.farm.passes import Delivery, HandBack, begin_pass, deliver, end_pass, pass_failed
 from services.farm.planner import celery_priority
 from services.farm.pools import queue_for
 from services.farm.queue import continue_chain
 from services.farm.settings import get_settings
 from services.farm.store import FRAME_LOOKED
+from services.farm.targets import adaptive_counts, settle_converged, wake_converged
 from worker import runtime
 from worker.celery_app import app
 

@@ -782,7 +782,7 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     elif low == int(count.max()) == PILOT < cap:
         # The end of the tile's pilot, as the local loop's, on the frame's estimated error at the
         # end of its pilot (nothing until every tile has ended its pilot: the tile waits,
-        # converged, and is asked again once it is known, services.farm.passes.wake_converged):
+        # converged, and is asked again once it is known, services.farm.targets.wake_converged):
         # a stop, else every pixel one count, the least that takes that error to the aim, at
         # most twice the pilot (the loop's first round). Not the job's running estimate, nor a
         # shape from the pilot, nor the tile's own estimate: each sent the pass to the tiles

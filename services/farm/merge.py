@@ -55,7 +55,7 @@ def merge_pass(store: JobStore, job_id: str, tile: int, pass_index: int,
     as stored, when the caller has them; with ``ttl``, not stored yet: the merge stores them
     first, for ``ttl`` seconds). Non-zero if this call merged it: 1, with ``FRAME_LOOKED`` added
     where the merge completed the frames' first look or pilot (the tiles stopped before it are
-    to be asked again: ``services.farm.passes.wake_converged``); 0 if it was merged already or
+    to be asked again: ``services.farm.targets.wake_converged``); 0 if it was merged already or
     there is no buffer to merge."""
     merged = store.merge_pass_buffer(job_id, tile, pass_index, data, ttl)
     if not merged:

@@ -1,5 +1,5 @@
-"""Sending tasks: the service enqueues ``render_pass`` by name, so it never imports the renderer's
-kernels (the API process stays light)."""
+"""Sending tasks: the service enqueues ``render_pass`` by name, so it never imports the path
+tracer (the API process stays light)."""
 
 from __future__ import annotations
 
@@ -10,7 +10,8 @@ from celery import Celery
 from services.farm.planner import celery_priority
 from services.farm.pools import queue_for
 from services.farm.settings import Settings
-from services.farm.store import ACTIVE, JobStore
+from services.farm.store import ACTIVE, JobMeta, JobStore
+from services.farm.targets import settle_converged, wake_converged
 
 TASK = "worker.tasks.render_pass"
 # Messages sent ahead of the rest of a job's (``enqueue``)
@@ -67,15 +68,28 @@ def waiting_ahead(app: Celery, store: JobStore, priority: int, tags: tuple[str, 
 
 def continue_chain(store: JobStore, celery: Celery, job_id: str, tile: int,
                    pass_index: int) -> bool:
-    """After a pass merged whose worker may not have queued the tile's next one (the sweeper
-    merged it, or its worker was lost): for a job with a target error, whose passes of a tile
-    queue one another (``planner.chain_heads``), queue the tile's next pass unless it is merged.
-    True if it did. (Sent twice, a pass is merged once, and only the merge that counts it queues
-    the pass after it.)"""
+    """After a pass merged whose worker may not have done what its merge leaves to it (the
+    sweeper merged it, or its worker was lost): for a job with a target error, whose passes of a
+    tile queue one another (``planner.chain_heads``), queue the tile's next pass unless it is
+    merged, and ask its converged tiles again as that worker would have: at once those that
+    stopped before the frames' first look or pilot, which the merge may have completed
+    (``targets.wake_converged``; a lost worker's merge's ``FRAME_LOOKED`` is not known here, so
+    they are asked whatever it was, and the rule gives nothing to a tile that is still to wait),
+    and after the tile's last pass every one once no tile renders (``targets.settle_converged``).
+    True if it queued the next pass. (Sent twice, a pass is merged once, and only the merge that
+    counts it queues the pass after it.)"""
     meta = store.get_job(job_id)
-    if (meta is None or meta.target_error is None or meta.status not in ACTIVE
-            or pass_index + 1 >= meta.plan.n_passes
-            or store.is_merged(job_id, tile, pass_index + 1)):
+    if meta is None or meta.target_error is None or meta.status not in ACTIVE:
+        return False
+
+    def send(todo: list[tuple[int, int]], job: JobMeta) -> None:
+        enqueue(celery, job.id, todo, job.priority, job.tags)
+
+    wake_converged(store, send, job_id)
+    if pass_index + 1 >= meta.plan.n_passes:
+        settle_converged(store, send, job_id)
+        return False
+    if store.is_merged(job_id, tile, pass_index + 1):
         return False
     enqueue(celery, job_id, [(tile, pass_index + 1)], meta.priority, meta.tags)
     return True

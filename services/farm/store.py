@@ -296,7 +296,7 @@ MERGED_LAST = 2
 # ... a flag added to it (1 | FRAME_LOOKED, MERGED_LAST | FRAME_LOOKED) when its merge completed
 # the frames' first look or their pilot (the job's ``LOOK_SUMS`` or ``PILOT_SUMS`` then hold
 # every tile's): the tiles that stopped before it, on their own, are to be asked again on the
-# frames' (``services.farm.passes.wake_converged``)
+# frames' (``services.farm.targets.wake_converged``)
 FRAME_LOOKED = 4
 
 # A job id as ``submit_job`` makes it (``uuid4().hex``). The API refuses any other form before it

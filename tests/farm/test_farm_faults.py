@@ -417,6 +417,111 @@ def test_a_target_job_queues_only_each_tiles_first_pass(own_redis, prefix, tiny_
         assert len(_queued_passes(store, 0)) == job["tiles"] * job["passes"]
 
 
+def _pilot_job(own_redis, prefix, job_id: str):
+    """A job with a target error, two tiles of 16 px and passes of 8, whose tile 0 has ended
+    its pilot and waits, converged, for the frames' estimate there, and whose tile 1 has merged
+    its first look: (store, stall rule, priority, a maker of tile 1's rest of the pilot)."""
+    from renderer.film.adaptive import FIRST_LOOK, PILOT
+    from renderer.film.buffer import SampleBuffer
+
+    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None, **TIMINGS)
+    store = JobStore.from_url(own_redis.url, prefix)
+    rule = StallRule(celery_client(settings), settings.stall_timeout,
+                     settings.max_stall_requeues)
+    plan = Plan(32, 16, 256, 16, 8)
+    priority = 5
+    store.create_job(job_id, "", priority, plan, "{}", target_error=0.02)
+    rng = np.random.default_rng(3)
+
+    def pass_buffer(tile: int, n: int) -> bytes:  # n noisy grey samples a pixel
+        buf = SampleBuffer.empty(*plan.tile_rect(tile))
+        x = rng.exponential(1.0, (n, 16, 16, 1))
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), n
+        return buf.to_bytes()
+
+    for tile, p, n in ((0, 0, FIRST_LOOK), (0, 1, PILOT - FIRST_LOOK), (1, 0, FIRST_LOOK)):
+        store.put_pass(job_id, tile, p, pass_buffer(tile, n), ttl=60)
+        assert store.merge_pass_buffer(job_id, tile, p)
+    store.set_tile_state(job_id, 0, "converged")  # (as its worker, finding nothing yet)
+    return store, rule, priority, lambda: pass_buffer(1, PILOT - FIRST_LOOK)
+
+
+def test_a_sweeper_merge_that_ends_the_frames_pilot_wakes_the_waiting_tiles(own_redis, prefix):
+    """Tile 1's pass that ends the frame's pilot was rendered by a worker that died before
+    merging it. The sweeper merges it and, as that worker would have, queues tile 1's next pass
+    and tile 0's (``queue.continue_chain``, ``targets.wake_converged``), not at the job's end.
+    Seen failing without the wake."""
+    from services.farm.merge import sweep
+
+    store, rule, priority, rest = _pilot_job(own_redis, prefix, "w")
+    store.put_pass("w", 1, 1, rest(), ttl=60)  # left behind
+    try:
+        assert sweep(store, rule) == 1
+        assert store.get_job("w").pilot_error is not None
+        assert sorted(_queued_passes(store, priority)) == [("w", 0, 2), ("w", 1, 2)]
+        assert store.tile_states("w")[0] == "queued"
+    finally:
+        store.r.delete(*_queue_keys(priority))
+        store.close()
+
+
+def test_a_worker_lost_after_the_merge_that_ends_the_frames_pilot_leaves_no_tile_waiting(
+        own_redis, prefix):
+    """Tile 1's worker merged the pass that ends the frame's pilot and died before queuing
+    anything, its next pass or the waiting tile 0's. Once its heartbeat has expired the
+    sweeper's ``requeue_lost`` queues both (``queue.continue_chain``), not at the job's end.
+    Seen failing without the wake."""
+    from services.farm.lost_workers import requeue_lost
+
+    store, rule, priority, rest = _pilot_job(own_redis, prefix, "l")
+    store.put_pass("l", 1, 1, rest(), ttl=60)
+    assert store.merge_pass_buffer("l", 1, 1)  # (its merge, and then nothing)
+    store.r.hset(store.k("holding"), mapping={"gone:1": "l 1 1 1"})
+    try:
+        assert store.get_job("l").pilot_error is not None
+        assert sorted(requeue_lost(store, rule.celery)) == [("l", 1, 2)]
+        assert sorted(_queued_passes(store, priority)) == [("l", 0, 2), ("l", 1, 2)]
+        assert store.tile_states("l")[0] == "queued"
+    finally:
+        store.r.delete(*_queue_keys(priority))
+        store.close()
+
+
+def test_a_worker_lost_after_its_tiles_last_merge_leaves_the_job_settled(own_redis, prefix):
+    """A job with a target error, two tiles of noiseless samples: tile 0 ended its pilot and
+    waits, converged, at its pass 2; tile 1's worker merged its last pass and died before
+    settling the job (``targets.settle_converged``). Once its heartbeat has expired the
+    sweeper's ``requeue_lost`` settles it: tile 0 is asked again, finds the frame's estimate
+    within the aim, and the job is done, not left to the stall rule. Seen failing without the
+    settle."""
+    from renderer.film.buffer import SampleBuffer
+    from services.farm.lost_workers import requeue_lost
+
+    settings = Settings(redis_url=own_redis.url, key_prefix=prefix, api_token=None, **TIMINGS)
+    store = JobStore.from_url(own_redis.url, prefix)
+    rule = StallRule(celery_client(settings), settings.stall_timeout,
+                     settings.max_stall_requeues)
+    plan = Plan(32, 16, 24, 16, 8)  # 2 tiles x 3 passes of 8
+    store.create_job("s", "", 5, plan, "{}", target_error=0.02)
+
+    def merge(tile: int, p: int, n: int) -> None:  # n samples a pixel of radiance 1
+        buf = SampleBuffer.empty(*plan.tile_rect(tile))
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = n, n, n
+        store.put_pass("s", tile, p, buf.to_bytes(), ttl=60)
+        assert store.merge_pass_buffer("s", tile, p)
+
+    for tile, p, n in ((0, 0, 4), (0, 1, 4), (1, 0, 4), (1, 1, 4), (1, 2, 16)):
+        merge(tile, p, n)
+    store.set_tile_state("s", 0, "converged")
+    store.r.hset(store.k("holding"), mapping={"gone:1": "s 1 2 1"})
+    try:
+        assert store.get_job("s").status == "queued"  # (no worker marked it started)
+        assert requeue_lost(store, rule.celery) == []
+        assert store.get_job("s").status == "done"
+    finally:
+        store.close()
+
+
 def test_a_target_job_requeues_and_sweeps_one_pass_a_tile(own_redis, prefix):
     """A job with a target error runs each tile's passes as a chain (each queues the next:
     ``planner.chain_heads``). So the stall rule sends each tile's first unmerged pass only, the

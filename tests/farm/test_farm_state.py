@@ -569,7 +569,7 @@ def test_converged_tiles_are_asked_again_once_no_tile_renders(store, noise, aske
     import numpy as np
 
     from renderer.film.buffer import SampleBuffer
-    from services.farm.passes import settle_converged
+    from services.farm.targets import settle_converged
 
     rng = np.random.default_rng(11)
     # 2 tiles x passes of 8, 8, 16, 32, which the plan's order lists largest first: a tile's
@@ -659,7 +659,7 @@ def test_a_target_jobs_first_look_takes_the_frames_bound_once_every_tile_has_one
     import numpy as np
 
     from renderer.film.adaptive import AIM, FIRST_LOOK, PILOT, STOP_SLACK, error_terms
-    from services.farm.passes import adaptive_counts
+    from services.farm.targets import adaptive_counts
 
     rng = np.random.default_rng(9)
     plan = LOOK_PLAN
@@ -705,7 +705,7 @@ def test_a_tile_stopped_on_its_own_first_look_is_asked_again_on_the_frames(store
         error_terms,
         first_look_bound,
     )
-    from services.farm.passes import adaptive_counts, settle_converged
+    from services.farm.targets import adaptive_counts, settle_converged
 
     rng = np.random.default_rng(21)
     job_id = uuid.uuid4().hex
@@ -753,8 +753,8 @@ def test_a_target_jobs_tiles_end_their_pilot_on_the_frames_estimate_there(store)
     import numpy as np
 
     from renderer.film.adaptive import AIM, FIRST_LOOK, PILOT, aim_reached, error_terms
-    from services.farm.passes import adaptive_counts, wake_converged
     from services.farm.store import FRAME_LOOKED
+    from services.farm.targets import adaptive_counts, wake_converged
 
     rng = np.random.default_rng(31)
     job_id = uuid.uuid4().hex
@@ -796,7 +796,7 @@ def test_a_target_jobs_tiles_end_their_pilot_on_the_frames_estimate_there(store)
 
 
 def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(store):
-    """The farm's stop (services.farm.passes.adaptive_counts): once every pixel has an estimate,
+    """The farm's stop (services.farm.targets.adaptive_counts): once every pixel has an estimate,
     a tile takes no samples when the frame's estimated error from the job's tile summaries
     (JobMeta.expected_error) is within the rule's slack of AIM × target, though the frame's
     scale alone would still give it samples; with a target that estimate does not yet reach,
@@ -805,7 +805,7 @@ def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(s
 
     from renderer.film.adaptive import AIM, FIRST_LOOK, STOP_SLACK
     from renderer.film.buffer import SampleBuffer
-    from services.farm.passes import adaptive_counts
+    from services.farm.targets import adaptive_counts
 
     rng = np.random.default_rng(4)
     plan = Plan(40, 16, 4096, 16, 32)  # 3 tiles (16, 16 and 8 px wide) x passes of 32

@@ -1,0 +1,127 @@
+"""Jobs with a target error (``render.target_error``): the farm's adaptive rule on a tile's
+merged buffer, and the converged tiles asked again. The worker calls these around a pass
+(``worker/tasks.py``); so does ``services.farm.queue.continue_chain``, for a pass whose worker did
+not (the sweeper merged it, or its worker was lost after merging it).
+
+- ``adaptive_counts``: the samples each pixel of a tile takes of its next pass
+  (``renderer.film.adaptive.pass_counts`` on the tile's merged buffer and the job's sums).
+- ``settle_converged``: a job with a target error whose tiles have all converged or ended asks
+  its converged tiles again under the frame's final scale.
+- ``wake_converged``: ... and once the frames' first look or pilot is known, those that stopped
+  before it.
+
+This module imports neither the merge nor the queue, so that both can call it.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+
+import numpy as np
+
+from renderer.film.adaptive import frame_scale, noise_target, pass_counts
+from renderer.film.buffer import SampleBuffer
+from services.farm.planner import chain_heads
+from services.farm.store import JobMeta, JobStore
+
+
+def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: float,
+                    pass_samples: int) -> np.ndarray:
+    """Adaptive sampling: the samples each pixel of the tile takes of this pass (``(h, w)``
+    int32), a pure rule of the tile's merged buffer and the frame's scale from the job's tile
+    summaries (``renderer.film.adaptive.pass_counts``, ``frame_scale``), nothing once the
+    frame's estimated error from them (``JobMeta.expected_error``) is within the rule's slack of
+    its aim: AIM × the target less the bias auto's models may add (``JobMeta.expected_bias``,
+    ``noise_target``), as the local loop's. Before the tile's first merge the rule sees an
+    empty buffer and gives the pilot's first half: ``FIRST_LOOK`` samples every pixel (at most
+    the pass and ``render.spp``), as the local loop's, not the whole first pass (a packet
+    scene's first pass of 32 samples took the Cornell box to 0.07x a target of 0.1); after it,
+    nothing where the first look's bound is within the aim (the frame's,
+    ``JobMeta.first_look_bound``, once every tile has merged its first look; before, the
+    tile's own), else the rest of the pilot, ``PILOT`` samples a pixel; after that, a stop or
+    every pixel one count, on the frame's estimate at the end of its pilot
+    (``JobMeta.pilot_error``, once every tile has ended its pilot; before, nothing: the tile
+    waits, ``wake_converged``)."""
+    # (the samples' noise's share of the target: auto's models may take some of it)
+    target_error = noise_target(target_error, meta.expected_bias)
+    data = store.tile_buffer(meta.id, tile)
+    buf = (SampleBuffer.empty(*meta.plan.tile_rect(tile)) if data is None
+           else SampleBuffer.from_bytes(data))
+    scale = None
+    if meta.err_pixels >= meta.frame_pixels:
+        # Every pixel of the frames has an estimate: the frame-wide allocation
+        scale = frame_scale(meta.weight_sum, meta.err_pixels, target_error)
+    return pass_counts(buf, target_error, meta.plan.spp, pass_samples, scale,
+                       meta.expected_error, meta.first_look_bound, meta.pilot_error)
+
+
+def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
+                     job_id: str) -> list[tuple[int, int]]:
+    """A job with a target error, once none of its tiles renders or waits for a pass: each tile
+    that converged (``tile_state`` ``converged``: its rule found nothing to add) is asked again,
+    under the frame's scale now, which the other tiles' merges have moved since. A tile the rule
+    now gives samples is queued again at its next pass (``send``); when none is, each converged
+    tile's remaining passes count as merged, empty (``skip_passes``), and the job is finished.
+    Returns the passes sent. While a tile still has a chain (its next pass queued or rendering)
+    this does nothing: that tile's end settles the job. Called by the worker after a tile
+    converges and after a tile's last pass merges; two calls at once send a pass twice at most,
+    and a pass is merged once."""
+    meta = store.get_job(job_id)
+    if meta is None or meta.target_error is None or meta.status not in ("queued", "running"):
+        return []
+    heads = dict(chain_heads(store.unmerged(job_id, meta.plan)))
+    states = store.tile_states(job_id)
+    if any(states.get(tile) != "converged" for tile in heads):
+        return []
+    again = _ask_again(store, send, meta, heads)
+    if again:
+        return again
+    for tile, pass_index in heads.items():
+        store.skip_passes(job_id, tile, pass_index, meta.plan.n_passes)
+    for tile, state in states.items():
+        # a tile converged at its last pass, or one whose chain ended at it with fewer samples
+        # than render.spp (its merge left it queued)
+        if tile not in heads and state not in ("done", "failed"):
+            store.set_tile_state(job_id, tile, "done")
+    store.finish_if_complete(job_id)
+    return []
+
+
+def _ask_again(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
+               meta: JobMeta, heads: dict[int, int]) -> list[tuple[int, int]]:
+    """Run the rule again on each converged tile of ``heads`` (tile: its next pass) and queue
+    those it now gives samples at that pass; returns them."""
+    again: list[tuple[int, int]] = []
+    if meta.target_error is None:
+        return again
+    for tile, pass_index in heads.items():
+        counts = adaptive_counts(store, meta, tile, meta.target_error,
+                                 meta.plan.sample_range(pass_index)[1])
+        if counts.any():
+            again.append((tile, pass_index))
+    for tile, _ in again:
+        store.set_tile_state(meta.id, tile, "queued")
+    if again:
+        send(again, meta)
+    return again
+
+
+def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
+                   job_id: str, tiles: list[int] | None = None) -> list[tuple[int, int]]:
+    """A job with a target error whose frames' first look or pilot became known (a merge that
+    completed them: ``FRAME_LOOKED``): its converged tiles (or those of ``tiles`` that are)
+    asked again on it at once, not at the end of the job (``settle_converged``), and those the
+    rule now gives samples queued at their next pass (``send``). They stopped on their own
+    first look's bound, or at the end of their pilot to wait for the frames' estimate there
+    (``renderer.film.adaptive.pass_counts``). Returns the passes sent. ``tiles``: a tile that
+    stopped to wait asks for itself after it is marked converged, so that a merge that
+    completed the frames' pilot meanwhile, and asked before it was marked, does not leave it
+    waiting. Two calls at once send a pass twice at most, and a pass is merged once."""
+    meta = store.get_job(job_id)
+    if (meta is None or meta.target_error is None or meta.status not in ("queued", "running")
+            or meta.first_look_bound is None):
+        return []
+    states = store.tile_states(job_id)
+    heads = {tile: p for tile, p in chain_heads(store.unmerged(job_id, meta.plan))
+             if states.get(tile) == "converged" and (tiles is None or tile in tiles)}
+    return _ask_again(store, send, meta, heads)
