@@ -593,14 +593,17 @@ def stopping_error(buf: SampleBuffer) -> float:
 
 def tile_summary(buf: SampleBuffer) -> tuple[float, float, int, float]:
     """What the farm keeps of a tile's merged buffer for the frame's allocation and its error:
-    (Σ e_p, Σ w_p, pixels, Σ e_p²) over the pixels with at least 2 samples: e_p =
+    (Σ e_p, Σ w_p, pixels, Σ e_p²), the sums over the pixels with at least 2 samples, pixels
+    those that have drawn 2 (a pixel whose samples were dropped as non-finite adds nothing to
+    the sums, and is counted: the frame's estimate does not wait for it forever): e_p =
     ``error_terms``; w_p = s_p / √ṽ_p, the pixel's own relative variance s_p over the root of the
     floored neighbour estimate ṽ_p that ``pass_counts`` shapes its count with (0 where ṽ_p is 0),
     so that counts n_p = λ √ṽ_p give the tile the expected error Σ w_p / λ (``frame_scale``);
     and the squares, for the first look's bound (``first_look_bound``)."""
     ok = buf.count >= 2
+    pixels = int(np.count_nonzero(buf.count + buf.dropped >= 2))
     if not ok.any():
-        return 0.0, 0.0, 0, 0.0
+        return 0.0, 0.0, pixels, 0.0
     own = sample_variance(buf)[ok]
     shape = neighbour_variance(buf)[ok]
     n = buf.count[ok].astype(np.float64)
@@ -608,7 +611,7 @@ def tile_summary(buf: SampleBuffer) -> tuple[float, float, int, float]:
         w = np.where(shape > 0, own / np.sqrt(shape), 0.0)
     e = own / n
     # (the squares summed by numpy, not np.dot, whose BLAS threads spin: _look_sums)
-    return float(e.sum()), float(w.sum()), int(ok.sum()), float((e * e).sum())
+    return float(e.sum()), float(w.sum()), pixels, float((e * e).sum())
 
 
 def frame_scale(weight_sum: float, pixels: int, target: float) -> float:
@@ -768,7 +771,11 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     finds that shape no cheaper than even counts at the same error of the tile (priced by its
     pixels' own variances), every pixel its deficit against the one count that reaches it."""
     count = buf.count
-    low = int(count.min(initial=PILOT))
+    # Where the pilot stands: the samples drawn, kept or dropped as non-finite (a pixel whose
+    # every sample is dropped still ends its pilot, and the frame's estimates there do not wait
+    # for it; past the pilot its count, 0, caps its passes at nothing). A pixel short of the
+    # pilot's kept samples takes them again, as the local loop's does.
+    low = int((count + buf.dropped).min(initial=PILOT))
     look = min(FIRST_LOOK, PILOT, cap)
     if low < look:
         # The pilot's first half (the local loop's first look), before anything is estimated

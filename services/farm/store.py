@@ -1054,12 +1054,14 @@ class JobStore:
                         had = 0
                     else:
                         acc = SampleBuffer.from_bytes(acc_bytes)
-                        had = int(acc.count.min()) if acc.count.size else 0
+                        had = int((acc.count + acc.dropped).min()) if acc.count.size else 0
                         acc.add(buf)
-                    # (this merge ends the tile's pilot: its every pixel has the pilot's
-                    # samples, which before it one had not)
+                    # (this merge ends the tile's pilot: its every pixel has drawn the pilot's
+                    # samples, kept or dropped as non-finite, which before it one had not:
+                    # pass_counts' end of the pilot)
                     pilot = min(PILOT, int(spp or 0))
-                    ends_pilot = bool(acc.count.size) and had < pilot <= int(acc.count.min())
+                    ends_pilot = (bool(acc.count.size)
+                                  and had < pilot <= int((acc.count + acc.dropped).min()))
                     # Samples per pixel this pass planned: drawn ones, added or dropped as
                     # non-finite.
                     spp_added = int((buf.count + buf.dropped).max()) if buf.count.size else 0

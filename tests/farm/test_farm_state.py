@@ -795,6 +795,56 @@ def test_a_target_jobs_tiles_end_their_pilot_on_the_frames_estimate_there(store)
     np.testing.assert_array_equal(adaptive_counts(store, meta, 0, target, 16), 12 - PILOT)
 
 
+def test_a_target_jobs_pixel_that_drops_every_sample_does_not_hold_its_frame_back(store):
+    """A pixel whose every sample is dropped as non-finite (its count stays 0) ends its pilot
+    with the samples drawn, not kept: its tile's pilot ends, the frame's estimates at the end of
+    the pilot and of the job (``pilot_error``, ``expected_error``) become known, the pixel adds
+    nothing to them, and past the pilot it takes no more samples while the others take the
+    even round. Before, its tile never ended its pilot: every tile waited at the end of its own
+    for a frame estimate that never came, the job knew no error, and it ended at the pilot's 8
+    samples a pixel whatever the target. Seen failing with the pilot's end on kept samples."""
+    import numpy as np
+
+    from renderer.film.adaptive import AIM, FIRST_LOOK, PILOT, error_terms
+    from services.farm.store import FRAME_LOOKED
+    from services.farm.targets import adaptive_counts
+
+    rng = np.random.default_rng(37)
+    job_id = uuid.uuid4().hex
+    dead = (3, 5)  # a pixel of tile 1
+
+    def tile(t: int, n: int):
+        buf = look_tile(t, rng.exponential(1.0, (n, 16, 16, 3)))
+        if t == 1:
+            buf.sum[dead], buf.sum_sq[dead], buf.count[dead], buf.dropped[dead] = 0.0, 0.0, 0, n
+        return buf
+
+    passes = {(t, p): tile(t, n) for t in (0, 1)
+              for p, n in ((0, FIRST_LOOK), (1, PILOT - FIRST_LOOK))}
+    pilots = [look_tile(t, np.zeros((0, 16, 16, 3))).add(passes[t, 0]).add(passes[t, 1])
+              for t in (0, 1)]
+    e = float(np.concatenate([error_terms(b).ravel() for b in pilots]).mean())
+    target = e / (1.4 * AIM)  # the frame's pilot estimate 1.4x the aim: 12 samples a pixel
+    store.create_job(job_id, "", 0, LOOK_PLAN, b"{}", {}, time.time(), target_error=target)
+    flags = []
+    for (t, p), buf in passes.items():
+        if (t, p) == (1, 1):
+            # the rest of the pilot: the dead pixel takes it again, the others their rest
+            want = adaptive_counts(store, store.get_job(job_id), 1, target, 8)
+            assert want[dead] == PILOT and (np.delete(want.ravel(), 3 * 16 + 5)
+                                             == PILOT - FIRST_LOOK).all()
+        store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
+        flags.append(store.merge_pass_buffer(job_id, t, p))
+    assert bool(flags[-1] & FRAME_LOOKED)
+    meta = store.get_job(job_id)
+    assert meta.pilot_error == pytest.approx(e, rel=1e-9)
+    assert meta.expected_error == pytest.approx(e, rel=1e-9)
+    counts = adaptive_counts(store, meta, 1, target, 16)
+    assert counts[dead] == 0
+    assert (np.delete(counts.ravel(), 3 * 16 + 5) == 12 - PILOT).all()
+    np.testing.assert_array_equal(adaptive_counts(store, meta, 0, target, 16), 12 - PILOT)
+
+
 def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(store):
     """The farm's stop (services.farm.targets.adaptive_counts): once every pixel has an estimate,
     a tile takes no samples when the frame's estimated error from the job's tile summaries

@@ -899,6 +899,32 @@ def test_tile_rule_ends_its_pilot_on_the_frames_estimate_there():
     assert not pass_counts(tile, target, 4096, 64, 50.0, 0.5 * aim, 0.5 * aim, error).any()
 
 
+def test_tile_rule_takes_a_pixel_that_drops_every_sample_through_the_pilot_and_no_further():
+    """A pixel whose every sample is dropped as non-finite (count 0, its draws in ``dropped``):
+    the rule places the pilot by the samples drawn, so the pixel takes the pilot's samples
+    again like one short of them, its tile then ends its pilot and waits for the frame's
+    estimate there, and past it the pixel takes nothing (its count caps its passes) while the
+    others take the even round; ``tile_summary`` counts it as a pixel with an estimate that adds
+    nothing, so the frame's estimate is known. Seen failing with the pilot placed by the kept
+    samples (the pixel held its tile in the pilot for good)."""
+    rng = np.random.default_rng(23)
+    tile = synthetic(rng.exponential(1.0, (16, 16, FIRST_LOOK)))
+    tile.sum[2, 3], tile.sum_sq[2, 3], tile.count[2, 3], tile.dropped[2, 3] = 0, 0, 0, FIRST_LOOK
+    target, aim = 0.05, AIM * 0.05
+    want = pass_counts(tile, target, 4096, 8, frame_bound=9 * aim)
+    assert want[2, 3] == PILOT and (np.delete(want.ravel(), 2 * 16 + 3) == PILOT - FIRST_LOOK).all()
+    rest = synthetic(rng.exponential(1.0, (16, 16, PILOT - FIRST_LOOK)))
+    rest.count[2, 3], rest.sum[2, 3], rest.sum_sq[2, 3], rest.dropped[2, 3] = 0, 0, 0, PILOT
+    tile.add(rest)
+    assert not pass_counts(tile, target, 4096, 64, frame_bound=9 * aim).any()  # it waits
+    counts = pass_counts(tile, target, 4096, 64, frame_bound=9 * aim, pilot_error=1.4 * aim)
+    assert counts[2, 3] == 0
+    assert (np.delete(counts.ravel(), 2 * 16 + 3) == 12 - PILOT).all()
+    err_sum, _, pixels, _ = tile_summary(tile)
+    assert pixels == 16 * 16
+    assert err_sum == pytest.approx(float(error_terms(tile).sum()))
+
+
 def test_tile_rule_stops_when_the_frames_error_is_within_the_slack_of_its_aim():
     """The farm's tile rule stops as the local loop does: once the frame's estimated error (the
     job's tile summaries) is within STOP_SLACK of AIM × target, no pixel takes samples, whatever
