@@ -7,6 +7,8 @@ time at the same error, per scene and target.
     .venv/bin/python -m bench.target_error --radius [--scenes ...]
     .venv/bin/python -m bench.target_error --paired [--scenes ...] [--targets ...] [--pairs N]
     .venv/bin/python -m bench.target_error --spread [--scenes ...] [--targets ...] [--seeds K]
+    .venv/bin/python -m bench.target_error --farm [--scenes ...] [--targets ...] [--seeds K]
+    .venv/bin/python -m bench.target_error --farm-frames --scenes A B [--targets ...] [--seeds K]
 
 The scenes: the chart suite (``bench.accuracy.suite``: wax sphere, backlit slab, concave torus,
 thin shell, spheres at albedo 0.5/0.9/0.99, 64×48, the translucent material ``volumetric``,
@@ -51,6 +53,7 @@ single runs land from it: their median, 10th and 90th percentiles and the share 
 from __future__ import annotations
 
 import argparse
+import contextlib
 import csv
 import json
 import math
@@ -171,6 +174,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--farm", action="store_true",
                         help="the farm's rule instead: each scene and target as a job on an "
                              "embedded farm (2 worker processes, tiles of 16 px)")
+    parser.add_argument("--farm-frames", action="store_true",
+                        help="the scenes as the frames of one farm job a target and seed "
+                             "(same film size): each frame's error / target")
     parser.add_argument("--radius", action="store_true",
                         help="print what the shape from each window radius gains, by samples "
                              "a pixel, against the true variance, instead")
@@ -209,6 +215,8 @@ def main(argv: list[str] | None = None) -> int:
         return oracle(args.scenes, all_scenes)
     if args.farm:
         return farm(args.scenes, all_scenes, args.targets, args.seeds or 1)
+    if args.farm_frames:
+        return farm_frames(args.scenes, all_scenes, args.targets, args.seeds or 1)
     if args.spread:
         rows = spread(args.scenes, all_scenes, args.targets, args.seeds or SPREAD_SEEDS,
                       args.ref_spp)
@@ -858,77 +866,135 @@ def _uniform_error(frames, ref: np.ndarray):
     return error_at
 
 
-def farm(names: list[str], all_scenes: dict, targets: list[float], seeds: int = 1) -> int:
-    """Each scene and target as a farm job (an embedded Redis, one worker node of 2 processes,
-    tiles of 16 px, passes growing from 8 spp): the achieved relMSE of the merged frame against
-    the reference, the job's reported ``expected_error``, the mean samples a pixel, the wall
-    time from submission to done. With ``seeds`` > 1 a job of each of the seeds 7, 8, … (a
-    row each, the seed beside the scene) and a row of their means: one job's error is noisy
-    where rare bright paths carry the image (the caustic floor)."""
+@contextlib.contextmanager
+def embedded_farm():
+    """An embedded Redis, one worker node of 2 processes and the API in process, for ``farm``
+    and ``farm_frames``: yields ``(run, store)``, ``run(body)`` submitting a job (the API's
+    body: the scene, its tile size, …) and returning its answer once it has ended and the
+    seconds from submission to then. Done jobs keep their tiles in Redis (the frames are read
+    from them)."""
     import os
 
     import redis
     from fastapi.testclient import TestClient
 
     from services.api.main import create_app
-    from services.farm.merge import assemble
     from services.farm.settings import Settings
     from services.farm.store import JobStore
     from services.launcher import EmbeddedRedis, start_worker, terminate
 
     server = EmbeddedRedis().start()
-    # done jobs keep their tiles in Redis (the frame is read from them)
     settings = Settings(redis_url=server.url, key_prefix="bench", archive_done=False)
     proc = start_worker(server.url, 2, 1, log=open(os.devnull, "w"),
                         extra_env={"LUCENT_KEY_PREFIX": "bench"})
     store = JobStore(redis.Redis.from_url(server.url), "bench")
-    print(f"{'scene':<20} {'target':>7} {'mean spp':>8} {'seconds':>8} {'relMSE':>9} "
-          f"{'err/target':>10} {'reported':>9}", flush=True)
     try:
         while sum(w.get("state") == "idle" for w in store.workers()) < 2:
             time.sleep(0.2)
         with TestClient(create_app(settings)) as client:
-            def run(data: dict) -> tuple[dict, float]:
+            def run(body: dict) -> tuple[dict, float]:
                 t = time.perf_counter()
-                job_id = client.post("/api/jobs", json={"scene": data,
-                                                         "tile_size": 16}).json()["id"]
+                answer = client.post("/api/jobs", json=body)
+                assert answer.status_code < 300, answer.text
+                job_id = answer.json()["id"]
                 while (job := client.get(f"/api/jobs/{job_id}").json())["status"] not in (
                         "done", "failed", "cancelled"):
                     time.sleep(0.05)
                 return job, time.perf_counter() - t
 
-            for name in names:
-                scene, material = all_scenes[name]
-                ref = scene_reference(name, scene, material)
-                run(scene_at(scene, material, 8, None))  # compiles in both processes
-                for target in targets:
-                    rows = []
-                    for k in range(seeds):
-                        job, seconds = run(scene_at(scene, material, CAP, target, 7 + k))
-                        assembled = assemble(store, job["id"])
-                        assert assembled is not None and job["status"] == "done", job
-                        buf = assembled[0]
-                        e = rel_mse(buf.mean().astype(np.float64), ref)
-                        rows.append((float(buf.count.mean()), seconds, e,
-                                     job["expected_error"]))
-                        label = name if seeds == 1 else f"{name} s{7 + k}"
-                        print(f"{label:<20} {target:>7} {rows[-1][0]:>8.0f} {seconds:>8.2f} "
-                              f"{e:>9.5f} {e / target:>10.2f} {job['expected_error']:>9.5f}",
-                              flush=True)
-                        client.delete(f"/api/jobs/{job['id']}")
-                    if seeds > 1:
-                        spp, seconds, e, reported = (float(np.mean(c))
-                                                     for c in zip(*rows, strict=True))
-                        ratios = np.array([r[2] for r in rows]) / target
-                        print(f"{name + ' mean':<20} {target:>7} {spp:>8.0f} {seconds:>8.2f} "
-                              f"{e:>9.5f} {e / target:>10.2f} {reported:>9.5f}  (± "
-                              f"{ratios.std(ddof=1) / math.sqrt(seeds):.2f}; "
-                              f"{int(np.sum((ratios >= IN_RANGE[0]) & (ratios <= IN_RANGE[1])))}"
-                              f" of {seeds} jobs in range)", flush=True)
+            yield run, store
     finally:
         terminate(proc, 30)
         store.r.close()
         server.stop()
+
+
+def farm(names: list[str], all_scenes: dict, targets: list[float], seeds: int = 1) -> int:
+    """Each scene and target as a farm job (``embedded_farm``: tiles of 16 px, passes growing
+    from 8 spp): the achieved relMSE of the merged frame against the reference, the job's
+    reported ``expected_error``, the mean samples a pixel, the wall time from submission to
+    done. With ``seeds`` > 1 a job of each of the seeds 7, 8, … (a row each, the seed beside the
+    scene) and a row of their means: one job's error is noisy where rare bright paths carry the
+    image (the caustic floor)."""
+    from services.farm.merge import assemble
+
+    print(f"{'scene':<20} {'target':>7} {'mean spp':>8} {'seconds':>8} {'relMSE':>9} "
+          f"{'err/target':>10} {'reported':>9}", flush=True)
+    with embedded_farm() as (run, store):
+        for name in names:
+            scene, material = all_scenes[name]
+            ref = scene_reference(name, scene, material)
+            # (compiles in both processes)
+            run({"scene": scene_at(scene, material, 8, None), "tile_size": 16})
+            for target in targets:
+                rows = []
+                for k in range(seeds):
+                    job, seconds = run({"scene": scene_at(scene, material, CAP, target, 7 + k),
+                                        "tile_size": 16})
+                    assembled = assemble(store, job["id"])
+                    assert assembled is not None and job["status"] == "done", job
+                    buf = assembled[0]
+                    e = rel_mse(buf.mean().astype(np.float64), ref)
+                    rows.append((float(buf.count.mean()), seconds, e, job["expected_error"]))
+                    label = name if seeds == 1 else f"{name} s{7 + k}"
+                    print(f"{label:<20} {target:>7} {rows[-1][0]:>8.0f} {seconds:>8.2f} "
+                          f"{e:>9.5f} {e / target:>10.2f} {job['expected_error']:>9.5f}",
+                          flush=True)
+                    store.delete_job(job["id"])
+                if seeds > 1:
+                    spp, seconds, e, reported = (float(np.mean(c))
+                                                 for c in zip(*rows, strict=True))
+                    ratios = np.array([r[2] for r in rows]) / target
+                    print(f"{name + ' mean':<20} {target:>7} {spp:>8.0f} {seconds:>8.2f} "
+                          f"{e:>9.5f} {e / target:>10.2f} {reported:>9.5f}  (± "
+                          f"{ratios.std(ddof=1) / math.sqrt(seeds):.2f}; "
+                          f"{int(np.sum((ratios >= IN_RANGE[0]) & (ratios <= IN_RANGE[1])))}"
+                          f" of {seeds} jobs in range)", flush=True)
+    return 0
+
+
+def frames_patch(first: dict, then: dict) -> list[dict]:
+    """The JSON Patch that makes the scene ``then`` of the scene ``first`` (every top-level
+    field replaced, added or removed): a frame of a job whose scene is ``first``."""
+    return ([{"op": "replace" if key in first else "add", "path": "/" + key, "value": value}
+             for key, value in then.items()]
+            + [{"op": "remove", "path": "/" + key} for key in first if key not in then])
+
+
+def farm_frames(names: list[str], all_scenes: dict, targets: list[float],
+                seeds: int = 1) -> int:
+    """A job of frames, one frame a scene of ``names`` (same film), for each target and seed
+    (``--farm-frames``, ``embedded_farm``): each frame's achieved relMSE / target against its
+    reference, its mean samples a pixel and the error the job reports for it
+    (``frame_progress``). With a target each frame should land in [0.5, 1.1] × it, as the same
+    scene alone does: the job samples each frame on its own sums."""
+    from services.farm.merge import assemble
+
+    refs = [scene_reference(n, *all_scenes[n]) for n in names]
+    print(f"{'target':>7} {'seed':>4} {'seconds':>8}  "
+          + "  ".join(f"{n + ' spp, err/target (reported)':>44}" for n in names), flush=True)
+    with embedded_farm() as (run, store):
+        def body(spp: int, target: float | None, seed: int) -> dict:
+            scenes = [scene_at(*all_scenes[n], spp, target, seed) for n in names]
+            return {"scene": scenes[0], "tile_size": 16,
+                    "frames": [[]] + [frames_patch(scenes[0], s) for s in scenes[1:]]}
+
+        run(body(8, None, 7))  # (compiles every frame in both processes)
+        for target in targets:
+            for k in range(seeds):
+                job, seconds = run(body(CAP, target, 7 + k))
+                assert job["status"] == "done", job
+                cells = []
+                for f, frame in enumerate(job["frame_progress"]):
+                    assembled = assemble(store, job["id"], f)
+                    assert assembled is not None
+                    buf = assembled[0]
+                    e = rel_mse(buf.mean().astype(np.float64), refs[f])
+                    cells.append(f"{float(buf.count.mean()):>8.0f} {e / target:>6.2f} "
+                                 f"({frame['expected_error'] / target:.2f})")
+                print(f"{target:>7} {7 + k:>4} {seconds:>8.2f}  "
+                      + "  ".join(f"{c:>44}" for c in cells), flush=True)
+                store.delete_job(job["id"])
     return 0
 
 

@@ -54,6 +54,11 @@ class JobCreate(BaseModel):
 class FramePublic(BaseModel):
     index: int
     progress: float = Field(description="samples merged / planned of this frame, 0–1")
+    expected_error: float | None = Field(
+        default=None, description="the frame's expected relMSE, its tiles' (each tile's "
+                                  "expected_error over its pixels), once every tile has one, "
+                                  "plus the job's expected_bias: with render.target_error, each "
+                                  "frame is sampled to the target on its own")
 
 
 class TilePublic(BaseModel):

@@ -41,10 +41,11 @@ first sweep moves them to the records.
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import re
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any
 
 import redis
@@ -205,7 +206,7 @@ return n
 _MERGE_READ = """
 local merged = redis.call('SISMEMBER', KEYS[1], ARGV[1])
 local job = redis.call('HMGET', KEYS[3], 'status', 'spp', 'tasks_total', 'width', 'height',
-                      'frames')
+                      'frames', 'tile_size')
 if ARGV[4] ~= '' and merged == 0 and job[1] and job[1] ~= 'done' then
   redis.call('SET', KEYS[2], ARGV[5], 'PX', ARGV[4])
   redis.call('SADD', KEYS[8], KEYS[2])
@@ -260,6 +261,16 @@ LOOK_SUMS = ("look_sum", "look_sq_sum", "look_pixels")
 # samples (``renderer.film.adaptive.PILOT``, at most render.spp; ``JobMeta.pilot_error``): Σ e_p
 # of the tile's error terms then and its pixels
 PILOT_SUMS = ("pilot_sum", "pilot_pixels")
+# A job of frames keeps each of these sums for each frame too, as "{name}:{frame}" (its hash's
+# ``frame_sums`` set; ``JobMeta.for_frame``): each frame is sampled to the target on its own, as
+# its own render would be, not the frames' mean error (a job of the diffuse Cornell box and the
+# glass sphere at 0.03, its frames pooled, ended them at 0.16-0.25x and 1.22-1.24x the target)
+FRAME_SUMS = (*ERROR_SUMS, *LOOK_SUMS, *PILOT_SUMS)
+
+
+def frame_field(name: str, frame: int) -> str:
+    """The job-hash field of one frame's ``name`` (one of ``FRAME_SUMS``)."""
+    return f"{name}:{frame}"
 
 
 def _summary_text(summary: tuple[float, float, int, float]) -> str:
@@ -358,12 +369,31 @@ class JobMeta:
     # the sums of its tiles' pilots (PILOT_SUMS), added once a tile at the merge that ends it
     pilot_sum: float = 0.0
     pilot_pixels: int = 0
+    # a job of frames stored since each frame keeps its own sums (FRAME_SUMS), and those sums
+    # ("{name}:{frame}": value); a job of frames stored before pools its frames' sums
+    frame_sums: bool = False
+    frame_fields: dict[str, float] = field(default_factory=dict)
+    # the frame whose sums the sum fields above hold (``for_frame``); None: all its frames'
+    sums_frame: int | None = None
 
     @property
     def frame_pixels(self) -> int:
-        """The pixels of all its frames: what the job's error, first-look and pilot sums must
-        each count before the frames' estimate from them is known."""
-        return self.plan.width * self.plan.height * self.plan.frames
+        """The pixels the error, first-look and pilot sums must each count before the estimate
+        from them is known: one frame's (``for_frame``), else all its frames'."""
+        frames = 1 if self.sums_frame is not None else self.plan.frames
+        return self.plan.width * self.plan.height * frames
+
+    def for_frame(self, frame: int) -> JobMeta:
+        """The job as the rule of a tile of ``frame`` sees it: that frame's sums in place of the
+        job's (each frame sampled to the target on its own: ``FRAME_SUMS``), or the job itself
+        where its frames pool theirs (one frame, or stored before frames kept their own)."""
+        if self.plan.frames == 1 or not self.frame_sums:
+            return self
+        values: dict[str, Any] = {}
+        for name in FRAME_SUMS:
+            value = self.frame_fields.get(frame_field(name, frame), 0.0)
+            values[name] = int(value) if name.endswith("_pixels") else value
+        return dataclasses.replace(self, sums_frame=frame, **values)
 
     def _all_counted(self, counted: int) -> bool:
         """Whether sums over ``counted`` pixels hold every pixel of the frames (none: never)."""
@@ -465,6 +495,9 @@ class JobMeta:
             look_pixels=int(float(d.get("look_pixels") or 0)),
             pilot_sum=float(d.get("pilot_sum") or 0.0),
             pilot_pixels=int(float(d.get("pilot_pixels") or 0)),
+            frame_sums=d.get("frame_sums") == "1",
+            frame_fields={k: float(v) for k, v in d.items()
+                          if ":" in k and k.partition(":")[0] in FRAME_SUMS and v},
         )
 
 
@@ -489,7 +522,11 @@ class JobSnapshot:
                     "id", "name", "status", "priority", "tasks_merged", "samples_merged",
                     "dropped", "version", "created_at", "started_at", "finished_at", "error",
                     "methods", "submitter", "tags", "denoise", "target_error",
-                    "expected_bias", *LOOK_SUMS, *PILOT_SUMS)},
+                    "expected_bias", *LOOK_SUMS, *PILOT_SUMS, "frame_sums")},
+                    # (a job of frames' own look and pilot sums; its error sums are computed
+                    # again from the buffers, as the job's)
+                    "frame_fields": {k: v for k, v in m.frame_fields.items()
+                                     if k.partition(":")[0] in (*LOOK_SUMS, *PILOT_SUMS)},
                     "plan": [m.plan.width, m.plan.height, m.plan.spp, m.plan.tile_size,
                              m.plan.spp_per_pass, m.plan.max_spp_per_pass, m.plan.frames,
                              m.plan.pass_growth]},
@@ -586,6 +623,8 @@ class JobStore:
             "target_error": "" if target_error is None else target_error,
             "expected_bias": expected_bias,
             "denoise": "1" if denoise else "",
+            # (a job of frames: each frame's own sums, FRAME_SUMS)
+            "frame_sums": "1" if plan.frames > 1 else "",
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
@@ -777,6 +816,9 @@ class JobStore:
             # (the tiles' first looks: their first passes, which the merged buffers no longer
             # tell apart, kept by the snapshot as they were summed)
             **{name: getattr(meta, name) for name in (*LOOK_SUMS, *PILOT_SUMS)},
+            "frame_sums": "1" if meta.frame_sums else "",
+            **{k: v for k, v in meta.frame_fields.items()
+               if k.partition(":")[0] in (*LOOK_SUMS, *PILOT_SUMS)},
         }
         # The tiles' error summaries and the job's sums of them, as the merges kept them: each a
         # pure function of the tile's merged buffer, so computed again here rather than carried
@@ -784,12 +826,20 @@ class JobStore:
         # without them a target job's scale, and any job's estimate, would start from nothing)
         summaries: dict[str, str] = {}
         sums = [0.0] * len(ERROR_SUMS)
+        plan = meta.plan
+        frame_sums = [[0.0] * len(ERROR_SUMS) for _ in range(plan.frames)]
         for t, data in enumerate(snap.tile_buffers):
             if data is not None:
                 summary = tile_summary(SampleBuffer.from_bytes(data))
                 summaries[str(t)] = _summary_text(summary)
                 sums = [a + b for a, b in zip(sums, summary, strict=True)]
+                f = plan.frame_of(t)
+                frame_sums[f] = [a + b for a, b in zip(frame_sums[f], summary, strict=True)]
         fields.update(zip(ERROR_SUMS, sums, strict=True))
+        if plan.frames > 1:
+            for f, values in enumerate(frame_sums):
+                fields.update((frame_field(name, f), value)
+                              for name, value in zip(ERROR_SUMS, values, strict=True))
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(meta.id), mapping=fields)
         if summaries:
@@ -1030,8 +1080,8 @@ class JobStore:
                     pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
                     put = ("", b"") if data is None or ttl is None else (int(ttl * 1000), data)
                     ttl = None  # stored by the first read; a retry after a conflict need not
-                    (is_merged, stored, (status, spp, total, width, height, frames), acc_bytes,
-                     tile_samples, tile_state, old_summary) = pipe.eval(
+                    (is_merged, stored, (status, spp, total, width, height, frames, tile_size),
+                     acc_bytes, tile_samples, tile_state, old_summary) = pipe.eval(
                         _MERGE_READ, 8, merged_key, pass_key, job_key, acc_key, samples_key,
                         state_key, err_key, self.k("pending"), member, str(tile),
                         "1" if data is not None else "", *put)
@@ -1096,32 +1146,47 @@ class JobStore:
                     pipe.hincrby(job_key, "version", 1)
                     pipe.hset(job_key, "active_at", time.time())  # the stall clock restarts
                     pipe.hset(err_key, str(tile), _summary_text(summary))
+                    # The job's sums, and for a job of frames its tile's frame's (FRAME_SUMS):
+                    # each a field's name, and the pixels of what it sums over
+                    n_frames = int(frames or 1)
+                    frame_pixels = int(width or 0) * int(height or 0)
+                    sums = [("", frame_pixels * n_frames)]  # (a field's suffix, its pixels)
+                    if n_frames > 1:
+                        # (the tile's frame: Plan.frame_of, Plan.tiles_per_frame)
+                        side = int(tile_size or 1)
+                        per_frame = (-(-int(width or 0) // side)) * (-(-int(height or 0) // side))
+                        own = frame_field("", tile // max(per_frame, 1))
+                        sums.append((own, frame_pixels))
                     for name, d in zip(ERROR_SUMS, delta, strict=True):
-                        pipe.hincrbyfloat(job_key, name, d)
-                    # (the replies' indices of the new look and pilot pixel counts, and what
-                    # each adds)
+                        for suffix, _ in sums:
+                            pipe.hincrbyfloat(job_key, name + suffix, d)
+                    # (the replies' indices of the new look and pilot pixel counts, what each
+                    # adds, and the pixels it completes at)
                     counted = []
-                    if acc_bytes is None:
-                        # the tile's first merged pass, its first look: its terms once
-                        # (JobMeta.first_look_bound; the sums over the tile's every pixel, as
-                        # the local loop's over the frame's, a pixel below 2 samples adding 0)
-                        pipe.hincrbyfloat(job_key, "look_sum", summary[0])
-                        pipe.hincrbyfloat(job_key, "look_sq_sum", summary[3])
-                        counted.append((len(pipe.command_stack), buf.count.size))
-                        pipe.hincrby(job_key, "look_pixels", int(buf.count.size))
-                    if ends_pilot:
-                        # (JobMeta.pilot_error: the tile's terms at the end of its pilot, once)
-                        pipe.hincrbyfloat(job_key, "pilot_sum", summary[0])
-                        counted.append((len(pipe.command_stack), acc.count.size))
-                        pipe.hincrby(job_key, "pilot_pixels", int(acc.count.size))
+                    for suffix, pixels in sums:
+                        if acc_bytes is None:
+                            # the tile's first merged pass, its first look: its terms once
+                            # (JobMeta.first_look_bound; the sums over the tile's every pixel,
+                            # as the local loop's over the frame's, a pixel below 2 samples
+                            # adding 0)
+                            pipe.hincrbyfloat(job_key, "look_sum" + suffix, summary[0])
+                            pipe.hincrbyfloat(job_key, "look_sq_sum" + suffix, summary[3])
+                            counted.append((len(pipe.command_stack), buf.count.size, pixels))
+                            pipe.hincrby(job_key, "look_pixels" + suffix, int(buf.count.size))
+                        if ends_pilot:
+                            # (JobMeta.pilot_error: the tile's terms at the end of its pilot,
+                            # once)
+                            pipe.hincrbyfloat(job_key, "pilot_sum" + suffix, summary[0])
+                            counted.append((len(pipe.command_stack), acc.count.size, pixels))
+                            pipe.hincrby(job_key, "pilot_pixels" + suffix, int(acc.count.size))
                     replies = pipe.execute()
                     break
                 except redis.WatchError:
                     continue
         answer = MERGED_LAST if int(replies[merged_at]) >= int(total or 0) else 1
-        # (this merge's pixels took the frames' look or pilot sums to every pixel of them)
-        pixels = int(width or 0) * int(height or 0) * int(frames or 1)
-        if any(int(replies[i]) >= pixels > int(replies[i]) - n for i, n in counted):
+        # (this merge's pixels took the frames' look or pilot sums, or a frame's, to every
+        # pixel of them)
+        if any(int(replies[i]) >= pixels > int(replies[i]) - n for i, n, pixels in counted):
             answer |= FRAME_LOOKED
         return answer
 

@@ -845,6 +845,85 @@ def test_a_target_jobs_pixel_that_drops_every_sample_does_not_hold_its_frame_bac
     np.testing.assert_array_equal(adaptive_counts(store, meta, 0, target, 16), 12 - PILOT)
 
 
+def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(store):
+    """A job of two frames (a tile each) with a target error: frame 0 nearly noiseless, frame 1
+    noisy. Each frame keeps its own error, first-look and pilot sums (``FRAME_SUMS``,
+    ``JobMeta.for_frame``), and each tile's rule reads its frame's: frame 0 stops at the end of
+    its pilot while frame 1 takes the even round its own estimate asks for (1.4x the aim: 12
+    samples a pixel). The frames' pooled estimate is within the aim, and on it both stopped,
+    frame 1 above its target (a job of the Cornell box and the glass sphere at 0.03 ended them at
+    0.16-0.25x and 1.22-1.24x). A merge that completes one frame's look or pilot says so
+    (``FRAME_LOOKED``); a snapshot keeps the frames' sums; the job's answer gives each frame's
+    estimate. Seen failing with the pooled sums in the rule."""
+    import dataclasses
+
+    import numpy as np
+
+    from renderer.film.adaptive import AIM, FIRST_LOOK, PILOT, error_terms, noise_target
+    from services.api.routes.jobs import job_detail
+    from services.farm.store import FRAME_LOOKED, JobSnapshot
+    from services.farm.targets import adaptive_counts
+
+    rng = np.random.default_rng(41)
+    plan = Plan(16, 16, 256, 16, 8, 0, 2)  # 2 frames of one 16x16 tile, passes of 8
+    job_id = uuid.uuid4().hex
+
+    def samples(t: int, n: int):
+        from renderer.film.buffer import SampleBuffer
+
+        x = (1.0 + 0.02 * rng.standard_normal((n, 16, 16, 3)) if t == 0
+             else rng.exponential(1.0, (n, 16, 16, 3)))
+        buf = SampleBuffer.empty(*plan.tile_rect(t))
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), n
+        return buf
+
+    passes = {(t, p): samples(t, n) for t in (0, 1)
+              for p, n in ((0, FIRST_LOOK), (1, PILOT - FIRST_LOOK))}
+    e = [float(error_terms(passes[t, 0] + passes[t, 1]).mean()) for t in (0, 1)]
+    target = e[1] / (1.4 * AIM)
+    assert (e[0] + e[1]) / 2 < AIM * target  # (pooled, the frames are within the aim)
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=target,
+                     expected_bias=0.001)
+    flags = []
+    for (t, p), buf in passes.items():
+        store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
+        flags.append(bool(store.merge_pass_buffer(job_id, t, p) & FRAME_LOOKED))
+    assert flags == [True, True, True, True]
+    meta = store.get_job(job_id)
+    for f in (0, 1):
+        assert meta.for_frame(f).pilot_error == pytest.approx(e[f], rel=1e-9)
+        assert meta.for_frame(f).expected_error == pytest.approx(e[f], rel=1e-9)
+        assert meta.for_frame(f).first_look_bound is not None
+    assert meta.pilot_error == pytest.approx((e[0] + e[1]) / 2, rel=1e-9)
+    assert not adaptive_counts(store, meta, 0, target, 16).any()
+    np.testing.assert_array_equal(adaptive_counts(store, meta, 1, target, 16), 12 - PILOT)
+    # (a job of frames stored before frames kept their own sums: pooled, as it was)
+    assert dataclasses.replace(meta, frame_sums=False).for_frame(1).pilot_error == \
+        meta.pilot_error
+
+    detail = job_detail(meta, store.tile_states(job_id), {}, {}, {},
+                        store.tile_estimates(job_id))
+    assert [f.expected_error for f in detail.frame_progress] == pytest.approx(
+        [e[0] + 0.001, e[1] + 0.001], rel=1e-9)
+    # its progress: the samples each frame needs to its share of the target (as if even), the
+    # frame within it none more; pooled, it would be min(1, share / the frames' mean)
+    share = noise_target(target, 0.001)
+    needs = (max(1.0, e[0] / share) + max(1.0, e[1] / share)) / 2
+    assert detail.progress == pytest.approx(1 / needs, rel=1e-9)
+    assert detail.progress < min(1.0, share / meta.expected_error)
+
+    snap = store.snapshot(job_id)
+    assert store.delete_job(job_id, statuses=("queued", "running"))
+    store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
+    after = store.get_job(job_id)
+    assert after.frame_sums
+    for f in (0, 1):
+        for name in ("err_sum", "weight_sum", "err_pixels", "look_sum", "look_sq_sum",
+                     "look_pixels", "pilot_sum", "pilot_pixels"):
+            assert getattr(after.for_frame(f), name) == pytest.approx(
+                getattr(meta.for_frame(f), name), rel=1e-12), (f, name)
+
+
 def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(store):
     """The farm's stop (services.farm.targets.adaptive_counts): once every pixel has an estimate,
     a tile takes no samples when the frame's estimated error from the job's tile summaries

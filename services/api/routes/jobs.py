@@ -54,6 +54,7 @@ from services.farm.archive import (
 from services.farm.jobs import Refusal, Replayed, queue_job
 from services.farm.jobs import retry_job as retry
 from services.farm.merge import assemble
+from services.farm.planner import Plan
 from services.farm.pools import live_tag_sets, waiting_for
 from services.farm.records import Records, Submission, request_key
 from services.farm.store import ACTIVE, JobMeta, JobStore, is_job_id
@@ -83,11 +84,19 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         # A job with a target error stops when its error is reached, not at render.spp: its
         # progress is how far the samples' noise has fallen toward its share of the target (it
         # falls as 1 / samples, so share / noise is the share of the samples it needs that it
-        # has), 0 before every pixel has an estimate
+        # has), 0 before every pixel has an estimate. A job of frames samples each to the target
+        # on its own: the samples each frame needs (its share of those merged, as if even,
+        # times noise / share where it is above) added up
         share = noise_target(target, bias)
-        progress = min(1.0, share / noise) if noise else 0.0
-        if rate and noise:
-            eta = max(0.0, meta.samples_merged * (noise / share - 1.0)) / rate
+        noises = ([meta.for_frame(f).expected_error for f in range(plan.frames)]
+                  if meta.frame_sums and plan.frames > 1 else [noise])
+        if share > 0 and all(noises):
+            needs = sum(max(1.0, n / share) for n in noises if n is not None) / len(noises)
+            progress = 1.0 / needs
+            if rate:
+                eta = meta.samples_merged * (needs - 1.0) / rate
+        else:
+            progress = 0.0
     elif meta.status in ACTIVE and rate:
         eta = (meta.samples_planned - meta.samples_merged) / rate
     elif meta.status == "done":
@@ -204,6 +213,18 @@ def list_jobs(store: StoreDep, records: RecordsDep,
                       offset=offset, limit=limit)
 
 
+def _frame_error(plan: Plan, frame: int, estimates: dict[int, float], bias: float) -> float | None:
+    """A frame's expected relMSE from its tiles' estimates (each the mean of its pixels' error
+    terms), weighted by their pixels, plus ``bias``; None until every tile of it has one."""
+    total = 0.0
+    for t in plan.frame_tiles(frame):
+        if t not in estimates:
+            return None
+        _, _, w, h = plan.tile_rect(t)
+        total += estimates[t] * w * h
+    return total / (plan.width * plan.height) + bias
+
+
 def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
                errors: dict[int, str], blocklist: dict[str, int], estimates: dict[int, float],
                live_tags: list[frozenset[str]] | None = None) -> JobDetail:
@@ -226,7 +247,9 @@ def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
                                 expected_error=estimates.get(t)))
         merged[plan.frame_of(t)] += w * h * min(samples.get(t, 0), plan.spp)
     per_frame = plan.width * plan.height * plan.spp
-    frames = [FramePublic(index=f, progress=n / per_frame if per_frame else 1.0)
+    bias = meta.expected_bias or float(meta.tiles_final.get("expected_bias") or 0.0)
+    frames = [FramePublic(index=f, progress=n / per_frame if per_frame else 1.0,
+                          expected_error=_frame_error(plan, f, estimates, bias))
               for f, n in enumerate(merged)]
     tile_errors = [f"tile {t}: {e}" for t, e in sorted(errors.items())]
     # A failed tile fails its job with the same words: say it once.
