@@ -197,6 +197,35 @@ def _seconds(retry_after: str | None) -> float:
         return 0.0
 
 
+def error_lines(job: dict[str, Any]) -> list[str]:
+    """What ``lucent submit --wait`` says of a done job's error: its expected relMSE (the
+    samples' estimate; none below 2 a pixel) against its target, and for a job of frames with a
+    target each frame's, which the farm takes to the target on its own."""
+    if job.get("expected_error") is None:
+        return []
+    target = job.get("target_error")
+    bias = job.get("expected_bias") or 0.0  # (what auto's models may add: the job's answer)
+    # (the farm stops a frame below its target: a done job above it ran into the cap)
+    cap = (f"; above the target: a pixel takes at most render.spp, {job.get('spp')} samples, "
+           "and more may reach it")
+    parts = (f"; the samples' noise {job['expected_error'] - bias:.3g} and the bias of "
+             f"auto's models, at most {bias:.3g}" if bias else "")
+    frames = job.get("frame_progress") or []
+    short = target is not None and job["expected_error"] > target
+    lines = [f"expected relMSE {job['expected_error']:.3g}"
+             + (", the frames' mean" if len(frames) > 1 else "")
+             + (f" (target {target:g}{parts})" if target is not None else
+                " (estimated from the samples' variance)")
+             + (cap if short else "")]
+    if target is not None and len(frames) > 1:
+        for frame in frames:
+            if frame.get("expected_error") is not None:
+                error = frame["expected_error"]
+                lines.append(f"frame {frame['index']}: expected relMSE {error:.3g}"
+                             + (cap if error > target else ""))
+    return lines
+
+
 def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, wait: bool = False,
                     outputs: list[str] | None = None, quiet: bool = False,
                     options: dict[str, Any] | None = None,
@@ -238,18 +267,8 @@ def submit_and_wait(scene_path: str, server: str, *, token: str | None = None, w
     print(f"job {job['id']} done in {time.perf_counter() - t0:.1f} s"
           + (f"; {job['dropped_samples']} non-finite samples dropped"
              if job["dropped_samples"] else ""), file=sys.stderr)
-    if job.get("expected_error") is not None:  # (its samples' estimate; none below 2 a pixel)
-        target = job.get("target_error")
-        # (the farm stops a frame below its target: a done job above it ran into the cap)
-        short = target is not None and job["expected_error"] > target
-        bias = job.get("expected_bias") or 0.0  # (what auto's models may add: the job's answer)
-        parts = (f"; the samples' noise {job['expected_error'] - bias:.3g} and the bias of "
-                 f"auto's models, at most {bias:.3g}" if bias else "")
-        print(f"expected relMSE {job['expected_error']:.3g}"
-              + (f" (target {target:g}{parts})" if target is not None else
-                 " (estimated from the samples' variance)")
-              + (f"; above the target: a pixel takes at most render.spp, {job.get('spp')} "
-                 "samples, and more may reach it" if short else ""), file=sys.stderr)
+    for line in error_lines(job):
+        print(line, file=sys.stderr)
     frames = job.get("frames", 1)
     for output in outputs:
         for frame in range(frames):

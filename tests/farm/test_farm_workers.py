@@ -258,6 +258,43 @@ def test_a_target_job_runs_a_chain_of_passes_per_tile_not_every_planned_pass(
         0.02, job["expected_error"], 1.0)
 
 
+def test_a_target_job_of_frames_takes_each_frame_to_the_target(farm, farm_client,
+                                                               wait_for_job, tiny_scene):
+    """A job of two frames with a target of 0.03, real workers: the diffuse Cornell box, then
+    the glass sphere (a patch replacing the scene's fields), whose noise is several times the
+    box's. Each frame ends with its own estimate within the rule's stop of the aim, the box on
+    fewer samples a pixel than the sphere. With the frames' sums pooled, the job stopped on their
+    mean: the sphere's frame ended above the target and the box's far below it."""
+    from pathlib import Path
+
+    from renderer.film.adaptive import STOP_SLACK
+    from services.client import error_lines
+
+    root = Path(__file__).resolve().parents[2]
+    glass = json.loads((root / "examples" / "glass_sphere.json").read_text())
+    box = copy.deepcopy(tiny_scene)
+    for scene in (box, glass):
+        scene["film"] = dict(tiny_scene["film"])
+        scene["render"].update(spp=1024, target_error=0.03, seed=7)
+    patch = ([{"op": "replace" if key in box else "add", "path": "/" + key, "value": value}
+              for key, value in glass.items()]
+             + [{"op": "remove", "path": "/" + key} for key in box if key not in glass])
+    r = farm_client.post("/api/jobs", json={"scene": box, "frames": [[], patch],
+                                            "tile_size": 16})
+    assert r.status_code == 201, r.text
+    job = wait_for_job(farm_client, r.json()["id"])
+    assert job["status"] == "done", job
+    errors = [f["expected_error"] for f in job["frame_progress"]]
+    assert all(0 < e <= AIM * 0.03 * (1.0 + STOP_SLACK) for e in errors), errors
+    spp = [[t["samples"] for t in job["tile_states"] if t["frame"] == f] for f in (0, 1)]
+    assert max(spp[0]) < min(spp[1]), spp
+    # lucent submit --wait says each frame's
+    lines = error_lines(job)
+    assert [line.split(":")[0] for line in lines[1:]] == ["frame 0", "frame 1"], lines
+    assert lines[0].startswith("expected relMSE") and ", the frames' mean (" in lines[0], lines
+    assert not any("above the target" in line for line in lines), lines
+
+
 def test_a_target_job_aims_the_noise_at_the_target_less_autos_bias(farm, farm_client,
                                                                    wait_for_job):
     """A close-up of dense wax that auto renders as the opaque surface, with a target of 0.01:
