@@ -215,7 +215,7 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
                            SampleBuffer.empty(x0, y0, w, h)):
                 return "duplicate"  # the delivery that merged it decided for the tile
             store.set_tile_state(job_id, tile, "converged")
-            if meta.for_frame(meta.plan.frame_of(tile)).pilot_error is None:
+            if store.frame_meta(meta, meta.plan.frame_of(tile)).pilot_error is None:
                 # (stopped on its own first look, or to wait for the frames' pilot: a merge that
                 # completed them while it was being marked did not see it converged)
                 wake_converged(store, _send_passes, job_id, [tile])

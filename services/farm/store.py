@@ -15,6 +15,8 @@ Key                                Type    What
 ``{p}:job:{id}:tile_samples``      hash    tile -> samples per pixel merged
 ``{p}:job:{id}:tile_error``        hash    tile -> the last error of a pass of that tile
 ``{p}:job:{id}:tile_err``          hash    tile -> its error summary (``tile_summary``)
+``{p}:job:{id}:frame_sums``        hash    ``{sum}:{frame}`` -> a target job of frames' sums of
+                                           each frame's tiles (``FRAME_SUMS``)
 ``{p}:job:{id}:attempts``          hash    ``tile:pass`` -> deliveries (the redelivery cap)
 ``{p}:job:{id}:merged``            set     ``tile:pass`` merged into the accumulation
 ``{p}:job:{id}:acc:{tile}``        string  the tile's accumulated ``SampleBuffer`` (``to_bytes``)
@@ -206,7 +208,7 @@ return n
 _MERGE_READ = """
 local merged = redis.call('SISMEMBER', KEYS[1], ARGV[1])
 local job = redis.call('HMGET', KEYS[3], 'status', 'spp', 'tasks_total', 'width', 'height',
-                      'frames', 'tile_size')
+                      'frames', 'tile_size', 'frame_sums')
 if ARGV[4] ~= '' and merged == 0 and job[1] and job[1] ~= 'done' then
   redis.call('SET', KEYS[2], ARGV[5], 'PX', ARGV[4])
   redis.call('SADD', KEYS[8], KEYS[2])
@@ -261,10 +263,12 @@ LOOK_SUMS = ("look_sum", "look_sq_sum", "look_pixels")
 # samples (``renderer.film.adaptive.PILOT``, at most render.spp; ``JobMeta.pilot_error``): Σ e_p
 # of the tile's error terms then and its pixels
 PILOT_SUMS = ("pilot_sum", "pilot_pixels")
-# A job of frames keeps each of these sums for each frame too, as "{name}:{frame}" (its hash's
-# ``frame_sums`` set; ``JobMeta.for_frame``): each frame is sampled to the target on its own, as
-# its own render would be, not the frames' mean error (a job of the diffuse Cornell box and the
-# glass sphere at 0.03, its frames pooled, ended them at 0.16-0.25x and 1.22-1.24x the target)
+# A target job of frames keeps each of these sums for each frame too, as "{name}:{frame}" in its
+# ``frame_sums`` hash (its job hash's ``frame_sums`` set; ``JobStore.frame_meta``): each frame
+# is sampled to the target on its own, as its own render would be, not on the frames' mean error
+# (the Cornell box and the glass sphere as the frames of one job, pooled, ended at 0.10-0.29x
+# and 1.06-1.44x the target: python -m bench.target_error --farm-frames). Not in the job hash,
+# which every pass reads whole: a job may have 10 000 frames.
 FRAME_SUMS = (*ERROR_SUMS, *LOOK_SUMS, *PILOT_SUMS)
 
 
@@ -369,8 +373,9 @@ class JobMeta:
     # the sums of its tiles' pilots (PILOT_SUMS), added once a tile at the merge that ends it
     pilot_sum: float = 0.0
     pilot_pixels: int = 0
-    # a job of frames stored since each frame keeps its own sums (FRAME_SUMS), and those sums
-    # ("{name}:{frame}": value); a job of frames stored before pools its frames' sums
+    # a target job of frames stored since each frame keeps its own sums (FRAME_SUMS; one stored
+    # before pools its frames'), and those of them read ("{name}:{frame}": value; what
+    # JobStore.frame_meta reads of one frame, a snapshot of all)
     frame_sums: bool = False
     frame_fields: dict[str, float] = field(default_factory=dict)
     # the frame whose sums the sum fields above hold (``for_frame``); None: all its frames'
@@ -384,9 +389,10 @@ class JobMeta:
         return self.plan.width * self.plan.height * frames
 
     def for_frame(self, frame: int) -> JobMeta:
-        """The job as the rule of a tile of ``frame`` sees it: that frame's sums in place of the
-        job's (each frame sampled to the target on its own: ``FRAME_SUMS``), or the job itself
-        where its frames pool theirs (one frame, or stored before frames kept their own)."""
+        """The job as the rule of a tile of ``frame`` sees it: that frame's sums (of
+        ``frame_fields``: ``JobStore.frame_meta`` reads them) in place of the job's, each frame
+        sampled to the target on its own (``FRAME_SUMS``); or the job itself where its frames
+        pool theirs (one frame, no target, or stored before frames kept their own)."""
         if self.plan.frames == 1 or not self.frame_sums:
             return self
         values: dict[str, Any] = {}
@@ -496,8 +502,6 @@ class JobMeta:
             pilot_sum=float(d.get("pilot_sum") or 0.0),
             pilot_pixels=int(float(d.get("pilot_pixels") or 0)),
             frame_sums=d.get("frame_sums") == "1",
-            frame_fields={k: float(v) for k, v in d.items()
-                          if ":" in k and k.partition(":")[0] in FRAME_SUMS and v},
         )
 
 
@@ -595,7 +599,7 @@ class JobStore:
         """The job's keys that hold its tiles: what archiving deletes."""
         return [self.k("job", job_id, name)
                 for name in ("tile_state", "tile_samples", "tile_error", "tile_err", "attempts",
-                             "merged", "failures", "blocklist")] + \
+                             "merged", "failures", "blocklist", "frame_sums")] + \
             [self.acc_key(job_id, t) for t in range(n_tiles)]
 
     def pending_passes_of(self, job_id: str) -> list[str]:
@@ -623,8 +627,8 @@ class JobStore:
             "target_error": "" if target_error is None else target_error,
             "expected_bias": expected_bias,
             "denoise": "1" if denoise else "",
-            # (a job of frames: each frame's own sums, FRAME_SUMS)
-            "frame_sums": "1" if plan.frames > 1 else "",
+            # (a target job of frames: each frame's own sums, FRAME_SUMS)
+            "frame_sums": "1" if plan.frames > 1 and target_error is not None else "",
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)
@@ -642,6 +646,17 @@ class JobStore:
     def get_job(self, job_id: str) -> JobMeta | None:
         h = self.r.hgetall(self.job_key(job_id))
         return JobMeta.from_hash(h) if h else None
+
+    def frame_meta(self, meta: JobMeta, frame: int) -> JobMeta:
+        """``meta`` as the rule of a tile of ``frame`` sees it (``JobMeta.for_frame``), that
+        frame's sums read from the job's ``frame_sums`` hash (one round trip, where the job keeps
+        them: a target job of frames)."""
+        if meta.plan.frames == 1 or not meta.frame_sums:
+            return meta
+        names = [frame_field(name, frame) for name in FRAME_SUMS]
+        values = self.r.hmget(self.k("job", meta.id, "frame_sums"), names)
+        read = {n: float(v) for n, v in zip(names, values, strict=True) if v}
+        return dataclasses.replace(meta, frame_fields=read).for_frame(frame)
 
     def get_status(self, job_id: str) -> str | None:
         return _s(self.r.hget(self.job_key(job_id), "status"))
@@ -785,13 +800,16 @@ class JobStore:
         for name in ("tile_state", "tile_samples", "tile_error"):
             pipe.hgetall(self.k("job", job_id, name))
         pipe.smembers(self.k("job", job_id, "merged"))
+        pipe.hgetall(self.k("job", job_id, "frame_sums"))
         for t in range(meta.plan.n_tiles):
             pipe.get(self.acc_key(job_id, t))
-        h, scene, frames, states, samples, errors, merged, *buffers = pipe.execute()
+        h, scene, frames, states, samples, errors, merged, sums, *buffers = pipe.execute()
         if not h or scene is None:
             return None
         return JobSnapshot(
-            JobMeta.from_hash(h), scene, {int(k): v.decode() for k, v in states.items()},
+            dataclasses.replace(JobMeta.from_hash(h),
+                                frame_fields={k.decode(): float(v) for k, v in sums.items()}),
+            scene, {int(k): v.decode() for k, v in states.items()},
             {int(k): int(v) for k, v in samples.items()},
             {int(k): v.decode() for k, v in errors.items()}, sorted(m.decode() for m in merged),
             buffers, frames)
@@ -817,9 +835,11 @@ class JobStore:
             # tell apart, kept by the snapshot as they were summed)
             **{name: getattr(meta, name) for name in (*LOOK_SUMS, *PILOT_SUMS)},
             "frame_sums": "1" if meta.frame_sums else "",
-            **{k: v for k, v in meta.frame_fields.items()
-               if k.partition(":")[0] in (*LOOK_SUMS, *PILOT_SUMS)},
         }
+        # (a target job of frames' own look and pilot sums, as the snapshot kept them; their
+        # error sums computed again below, as the job's)
+        frame_fields = {k: v for k, v in meta.frame_fields.items()
+                        if k.partition(":")[0] in (*LOOK_SUMS, *PILOT_SUMS)}
         # The tiles' error summaries and the job's sums of them, as the merges kept them: each a
         # pure function of the tile's merged buffer, so computed again here rather than carried
         # in the snapshot (the next merge of a tile replaces its summary and adds the change;
@@ -836,12 +856,14 @@ class JobStore:
                 f = plan.frame_of(t)
                 frame_sums[f] = [a + b for a, b in zip(frame_sums[f], summary, strict=True)]
         fields.update(zip(ERROR_SUMS, sums, strict=True))
-        if plan.frames > 1:
+        if plan.frames > 1 and meta.frame_sums:
             for f, values in enumerate(frame_sums):
-                fields.update((frame_field(name, f), value)
-                              for name, value in zip(ERROR_SUMS, values, strict=True))
+                frame_fields.update((frame_field(name, f), value)
+                                    for name, value in zip(ERROR_SUMS, values, strict=True))
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(meta.id), mapping=fields)
+        if frame_fields:
+            pipe.hset(self.k("job", meta.id, "frame_sums"), mapping=frame_fields)
         if summaries:
             pipe.hset(self.k("job", meta.id, "tile_err"), mapping=summaries)
         pipe.set(self.k("job", meta.id, "scene"), snap.scene_json)
@@ -1080,7 +1102,8 @@ class JobStore:
                     pipe.watch(acc_key, merged_key, self.k("job", job_id, "scene"))
                     put = ("", b"") if data is None or ttl is None else (int(ttl * 1000), data)
                     ttl = None  # stored by the first read; a retry after a conflict need not
-                    (is_merged, stored, (status, spp, total, width, height, frames, tile_size),
+                    (is_merged, stored,
+                     (status, spp, total, width, height, frames, tile_size, by_frame),
                      acc_bytes, tile_samples, tile_state, old_summary) = pipe.eval(
                         _MERGE_READ, 8, merged_key, pass_key, job_key, acc_key, samples_key,
                         state_key, err_key, self.k("pending"), member, str(tile),
@@ -1146,39 +1169,39 @@ class JobStore:
                     pipe.hincrby(job_key, "version", 1)
                     pipe.hset(job_key, "active_at", time.time())  # the stall clock restarts
                     pipe.hset(err_key, str(tile), _summary_text(summary))
-                    # The job's sums, and for a job of frames its tile's frame's (FRAME_SUMS):
-                    # each a field's name, and the pixels of what it sums over
+                    # The job's sums, and for a target job of frames its tile's frame's
+                    # (FRAME_SUMS): each the key and field suffix, and the pixels it sums over
                     n_frames = int(frames or 1)
                     frame_pixels = int(width or 0) * int(height or 0)
-                    sums = [("", frame_pixels * n_frames)]  # (a field's suffix, its pixels)
-                    if n_frames > 1:
+                    sums = [(job_key, "", frame_pixels * n_frames)]
+                    if n_frames > 1 and _s(by_frame) == "1":
                         # (the tile's frame: Plan.frame_of, Plan.tiles_per_frame)
                         side = int(tile_size or 1)
                         per_frame = (-(-int(width or 0) // side)) * (-(-int(height or 0) // side))
-                        own = frame_field("", tile // max(per_frame, 1))
-                        sums.append((own, frame_pixels))
+                        sums.append((self.k("job", job_id, "frame_sums"),
+                                     frame_field("", tile // max(per_frame, 1)), frame_pixels))
                     for name, d in zip(ERROR_SUMS, delta, strict=True):
-                        for suffix, _ in sums:
-                            pipe.hincrbyfloat(job_key, name + suffix, d)
+                        for key, suffix, _ in sums:
+                            pipe.hincrbyfloat(key, name + suffix, d)
                     # (the replies' indices of the new look and pilot pixel counts, what each
                     # adds, and the pixels it completes at)
                     counted = []
-                    for suffix, pixels in sums:
+                    for key, suffix, pixels in sums:
                         if acc_bytes is None:
                             # the tile's first merged pass, its first look: its terms once
                             # (JobMeta.first_look_bound; the sums over the tile's every pixel,
                             # as the local loop's over the frame's, a pixel below 2 samples
                             # adding 0)
-                            pipe.hincrbyfloat(job_key, "look_sum" + suffix, summary[0])
-                            pipe.hincrbyfloat(job_key, "look_sq_sum" + suffix, summary[3])
+                            pipe.hincrbyfloat(key, "look_sum" + suffix, summary[0])
+                            pipe.hincrbyfloat(key, "look_sq_sum" + suffix, summary[3])
                             counted.append((len(pipe.command_stack), buf.count.size, pixels))
-                            pipe.hincrby(job_key, "look_pixels" + suffix, int(buf.count.size))
+                            pipe.hincrby(key, "look_pixels" + suffix, int(buf.count.size))
                         if ends_pilot:
                             # (JobMeta.pilot_error: the tile's terms at the end of its pilot,
                             # once)
-                            pipe.hincrbyfloat(job_key, "pilot_sum" + suffix, summary[0])
+                            pipe.hincrbyfloat(key, "pilot_sum" + suffix, summary[0])
                             counted.append((len(pipe.command_stack), acc.count.size, pixels))
-                            pipe.hincrby(job_key, "pilot_pixels" + suffix, int(acc.count.size))
+                            pipe.hincrby(key, "pilot_pixels" + suffix, int(acc.count.size))
                     replies = pipe.execute()
                     break
                 except redis.WatchError:

@@ -45,8 +45,8 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
     # (the samples' noise's share of the target: auto's models may take some of it)
     target_error = noise_target(target_error, meta.expected_bias)
     # (a job of frames: the sums of the tile's frame, each frame sampled to the target on its
-    # own; JobMeta.for_frame)
-    meta = meta.for_frame(meta.plan.frame_of(tile))
+    # own; JobStore.frame_meta)
+    meta = store.frame_meta(meta, meta.plan.frame_of(tile))
     data = store.tile_buffer(meta.id, tile)
     buf = (SampleBuffer.empty(*meta.plan.tile_rect(tile)) if data is None
            else SampleBuffer.from_bytes(data))
@@ -122,8 +122,8 @@ def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMe
     waiting. Two calls at once send a pass twice at most, and a pass is merged once."""
     meta = store.get_job(job_id)
     if (meta is None or meta.target_error is None or meta.status not in ("queued", "running")
-            or all(meta.for_frame(f).first_look_bound is None
-                   for f in range(meta.plan.frames))):
+            # (nothing is known yet; a job of frames' own first looks are in its frames' sums)
+            or (meta.first_look_bound is None and not meta.frame_sums)):
         return []
     states = store.tile_states(job_id)
     heads = {tile: p for tile, p in chain_heads(store.unmerged(job_id, meta.plan))

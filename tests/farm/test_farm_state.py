@@ -854,7 +854,8 @@ def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(stor
     frame 1 above its target (a job of the Cornell box and the glass sphere at 0.03 ended them at
     0.16-0.25x and 1.22-1.24x). A merge that completes one frame's look or pilot says so
     (``FRAME_LOOKED``); a snapshot keeps the frames' sums; the job's answer gives each frame's
-    estimate. Seen failing with the pooled sums in the rule."""
+    estimate, and its progress is theirs. The frames' sums are in a hash of their own, kept
+    only by a target job. Seen failing with the pooled sums in the rule."""
     import dataclasses
 
     import numpy as np
@@ -891,14 +892,16 @@ def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(stor
     assert flags == [True, True, True, True]
     meta = store.get_job(job_id)
     for f in (0, 1):
-        assert meta.for_frame(f).pilot_error == pytest.approx(e[f], rel=1e-9)
-        assert meta.for_frame(f).expected_error == pytest.approx(e[f], rel=1e-9)
-        assert meta.for_frame(f).first_look_bound is not None
+        assert store.frame_meta(meta, f).pilot_error == pytest.approx(e[f], rel=1e-9)
+        assert store.frame_meta(meta, f).expected_error == pytest.approx(e[f], rel=1e-9)
+        assert store.frame_meta(meta, f).first_look_bound is not None
+    # (in a hash of their own: the job's, which every pass reads whole, holds none of them)
+    assert not [k for k in store.r.hgetall(store.job_key(job_id)) if b":" in k]
     assert meta.pilot_error == pytest.approx((e[0] + e[1]) / 2, rel=1e-9)
     assert not adaptive_counts(store, meta, 0, target, 16).any()
     np.testing.assert_array_equal(adaptive_counts(store, meta, 1, target, 16), 12 - PILOT)
     # (a job of frames stored before frames kept their own sums: pooled, as it was)
-    assert dataclasses.replace(meta, frame_sums=False).for_frame(1).pilot_error == \
+    assert store.frame_meta(dataclasses.replace(meta, frame_sums=False), 1).pilot_error == \
         meta.pilot_error
 
     detail = job_detail(meta, store.tile_states(job_id), {}, {}, {},
@@ -912,16 +915,25 @@ def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(stor
     assert detail.progress == pytest.approx(1 / needs, rel=1e-9)
     assert detail.progress < min(1.0, share / meta.expected_error)
 
+    before = [store.frame_meta(meta, f) for f in (0, 1)]
     snap = store.snapshot(job_id)
     assert store.delete_job(job_id, statuses=("queued", "running"))
+    assert not store.r.exists(store.k("job", job_id, "frame_sums"))  # (deleted with the job)
     store.restore_job(JobSnapshot.from_bytes(snap.to_bytes()))
     after = store.get_job(job_id)
     assert after.frame_sums
     for f in (0, 1):
         for name in ("err_sum", "weight_sum", "err_pixels", "look_sum", "look_sq_sum",
                      "look_pixels", "pilot_sum", "pilot_pixels"):
-            assert getattr(after.for_frame(f), name) == pytest.approx(
-                getattr(meta.for_frame(f), name), rel=1e-12), (f, name)
+            assert getattr(store.frame_meta(after, f), name) == pytest.approx(
+                getattr(before[f], name), rel=1e-12), (f, name)
+    # A job of frames without a target keeps no frames' sums
+    plain = uuid.uuid4().hex
+    store.create_job(plain, "", 0, plan, b"{}", {}, time.time())
+    store.put_pass(plain, 1, 0, samples(1, FIRST_LOOK).to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(plain, 1, 0)
+    assert not store.get_job(plain).frame_sums
+    assert not store.r.exists(store.k("job", plain, "frame_sums"))
 
 
 def test_a_target_job_stops_its_tiles_once_the_frames_estimate_is_within_reach(store):

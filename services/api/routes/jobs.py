@@ -84,19 +84,9 @@ def to_public(meta: JobMeta, live_tags: list[frozenset[str]] | None = None) -> J
         # A job with a target error stops when its error is reached, not at render.spp: its
         # progress is how far the samples' noise has fallen toward its share of the target (it
         # falls as 1 / samples, so share / noise is the share of the samples it needs that it
-        # has), 0 before every pixel has an estimate. A job of frames samples each to the target
-        # on its own: the samples each frame needs (its share of those merged, as if even,
-        # times noise / share where it is above) added up
-        share = noise_target(target, bias)
-        noises = ([meta.for_frame(f).expected_error for f in range(plan.frames)]
-                  if meta.frame_sums and plan.frames > 1 else [noise])
-        if share > 0 and all(noises):
-            needs = sum(max(1.0, n / share) for n in noises if n is not None) / len(noises)
-            progress = 1.0 / needs
-            if rate:
-                eta = meta.samples_merged * (needs - 1.0) / rate
-        else:
-            progress = 0.0
+        # has), 0 before every pixel has an estimate (a job of frames' detail: ``job_detail``)
+        progress, eta = _target_progress([noise], noise_target(target, bias),
+                                         meta.samples_merged, rate)
     elif meta.status in ACTIVE and rate:
         eta = (meta.samples_planned - meta.samples_merged) / rate
     elif meta.status == "done":
@@ -213,6 +203,18 @@ def list_jobs(store: StoreDep, records: RecordsDep,
                       offset=offset, limit=limit)
 
 
+def _target_progress(noises: list[float | None], share: float, merged: int,
+                     rate: float | None) -> tuple[float, float | None]:
+    """An active target job's progress and ETA from its samples' noise (each frame's, for a job
+    of frames, each sampled to the target on its own): the samples each needs (its share of
+    those merged, as if even, times noise / share where it is above; the noise falls as 1 /
+    samples) added up, against those merged; 0 and no ETA until each has an estimate."""
+    if share <= 0 or not noises or not all(noises):
+        return 0.0, None
+    needs = sum(max(1.0, n / share) for n in noises if n is not None) / len(noises)
+    return 1.0 / needs, (merged * (needs - 1.0) / rate if rate else None)
+
+
 def _frame_error(plan: Plan, frame: int, estimates: dict[int, float], bias: float) -> float | None:
     """A frame's expected relMSE from its tiles' estimates (each the mean of its pixels' error
     terms), weighted by their pixels, plus ``bias``; None until every tile of it has one."""
@@ -251,11 +253,19 @@ def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
     frames = [FramePublic(index=f, progress=n / per_frame if per_frame else 1.0,
                           expected_error=_frame_error(plan, f, estimates, bias))
               for f, n in enumerate(merged)]
+    public = to_public(meta, live_tags)
+    if public.target_error is not None and meta.status in ACTIVE and plan.frames > 1:
+        # A job of frames samples each frame to the target on its own: its progress is each
+        # frame's (their estimates above, the bias taken off)
+        public.progress, public.eta_seconds = _target_progress(
+            [None if f.expected_error is None else f.expected_error - bias for f in frames],
+            noise_target(public.target_error, bias), meta.samples_merged,
+            public.samples_per_second)
     tile_errors = [f"tile {t}: {e}" for t, e in sorted(errors.items())]
     # A failed tile fails its job with the same words: say it once.
     all_errors = ([meta.error] if meta.error and meta.error not in tile_errors else []) + \
         tile_errors
-    return JobDetail(**to_public(meta, live_tags).model_dump(), frame_progress=frames,
+    return JobDetail(**public.model_dump(), frame_progress=frames,
                      tile_states=tiles,
                      errors=all_errors, blocklist=blocklist)
 
