@@ -335,7 +335,10 @@ export function renderJob(view, jobId) {
     const progress = job.frame_progress || [];
     frameStrip.replaceChildren(...Array.from({ length: job.frames }, (_, i) => h("button", {
       type: "button", class: `frame-thumb${i === frame ? " selected" : ""}`,
-      dataset: { frame: String(i) }, title: `frame ${i}`,
+      dataset: { frame: String(i) },
+      // (each frame's estimate: a job with a target samples each frame to it on its own)
+      title: `frame ${i}` + (progress[i]?.expected_error == null ? ""
+        : `, estimated relMSE ${digits3(progress[i].expected_error)}`),
       onclick: () => { stopPlaying(); showFrame(i); },
     }, strip.urls[i] ? h("img", { src: strip.urls[i], alt: `frame ${i}` }) : h("span", {}, "…"),
     h("span", { class: "frame-caption" },

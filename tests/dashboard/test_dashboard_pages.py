@@ -574,6 +574,11 @@ def test_a_job_of_frames_shows_a_strip_and_plays_it(dashboard, page, api, artifa
                            " === 3")
     captions = page.locator("#frame-strip .frame-caption").all_inner_texts()
     assert captions == ["0 · 100 %", "1 · 100 %", "2 · 100 %"]
+    # each frame's estimated error (the job's answer's frame_progress) in its title
+    estimate = api.get(f"/api/jobs/{job_id}").json()["frame_progress"][2]["expected_error"]
+    title = page.get_attribute("#frame-strip .frame-thumb[data-frame='2']", "title")
+    assert title.startswith("frame 2, estimated relMSE "), title
+    assert float(title.rsplit(" ", 1)[1]) == pytest.approx(estimate, rel=5e-3)
     with page.expect_response(lambda resp: f"/api/jobs/{job_id}/frames/2/image.png" in resp.url):
         page.click("#frame-strip .frame-thumb[data-frame='2']")
     assert "/frames/2/image.png" in page.get_attribute("#download-png", "href")

@@ -593,6 +593,8 @@ def test_a_target_jobs_progress_is_how_far_its_error_has_fallen(client, store):
     assert job["eta_seconds"] == pytest.approx(16 * 8 * 64 * 3 / rate, rel=1e-6)
     store.r.hset(store.job_key(J1), mapping={"err_sum": 0.01 * 128})  # below the target
     assert client.get(f"/api/jobs/{J1}").json()["progress"] == 1.0
+    store.r.hset(store.job_key(J1), mapping={"err_sum": 0.0})  # noiseless: none more needed
+    assert client.get(f"/api/jobs/{J1}").json()["progress"] == 1.0
     store.r.hset(store.job_key(J1), "status", "done")
     job = client.get(f"/api/jobs/{J1}").json()
     assert job["progress"] == 1.0 and job["eta_seconds"] == 0.0

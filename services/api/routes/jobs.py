@@ -208,8 +208,9 @@ def _target_progress(noises: list[float | None], share: float, merged: int,
     """An active target job's progress and ETA from its samples' noise (each frame's, for a job
     of frames, each sampled to the target on its own): the samples each needs (its share of
     those merged, as if even, times noise / share where it is above; the noise falls as 1 /
-    samples) added up, against those merged; 0 and no ETA until each has an estimate."""
-    if share <= 0 or not noises or not all(noises):
+    samples) added up, against those merged; 0 and no ETA until each has an estimate (a
+    noiseless one needs none more)."""
+    if share <= 0 or not noises or any(n is None for n in noises):
         return 0.0, None
     needs = sum(max(1.0, n / share) for n in noises if n is not None) / len(noises)
     return 1.0 / needs, (merged * (needs - 1.0) / rate if rate else None)
