@@ -232,7 +232,7 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
     if merged & FRAME_LOOKED and meta.target_error is not None:
         # This merge completed the frames' first look or pilot: the tiles that stopped before it
         # on their own look, or to wait for it, are asked again on the frames'
-        wake_converged(store, _send_passes, job_id)
+        wake_converged(store, _send_passes, job_id, merged_tile=tile)
     if merged and meta.target_error is not None and pass_index + 1 < meta.plan.n_passes:
         # A job with a target error: the tile's next pass, queued once (by the merge that
         # counted this one); it stops the tile when it finds nothing to add. A process that dies

@@ -110,7 +110,8 @@ def _ask_again(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta],
 
 
 def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
-                   job_id: str, tiles: list[int] | None = None) -> list[tuple[int, int]]:
+                   job_id: str, tiles: list[int] | None = None,
+                   merged_tile: int | None = None) -> list[tuple[int, int]]:
     """A job with a target error whose frames' first look or pilot became known (a merge that
     completed them: ``FRAME_LOOKED``): its converged tiles (or those of ``tiles`` that are)
     asked again on it at once, not at the end of the job (``settle_converged``), and those the
@@ -119,13 +120,20 @@ def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMe
     (``renderer.film.adaptive.pass_counts``). Returns the passes sent. ``tiles``: a tile that
     stopped to wait asks for itself after it is marked converged, so that a merge that
     completed the frames' pilot meanwhile, and asked before it was marked, does not leave it
-    waiting. Two calls at once send a pass twice at most, and a pass is merged once."""
+    waiting. ``merged_tile``: the tile whose merge completed them; in a target job of frames only
+    its frame's tiles are asked (each frame's tiles read their frame's sums, and the others'
+    did not change: a job of many frames does not ask every converged tile at each frame's
+    look and pilot). Two calls at once send a pass twice at most, and a pass is merged once."""
     meta = store.get_job(job_id)
     if (meta is None or meta.target_error is None or meta.status not in ("queued", "running")
             # (nothing is known yet; a job of frames' own first looks are in its frames' sums)
             or (meta.first_look_bound is None and not meta.frame_sums)):
         return []
+    asked: set[int] | None = None if tiles is None else set(tiles)
+    if merged_tile is not None and meta.frame_sums:
+        frame = set(meta.plan.frame_tiles(meta.plan.frame_of(merged_tile)))
+        asked = frame if asked is None else asked & frame
     states = store.tile_states(job_id)
     heads = {tile: p for tile, p in chain_heads(store.unmerged(job_id, meta.plan))
-             if states.get(tile) == "converged" and (tiles is None or tile in tiles)}
+             if states.get(tile) == "converged" and (asked is None or tile in asked)}
     return _ask_again(store, send, meta, heads)

@@ -845,7 +845,7 @@ def test_a_target_jobs_pixel_that_drops_every_sample_does_not_hold_its_frame_bac
     np.testing.assert_array_equal(adaptive_counts(store, meta, 0, target, 16), 12 - PILOT)
 
 
-def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(store):
+def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(store, monkeypatch):
     """A job of two frames (a tile each) with a target error: frame 0 nearly noiseless, frame 1
     noisy. Each frame keeps its own error, first-look and pilot sums (``FRAME_SUMS``,
     ``JobMeta.for_frame``), and each tile's rule reads its frame's: frame 0 stops at the end of
@@ -900,6 +900,19 @@ def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(stor
     assert meta.pilot_error == pytest.approx((e[0] + e[1]) / 2, rel=1e-9)
     assert not adaptive_counts(store, meta, 0, target, 16).any()
     np.testing.assert_array_equal(adaptive_counts(store, meta, 1, target, 16), 12 - PILOT)
+    # The merge that completed frame 1's sums wakes frame 1's converged tiles, not every one
+    from services.farm import targets
+
+    for t in (0, 1):
+        store.set_tile_state(job_id, t, "converged")
+    asked: list[int] = []
+    real = targets.adaptive_counts
+    monkeypatch.setattr(targets, "adaptive_counts",
+                        lambda st, m, t, *a: asked.append(t) or real(st, m, t, *a))
+    sent: list[tuple[int, int]] = []
+    assert targets.wake_converged(store, lambda todo, m: sent.extend(todo), job_id,
+                                  merged_tile=1) == [(1, 2)]
+    assert asked == [1] and sent == [(1, 2)]
     # (a job of frames stored before frames kept their own sums: pooled, as it was)
     assert store.frame_meta(dataclasses.replace(meta, frame_sums=False), 1).pilot_error == \
         meta.pilot_error
