@@ -218,8 +218,8 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
             if store.frame_meta(meta, meta.plan.frame_of(tile)).pilot_error is None:
                 # (stopped on its own first look, or to wait for the frames' pilot: a merge that
                 # completed them while it was being marked did not see it converged)
-                wake_converged(store, _send_passes, job_id, [tile])
-            settle_converged(store, _send_passes, job_id)
+                wake_converged(store, _send_passes, job_id, [tile], of_tile=tile)
+            settle_converged(store, _send_passes, job_id, tile)
             return "converged"
     t0 = time.perf_counter()
     buf = render_tile(compiled, x0, y0, w, h, start, count, counts,
@@ -232,7 +232,7 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
     if merged & FRAME_LOOKED and meta.target_error is not None:
         # This merge completed the frames' first look or pilot: the tiles that stopped before it
         # on their own look, or to wait for it, are asked again on the frames'
-        wake_converged(store, _send_passes, job_id, merged_tile=tile)
+        wake_converged(store, _send_passes, job_id, of_tile=tile)
     if merged and meta.target_error is not None and pass_index + 1 < meta.plan.n_passes:
         # A job with a target error: the tile's next pass, queued once (by the merge that
         # counted this one); it stops the tile when it finds nothing to add. A process that dies
@@ -243,7 +243,7 @@ def _render_and_merge(state: runtime.WorkerState, meta, tile: int, pass_index: i
                                 queue=queue_for(meta.tags))
     elif merged and meta.target_error is not None:
         # The tile's last pass: with no tile left rendering, the converged ones are asked again
-        settle_converged(store, _send_passes, job_id)
+        settle_converged(store, _send_passes, job_id, tile)
     # task_seconds - render_seconds: the per-task overhead (Redis, buffers, merge, bookkeeping);
     # counted with the pass's end (end_pass, one round trip for both)
     tally.update(tasks_done=1, render_seconds=seconds, paths=paths,

@@ -144,6 +144,11 @@ class Plan:
         return [(f * per + t, p) for p in self.pass_order() for f in range(self.frames)
                 for t in tiles]
 
+    def frame_order(self, frame: int) -> list[tuple[int, int]]:
+        """The ``(tile, pass)`` pairs of one frame, in ``order``'s order."""
+        first = frame * self.tiles_per_frame
+        return [(first + t, p) for p in self.pass_order() for t in self.tiles_by_distance()]
+
 
 def chain_heads(todo: list[tuple[int, int]]) -> list[tuple[int, int]]:
     """Of ``(tile, pass)`` pairs, each tile's first pass, in the order given. A job with a target

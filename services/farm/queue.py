@@ -85,9 +85,9 @@ def continue_chain(store: JobStore, celery: Celery, job_id: str, tile: int,
     def send(todo: list[tuple[int, int]], job: JobMeta) -> None:
         enqueue(celery, job.id, todo, job.priority, job.tags)
 
-    wake_converged(store, send, job_id, merged_tile=tile)
+    wake_converged(store, send, job_id, of_tile=tile)
     if pass_index + 1 >= meta.plan.n_passes:
-        settle_converged(store, send, job_id)
+        settle_converged(store, send, job_id, tile)
         return False
     if store.is_merged(job_id, tile, pass_index + 1):
         return False

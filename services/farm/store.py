@@ -734,10 +734,20 @@ class JobStore:
                                  "lights)")
         return self.transition(job_id, "done", ACTIVE, "finished_at")
 
-    def unmerged(self, job_id: str, plan: Plan) -> list[tuple[int, int]]:
-        """The job's (tile, pass) pairs not merged yet, in the plan's order."""
-        merged = {m.decode() for m in self.r.smembers(self.k("job", job_id, "merged"))}
-        return [(t, p) for t, p in plan.order() if pass_member(t, p) not in merged]
+    def unmerged(self, job_id: str, plan: Plan,
+                 frame: int | None = None) -> list[tuple[int, int]]:
+        """The job's (tile, pass) pairs not merged yet, in the plan's order; ``frame``: of that
+        frame only, asked of Redis pair by pair (``SMISMEMBER``) rather than by reading the
+        job's whole merged set."""
+        if frame is not None:
+            pairs = plan.frame_order(frame)
+            if not pairs:
+                return []
+            flags = self.r.smismember(self.k("job", job_id, "merged"),
+                                      [pass_member(t, p) for t, p in pairs])
+            return [pair for pair, merged in zip(pairs, flags, strict=True) if not merged]
+        members = {m.decode() for m in self.r.smembers(self.k("job", job_id, "merged"))}
+        return [(t, p) for t, p in plan.order() if pass_member(t, p) not in members]
 
     def reopen_job(self, job_id: str) -> list[tuple[int, int]]:
         """For a retry: the job back to running, attempts, tile errors and stalls cleared;
@@ -981,7 +991,13 @@ class JobStore:
         """Take back a counted try of the pass (it failed through its worker, not itself)."""
         self.r.hincrby(self.k("job", job_id, "attempts"), pass_member(tile, pass_index), -1)
 
-    def tile_states(self, job_id: str) -> dict[int, str]:
+    def tile_states(self, job_id: str, tiles: list[int] | None = None) -> dict[int, str]:
+        """Each tile's state (``tiles``: of those only, those that have one)."""
+        if tiles is not None:
+            if not tiles:
+                return {}
+            values = self.r.hmget(self.k("job", job_id, "tile_state"), [str(t) for t in tiles])
+            return {t: v.decode() for t, v in zip(tiles, values, strict=True) if v is not None}
         h = self.r.hgetall(self.k("job", job_id, "tile_state"))
         return {int(k): v.decode() for k, v in h.items()}
 

@@ -58,8 +58,21 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
                        meta.expected_error, meta.first_look_bound, meta.pilot_error)
 
 
+def _scope(store: JobStore, meta: JobMeta, tile: int | None
+           ) -> tuple[dict[int, int], dict[int, str]]:
+    """The chain heads (tile: its next pass) and tile states that a call about ``tile`` looks
+    at: in a target job of frames, each frame's tiles reading their frame's sums, that tile's
+    frame's (one frame's passes and states read, not the job's: a job of many frames settles
+    and wakes each frame in time linear in its own tiles); else the job's."""
+    if tile is not None and meta.frame_sums:
+        frame = meta.plan.frame_of(tile)
+        heads = dict(chain_heads(store.unmerged(meta.id, meta.plan, frame)))
+        return heads, store.tile_states(meta.id, list(meta.plan.frame_tiles(frame)))
+    return dict(chain_heads(store.unmerged(meta.id, meta.plan))), store.tile_states(meta.id)
+
+
 def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
-                     job_id: str) -> list[tuple[int, int]]:
+                     job_id: str, tile: int | None = None) -> list[tuple[int, int]]:
     """A job with a target error, once none of its tiles renders or waits for a pass: each tile
     that converged (``tile_state`` ``converged``: its rule found nothing to add) is asked again,
     under the frame's scale now, which the other tiles' merges have moved since. A tile the rule
@@ -67,25 +80,25 @@ def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], Job
     tile's remaining passes count as merged, empty (``skip_passes``), and the job is finished.
     Returns the passes sent. While a tile still has a chain (its next pass queued or rendering)
     this does nothing: that tile's end settles the job. Called by the worker after a tile
-    converges and after a tile's last pass merges; two calls at once send a pass twice at most,
-    and a pass is merged once."""
+    converges and after a tile's last pass merges (``tile``: in a target job of frames, that
+    tile's frame is settled, on its own sums, whatever the other frames' tiles do); two calls
+    at once send a pass twice at most, and a pass is merged once."""
     meta = store.get_job(job_id)
     if meta is None or meta.target_error is None or meta.status not in ("queued", "running"):
         return []
-    heads = dict(chain_heads(store.unmerged(job_id, meta.plan)))
-    states = store.tile_states(job_id)
-    if any(states.get(tile) != "converged" for tile in heads):
+    heads, states = _scope(store, meta, tile)
+    if any(states.get(t) != "converged" for t in heads):
         return []
     again = _ask_again(store, send, meta, heads)
     if again:
         return again
-    for tile, pass_index in heads.items():
-        store.skip_passes(job_id, tile, pass_index, meta.plan.n_passes)
-    for tile, state in states.items():
+    for t, pass_index in heads.items():
+        store.skip_passes(job_id, t, pass_index, meta.plan.n_passes)
+    for t, state in states.items():
         # a tile converged at its last pass, or one whose chain ended at it with fewer samples
         # than render.spp (its merge left it queued)
-        if tile not in heads and state not in ("done", "failed"):
-            store.set_tile_state(job_id, tile, "done")
+        if t not in heads and state not in ("done", "failed"):
+            store.set_tile_state(job_id, t, "done")
     store.finish_if_complete(job_id)
     return []
 
@@ -111,7 +124,7 @@ def _ask_again(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta],
 
 def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
                    job_id: str, tiles: list[int] | None = None,
-                   merged_tile: int | None = None) -> list[tuple[int, int]]:
+                   of_tile: int | None = None) -> list[tuple[int, int]]:
     """A job with a target error whose frames' first look or pilot became known (a merge that
     completed them: ``FRAME_LOOKED``): its converged tiles (or those of ``tiles`` that are)
     asked again on it at once, not at the end of the job (``settle_converged``), and those the
@@ -120,20 +133,18 @@ def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMe
     (``renderer.film.adaptive.pass_counts``). Returns the passes sent. ``tiles``: a tile that
     stopped to wait asks for itself after it is marked converged, so that a merge that
     completed the frames' pilot meanwhile, and asked before it was marked, does not leave it
-    waiting. ``merged_tile``: the tile whose merge completed them; in a target job of frames only
-    its frame's tiles are asked (each frame's tiles read their frame's sums, and the others'
-    did not change: a job of many frames does not ask every converged tile at each frame's
-    look and pilot). Two calls at once send a pass twice at most, and a pass is merged once."""
+    waiting. ``of_tile``: the tile whose merge completed them, or that asks for itself; in a
+    target job of frames only its frame's tiles are asked (each frame's tiles read their
+    frame's sums, and the others' did not change: a job of many frames does not ask every
+    converged tile at each frame's look and pilot). Two calls at once send a pass twice at
+    most, and a pass is merged once."""
     meta = store.get_job(job_id)
     if (meta is None or meta.target_error is None or meta.status not in ("queued", "running")
             # (nothing is known yet; a job of frames' own first looks are in its frames' sums)
             or (meta.first_look_bound is None and not meta.frame_sums)):
         return []
-    asked: set[int] | None = None if tiles is None else set(tiles)
-    if merged_tile is not None and meta.frame_sums:
-        frame = set(meta.plan.frame_tiles(meta.plan.frame_of(merged_tile)))
-        asked = frame if asked is None else asked & frame
-    states = store.tile_states(job_id)
-    heads = {tile: p for tile, p in chain_heads(store.unmerged(job_id, meta.plan))
-             if states.get(tile) == "converged" and (asked is None or tile in asked)}
+    asked = None if tiles is None else set(tiles)
+    heads, states = _scope(store, meta, of_tile)
+    heads = {t: p for t, p in heads.items()
+             if states.get(t) == "converged" and (asked is None or t in asked)}
     return _ask_again(store, send, meta, heads)

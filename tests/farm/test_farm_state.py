@@ -911,8 +911,15 @@ def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(stor
                         lambda st, m, t, *a: asked.append(t) or real(st, m, t, *a))
     sent: list[tuple[int, int]] = []
     assert targets.wake_converged(store, lambda todo, m: sent.extend(todo), job_id,
-                                  merged_tile=1) == [(1, 2)]
+                                  of_tile=1) == [(1, 2)]
     assert asked == [1] and sent == [(1, 2)]
+    # ... and frame 0, its tile converged within its own aim, settles while frame 1's tile runs:
+    # the job as a whole would wait for it (as a job of one frame does)
+    assert targets.settle_converged(store, lambda todo, m: sent.extend(todo), job_id) == []
+    assert store.tile_states(job_id) == {0: "converged", 1: "queued"}
+    assert targets.settle_converged(store, lambda todo, m: sent.extend(todo), job_id, 0) == []
+    assert store.tile_states(job_id) == {0: "done", 1: "queued"}
+    assert store.is_merged(job_id, 0, plan.n_passes - 1) and store.get_job(job_id).status != "done"
     # (a job of frames stored before frames kept their own sums: pooled, as it was)
     assert store.frame_meta(dataclasses.replace(meta, frame_sums=False), 1).pilot_error == \
         meta.pilot_error
