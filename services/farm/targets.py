@@ -6,9 +6,10 @@ not (the sweeper merged it, or its worker was lost after merging it).
 - ``adaptive_counts``: the samples each pixel of a tile takes of its next pass
   (``renderer.film.adaptive.pass_counts`` on the tile's merged buffer and the job's sums).
 - ``settle_converged``: a job with a target error whose tiles have all converged or ended asks
-  its converged tiles again under the frame's final scale.
+  its converged tiles again under the frame's final scale (a target job of frames: each frame
+  whose tiles have, on its own).
 - ``wake_converged``: ... and once the frames' first look or pilot is known, those that stopped
-  before it.
+  before it (a target job of frames: that frame's).
 
 This module imports neither the merge nor the queue, so that both can call it.
 """
