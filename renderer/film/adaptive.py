@@ -601,7 +601,7 @@ def tile_summary(buf: SampleBuffer) -> tuple[float, float, int, float]:
     so that counts n_p = λ √ṽ_p give the tile the expected error Σ w_p / λ (``frame_scale``);
     and the squares, for the first look's bound (``first_look_bound``)."""
     ok = buf.count >= 2
-    pixels = int(np.count_nonzero(buf.count + buf.dropped >= 2))
+    pixels = int(np.count_nonzero(buf.drawn >= 2))
     if not ok.any():
         return 0.0, 0.0, pixels, 0.0
     own = sample_variance(buf)[ok]
@@ -775,7 +775,7 @@ def pass_counts(buf: SampleBuffer, target: float, cap: int, pass_samples: int,
     # every sample is dropped still ends its pilot, and the frame's estimates there do not wait
     # for it; past the pilot its count, 0, caps its passes at nothing). A pixel short of the
     # pilot's kept samples takes them again, as the local loop's does.
-    low = int((count + buf.dropped).min(initial=PILOT))
+    low = int(buf.drawn.min(initial=PILOT))
     look = min(FIRST_LOOK, PILOT, cap)
     if low < look:
         # The pilot's first half (the local loop's first look), before anything is estimated

@@ -75,6 +75,11 @@ class SampleBuffer:
             raise ValueError("only buffers of the same rectangle can be summed with +")
         return SampleBuffer.empty(self.x0, self.y0, self.width, self.height).add(self).add(other)
 
+    @property
+    def drawn(self) -> np.ndarray:
+        """Samples drawn per pixel (h, w): those added and those dropped as non-finite."""
+        return self.count + self.dropped
+
     def mean(self) -> np.ndarray:
         """The pixel estimates (h, w, 3) float32; pixels without samples are 0."""
         n = np.maximum(self.count, 1)[..., None]

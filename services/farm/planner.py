@@ -34,6 +34,12 @@ from dataclasses import dataclass
 from functools import cached_property
 
 
+def frame_tiles_count(width: int, height: int, tile_size: int) -> int:
+    """Tiles of a frame of ``width`` × ``height`` in tiles of ``tile_size`` (edge tiles cut):
+    ``Plan.tiles_per_frame``, and the merge's, which reads the plan's fields from the job hash."""
+    return -(-width // tile_size) * -(-height // tile_size)
+
+
 @dataclass(frozen=True)
 class Plan:
     width: int
@@ -82,7 +88,7 @@ class Plan:
 
     @property
     def tiles_per_frame(self) -> int:
-        return self.tiles_x * self.tiles_y
+        return frame_tiles_count(self.width, self.height, self.tile_size)
 
     @property
     def n_tiles(self) -> int:

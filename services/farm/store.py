@@ -54,7 +54,7 @@ import redis
 
 from renderer.film.adaptive import PILOT, first_look_bound, tile_summary
 from renderer.film.buffer import SampleBuffer
-from services.farm.planner import Plan
+from services.farm.planner import Plan, frame_tiles_count
 
 STATUSES = ("queued", "running", "done", "failed", "cancelled")
 ACTIVE = ("queued", "running")
@@ -650,8 +650,8 @@ class JobStore:
     def frame_meta(self, meta: JobMeta, frame: int) -> JobMeta:
         """``meta`` as the rule of a tile of ``frame`` sees it (``JobMeta.for_frame``), that
         frame's sums read from the job's ``frame_sums`` hash (one round trip, where the job keeps
-        them: a target job of frames)."""
-        if meta.plan.frames == 1 or not meta.frame_sums:
+        them: a target job of frames; none where ``meta`` holds that frame's already)."""
+        if meta.plan.frames == 1 or not meta.frame_sums or meta.sums_frame == frame:
             return meta
         names = [frame_field(name, frame) for name in FRAME_SUMS]
         values = self.r.hmget(self.k("job", meta.id, "frame_sums"), names)
@@ -1143,17 +1143,16 @@ class JobStore:
                         had = 0
                     else:
                         acc = SampleBuffer.from_bytes(acc_bytes)
-                        had = int((acc.count + acc.dropped).min()) if acc.count.size else 0
+                        had = int(acc.drawn.min()) if acc.count.size else 0
                         acc.add(buf)
                     # (this merge ends the tile's pilot: its every pixel has drawn the pilot's
                     # samples, kept or dropped as non-finite, which before it one had not:
                     # pass_counts' end of the pilot)
                     pilot = min(PILOT, int(spp or 0))
-                    ends_pilot = (bool(acc.count.size)
-                                  and had < pilot <= int((acc.count + acc.dropped).min()))
+                    ends_pilot = bool(acc.count.size) and had < pilot <= int(acc.drawn.min())
                     # Samples per pixel this pass planned: drawn ones, added or dropped as
                     # non-finite.
-                    spp_added = int((buf.count + buf.dropped).max()) if buf.count.size else 0
+                    spp_added = int(buf.drawn.max()) if buf.count.size else 0
                     # tile_samples changes only in this transaction, under the same WATCH: the
                     # tile becomes done in the same EXEC that gives it its last samples, so no
                     # process killed in between can leave a complete tile shown as running.
@@ -1191,9 +1190,9 @@ class JobStore:
                     frame_pixels = int(width or 0) * int(height or 0)
                     sums = [(job_key, "", frame_pixels * n_frames)]
                     if n_frames > 1 and _s(by_frame) == "1":
-                        # (the tile's frame: Plan.frame_of, Plan.tiles_per_frame)
-                        side = int(tile_size or 1)
-                        per_frame = (-(-int(width or 0) // side)) * (-(-int(height or 0) // side))
+                        # (the tile's frame: Plan.frame_of)
+                        per_frame = frame_tiles_count(int(width or 0), int(height or 0),
+                                                      int(tile_size or 1))
                         sums.append((self.k("job", job_id, "frame_sums"),
                                      frame_field("", tile // max(per_frame, 1)), frame_pixels))
                     for name, d in zip(ERROR_SUMS, delta, strict=True):

@@ -60,16 +60,19 @@ def adaptive_counts(store: JobStore, meta: JobMeta, tile: int, target_error: flo
 
 
 def _scope(store: JobStore, meta: JobMeta, tile: int | None
-           ) -> tuple[dict[int, int], dict[int, str]]:
-    """The chain heads (tile: its next pass) and tile states that a call about ``tile`` looks
-    at: in a target job of frames, each frame's tiles reading their frame's sums, that tile's
-    frame's (one frame's passes and states read, not the job's: a job of many frames settles
-    and wakes each frame in time linear in its own tiles); else the job's."""
+           ) -> tuple[JobMeta, dict[int, int], dict[int, str]]:
+    """The job as its rule reads it, and the chain heads (tile: its next pass) and tile states
+    that a call about ``tile`` looks at: in a target job of frames, each frame's tiles reading
+    their frame's sums, that tile's frame's (its sums read once for all its tiles; one frame's
+    passes and states read, not the job's: a job of many frames settles and wakes each frame in
+    time linear in its own tiles); else the job's."""
     if tile is not None and meta.frame_sums:
         frame = meta.plan.frame_of(tile)
         heads = dict(chain_heads(store.unmerged(meta.id, meta.plan, frame)))
-        return heads, store.tile_states(meta.id, list(meta.plan.frame_tiles(frame)))
-    return dict(chain_heads(store.unmerged(meta.id, meta.plan))), store.tile_states(meta.id)
+        return (store.frame_meta(meta, frame), heads,
+                store.tile_states(meta.id, list(meta.plan.frame_tiles(frame))))
+    return (meta, dict(chain_heads(store.unmerged(meta.id, meta.plan))),
+            store.tile_states(meta.id))
 
 
 def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
@@ -87,7 +90,7 @@ def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], Job
     meta = store.get_job(job_id)
     if meta is None or meta.target_error is None or meta.status not in ("queued", "running"):
         return []
-    heads, states = _scope(store, meta, tile)
+    meta, heads, states = _scope(store, meta, tile)
     if any(states.get(t) != "converged" for t in heads):
         return []
     again = _ask_again(store, send, meta, heads)
@@ -145,7 +148,7 @@ def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMe
             or (meta.first_look_bound is None and not meta.frame_sums)):
         return []
     asked = None if tiles is None else set(tiles)
-    heads, states = _scope(store, meta, of_tile)
+    meta, heads, states = _scope(store, meta, of_tile)
     heads = {t: p for t, p in heads.items()
              if states.get(t) == "converged" and (asked is None or t in asked)}
     return _ask_again(store, send, meta, heads)

@@ -250,11 +250,11 @@ def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
                                 expected_error=estimates.get(t)))
         merged[plan.frame_of(t)] += w * h * min(samples.get(t, 0), plan.spp)
     per_frame = plan.width * plan.height * plan.spp
-    bias = meta.expected_bias or float(meta.tiles_final.get("expected_bias") or 0.0)
+    public = to_public(meta, live_tags)
+    bias = public.expected_bias
     frames = [FramePublic(index=f, progress=n / per_frame if per_frame else 1.0,
                           expected_error=_frame_error(plan, f, estimates, bias))
               for f, n in enumerate(merged)]
-    public = to_public(meta, live_tags)
     if public.target_error is not None and meta.status in ACTIVE and plan.frames > 1:
         # A job of frames samples each frame to the target on its own: its progress is each
         # frame's (their estimates above, the bias taken off)
