@@ -845,7 +845,8 @@ def test_a_target_jobs_pixel_that_drops_every_sample_does_not_hold_its_frame_bac
     np.testing.assert_array_equal(adaptive_counts(store, meta, 0, target, 16), 12 - PILOT)
 
 
-def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(store, monkeypatch):
+def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(store, settings,
+                                                                          monkeypatch):
     """A job of two frames (a tile each) with a target error: frame 0 nearly noiseless, frame 1
     noisy. Each frame keeps its own error, first-look and pilot sums (``FRAME_SUMS``,
     ``JobMeta.for_frame``), and each tile's rule reads its frame's: frame 0 stops at the end of
@@ -861,7 +862,7 @@ def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(stor
     import numpy as np
 
     from renderer.film.adaptive import AIM, FIRST_LOOK, PILOT, error_terms, noise_target
-    from services.api.routes.jobs import job_detail
+    from services.api.routes.jobs import job_detail, list_jobs
     from services.farm.store import FRAME_LOOKED, JobSnapshot
     from services.farm.targets import adaptive_counts
 
@@ -934,6 +935,12 @@ def test_a_target_job_of_frames_samples_each_frame_to_the_target_on_its_own(stor
     needs = (max(1.0, e[0] / share) + max(1.0, e[1] / share)) / 2
     assert detail.progress == pytest.approx(1 / needs, rel=1e-9)
     assert detail.progress < min(1.0, share / meta.expected_error)
+    # ... and the job listing (what the dashboard's jobs page polls) says the same
+    records = records_of(settings)
+    records.sync(store.jobs_in_flight(), adopt=True)  # (made by the store: no row yet)
+    listed = list_jobs(store, records, None, 0, 50).data
+    assert [(j.id, j.progress, j.eta_seconds) for j in listed] == \
+        [(job_id, detail.progress, detail.eta_seconds)]
 
     before = [store.frame_meta(meta, f) for f in (0, 1)]
     snap = store.snapshot(job_id)

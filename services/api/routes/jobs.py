@@ -199,8 +199,34 @@ def list_jobs(store: StoreDep, records: RecordsDep,
     live = store.get_jobs([m.id for m in metas])
     tagged = any(m.tags and m.status in ACTIVE for m in live.values())
     live_tags = live_tag_sets(store.workers()) if tagged else None
-    return JobsPublic(data=[to_public(live.get(m.id, m), live_tags) for m in metas], count=total,
-                      offset=offset, limit=limit)
+    data = []
+    for m in metas:
+        meta = live.get(m.id, m)
+        public = to_public(meta, live_tags)
+        if _frames_on_their_own(meta, public):  # as its detail has it: each frame's progress
+            _frames_target_progress(public, meta.plan, store.tile_estimates(meta.id))
+        data.append(public)
+    return JobsPublic(data=data, count=total, offset=offset, limit=limit)
+
+
+def _frames_on_their_own(meta: JobMeta, public: JobPublic) -> bool:
+    """Whether ``meta`` is an active target job of frames, whose frames are each sampled to the
+    target on their own: its progress is theirs, not the pooled noise's of ``to_public``."""
+    return public.target_error is not None and meta.status in ACTIVE and meta.plan.frames > 1
+
+
+def _frames_target_progress(public: JobPublic, plan: Plan,
+                            estimates: dict[int, float]) -> list[float | None]:
+    """Set an active target job of frames' progress and ETA from each frame's expected error
+    (from its tiles' ``estimates``, with ``public``'s bias); returns those errors."""
+    bias = public.expected_bias
+    errors = [_frame_error(plan, f, estimates, bias) for f in range(plan.frames)]
+    if public.target_error is not None:
+        public.progress, public.eta_seconds = _target_progress(
+            [None if e is None else e - bias for e in errors],
+            noise_target(public.target_error, bias), public.samples_merged,
+            public.samples_per_second)
+    return errors
 
 
 def _target_progress(noises: list[float | None], share: float, merged: int,
@@ -251,17 +277,14 @@ def job_detail(meta: JobMeta, states: dict[int, str], samples: dict[int, int],
         merged[plan.frame_of(t)] += w * h * min(samples.get(t, 0), plan.spp)
     per_frame = plan.width * plan.height * plan.spp
     public = to_public(meta, live_tags)
-    bias = public.expected_bias
+    if _frames_on_their_own(meta, public):
+        frame_errors = _frames_target_progress(public, plan, estimates)
+    else:
+        frame_errors = [_frame_error(plan, f, estimates, public.expected_bias)
+                        for f in range(plan.frames)]
     frames = [FramePublic(index=f, progress=n / per_frame if per_frame else 1.0,
-                          expected_error=_frame_error(plan, f, estimates, bias))
+                          expected_error=frame_errors[f])
               for f, n in enumerate(merged)]
-    if public.target_error is not None and meta.status in ACTIVE and plan.frames > 1:
-        # A job of frames samples each frame to the target on its own: its progress is each
-        # frame's (their estimates above, the bias taken off)
-        public.progress, public.eta_seconds = _target_progress(
-            [None if f.expected_error is None else f.expected_error - bias for f in frames],
-            noise_target(public.target_error, bias), meta.samples_merged,
-            public.samples_per_second)
     tile_errors = [f"tile {t}: {e}" for t, e in sorted(errors.items())]
     # A failed tile fails its job with the same words: say it once.
     all_errors = ([meta.error] if meta.error and meta.error not in tile_errors else []) + \
