@@ -95,7 +95,7 @@ def render_buffer(
     pass_spp: int | None = None,
     progress: Callable[[int, int, float], None] | None = None,
     kernel: str = "packet",
-    plan: Callable[[float], None] | None = None,
+    plan: Callable[[float, float], None] | None = None,
     even: bool = False,
 ) -> SampleBuffer:
     """Render a whole frame in passes of ``pass_spp`` samples per pixel.
@@ -104,9 +104,9 @@ def render_buffer(
     samples × pixels), which is what the CLI's progress bar shows. With the scene's
     ``render.target_error`` (the frame's expected relMSE, ``renderer.film.adaptive``) a pilot
     is followed by passes to the pixels whose allocation exceeds what they have, each pixel at
-    most ``spp`` samples; ``plan(mean_spp)`` is told the pilot's allocation; ``even`` makes
-    every pass give every pixel the same count (``sample_to_target``). ``kernel``: see
-    ``render_tile``.
+    most ``spp`` samples; ``plan(mean_spp, error)`` is told the pilot's allocation and the
+    error it expects of it (the samples' noise); ``even`` makes every pass give every pixel the
+    same count (``sample_to_target``). ``kernel``: see ``render_tile``.
     """
     cs = _as_compiled(scene)
     spp = cs.spp if spp is None else spp

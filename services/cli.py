@@ -108,7 +108,7 @@ def cmd_render(args: argparse.Namespace) -> int:
     import numba
     from tqdm import tqdm
 
-    from renderer.film.adaptive import AIM, PILOT, noise_target
+    from renderer.film.adaptive import AIM, PILOT, aim_reached, noise_target
     from renderer.materials.auto import describe_choice
     from renderer.render import render_buffer
     from renderer.scene.compile import CompileError, compile_scene
@@ -159,11 +159,20 @@ def cmd_render(args: argparse.Namespace) -> int:
                 bar.refresh()
             bar.update(done - bar.n)
 
-        def plan(mean_spp: float) -> None:
+        def plan(mean_spp: float, expected: float) -> None:
             # (called only with a target)
             bar.total = max(round(mean_spp * compiled.width * compiled.height), bar.n)
             target = float(compiled.target_error or 0.0)
             bias = compiled.expected_bias
+            if not aim_reached(expected, noise_target(target, bias)):
+                # (spp caps the plan: say what it reaches, not the aim)
+                bar.write(f"target relMSE {target:g}: after the pilot the allocation plans "
+                          f"{mean_spp:.0f} spp a pixel on average, capped at {spp} (--spp or "
+                          f"render.spp), for an expected relMSE of {expected + bias:.3g} by "
+                          "the pilot's estimate: above the target, which more samples a pixel "
+                          "would reach",
+                          file=sys.stderr)
+                return
             aim = (f"{AIM * target:.3g} ({AIM:g} × target)" if bias == 0.0 else
                    f"{AIM * noise_target(target, bias):.3g} from the samples' noise ({AIM:g} × "
                    f"{noise_target(target, bias):.3g}: the target less the bias auto's models "

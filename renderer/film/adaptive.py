@@ -871,10 +871,12 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
     them), until the estimated frame error is within ``STOP_SLACK``
     of AIM × ``target``, no pixel lacks a sample, or every pixel has ``spp``. Sample indices are
     never reused: a pixel that sits out part of a round's index range has a gap, not a repeat.
-    ``plan(mean_spp)`` is told the pilot's allocation; ``progress(done, planned)`` after every
-    pass; ``max_pass`` caps a pass's samples a pixel. ``even``: every round gives every pixel
-    the same count (uniform sampling with the loop's rounds and stop; what the shape of the
-    counts gains is measured against it, ``python -m bench.target_error --even``)."""
+    ``plan(mean_spp, error)`` is told the pilot's allocation and the frame error it expects of it
+    (each pixel's own variance over its planned count: above the aim where ``spp`` caps it), or
+    the first look's where that stops; ``progress(done, planned)`` after every pass;
+    ``max_pass`` caps a pass's samples a pixel. ``even``: every round gives every pixel the same
+    count (uniform sampling with the loop's rounds and stop; what the shape of the counts gains
+    is measured against it, ``python -m bench.target_error --even``)."""
     h, w = shape
     frame = SampleBuffer.empty(0, 0, w, h)
     pilot = min(PILOT, spp)
@@ -890,7 +892,7 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         _, err_sum, err_sq_sum, _ = error_sums(frame)
         if aim_reached(first_look_bound(err_sum, err_sq_sum, pixels), target):
             if plan is not None:
-                plan(float(frame.count.mean()))
+                plan(float(frame.count.mean()), err_sum / max(pixels, 1))
             if progress is not None:
                 total = int(frame.count.sum())
                 progress(total, total)
@@ -908,8 +910,8 @@ def sample_to_target(render_pass, shape: tuple[int, int], target: float, spp: in
         if plan is not None:  # (the first round's, after the pilot: the allocation's total)
             plan_v, plan_cost = ((np.ones(frame.count.shape), None) if even else
                                  shape_estimates(frame))
-            plan(float(allocate(plan_v, aim, frame.count, spp, error_of=v_error,
-                                cost=plan_cost).mean()))
+            planned = allocate(plan_v, aim, frame.count, spp, error_of=v_error, cost=plan_cost)
+            plan(float(planned.mean()), float(_error_terms(v_error, planned).mean()))
             plan = None
         if met:
             break

@@ -207,12 +207,24 @@ def test_target_error_option_sets_and_drops_the_scenes_target(tmp_path, capsys):
     assert 0 < float(line.split()[3]) <= 0.05
     assert 8 <= float(line.split()[6]) < 2048  # (mean spp: past the pilot, far below the cap)
     assert "more reaches the target" not in line
-    # A cap too low for the target: the line says the pixels stopped at it
-    assert main(["render", str(scene), "-o", str(out), "--spp", "8",
+    # A cap too low for the target: the plan says what the cap reaches (not the aim), and the
+    # line of what was reached that the pixels stopped at it
+    assert main(["render", str(scene), "-o", str(out), "--spp", "12",
                  "--target-error", "0.0001", "-q"]) == 0
-    line = next(x for x in capsys.readouterr().err.splitlines() if x.startswith("reached:"))
-    assert line.endswith("; pixels stopped at the most a pixel takes, 8 spp (--spp or "
+    err = capsys.readouterr().err
+    said = next(x for x in err.splitlines() if x.startswith("target relMSE 0.0001:"))
+    assert said.startswith("target relMSE 0.0001: after the pilot the allocation plans 12 spp "
+                           "a pixel on average, capped at 12 (--spp or render.spp), for an "
+                           "expected relMSE of "), said
+    assert said.endswith(" by the pilot's estimate: above the target, which more samples a "
+                         "pixel would reach"), said
+    line = next(x for x in err.splitlines() if x.startswith("reached:"))
+    assert line.endswith("; pixels stopped at the most a pixel takes, 12 spp (--spp or "
                          "render.spp): more reaches the target"), line
+    # (what the plan expected of 12 samples a pixel, from the pilot's 8: what they reached)
+    planned = float(said.split("expected relMSE of ")[1].split()[0])
+    reached = float(line.split()[3])
+    assert 0.8 * reached <= planned <= 1.25 * reached, (planned, reached)
 
     data = json.loads(scene.read_text())
     data["render"].update(spp=16, target_error=0.05)

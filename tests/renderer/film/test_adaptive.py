@@ -585,7 +585,7 @@ def test_even_rounds_render_the_uniform_frame_of_their_count():
     data["film"] = {"width": 24, "height": 16}
     data["render"].update(spp=4096, seed=3, target_error=0.005)
     planned: list[float] = []
-    buf = render_buffer(load_scene(data), even=True, plan=planned.append)
+    buf = render_buffer(load_scene(data), even=True, plan=lambda n, e: planned.append(n))
     n = int(buf.count[0, 0])
     assert n > PILOT and (buf.count == n).all()
     assert len(planned) == 1 and planned[0] >= PILOT  # the even allocation's plan
@@ -1049,14 +1049,16 @@ def test_a_render_with_a_target_meets_it(name):
 
     scene, material = suite(quick=True)[name]
     ref = np.load(ROOT / "tests" / "data" / f"{name}_ref.npy").astype(np.float64)
+    planned: list[tuple[float, float]] = []
     for target in (0.1, 0.03, 0.01):
         data = with_method(scene, material, "volumetric", 8192)
         data["render"]["target_error"] = target
-        planned = []
-        buf = render_buffer(load_scene(data), plan=planned.append)
+        planned.clear()
+        buf = render_buffer(load_scene(data), plan=lambda n, e: planned.append((n, e)))
         img = buf.sum / np.maximum(buf.count, 1)[..., None]
         err = float(np.mean((img - ref) ** 2 / (ref**2 + EPSILON)))
         assert 0.5 * target <= err <= 1.1 * target, (target, err)
         np.testing.assert_allclose(img.mean(), ref.mean(), rtol=0.02)
         assert buf.count.min() >= PILOT and buf.count.max() <= 8192
-        assert len(planned) == 1 and PILOT <= planned[0] <= 8192
+        assert len(planned) == 1 and PILOT <= planned[0][0] <= 8192
+        assert planned[0][1] <= AIM * target * (1 + 1e-9)  # (uncapped: the plan meets the aim)
