@@ -18,10 +18,10 @@ from collections import OrderedDict
 from pathlib import Path
 from typing import Any
 
-from renderer import warm_marker
+from renderer import __version__, warm_marker
 from services.farm.blobs import AssetCache, open_blob_store
 from services.farm.settings import get_settings
-from services.farm.store import JobStore
+from services.farm.store import MERGE_PROTOCOL, JobStore
 
 log = logging.getLogger(__name__)
 
@@ -241,6 +241,9 @@ class WorkerState:
                 "started_at": self.started,
                 "node": NODE,
                 "tags": ",".join(self.settings.worker_tags),
+                # (what its merge keeps, and its release: a farm upgraded worker by worker)
+                "protocol": MERGE_PROTOCOL,
+                "version": __version__,
             }
         self.store.heartbeat(self.worker_id, fields, ttl=3 * self.settings.heartbeat_interval)
 

@@ -166,6 +166,11 @@ class WorkerPublic(BaseModel):
                                                        "unit)")
     tags: list[str] = Field(default_factory=list, description="its node's tags "
                                                               "(LUCENT_WORKER_TAGS)")
+    version: str | None = Field(default=None, description="its Lucent release (None: a worker "
+                                                          "from before workers said)")
+    protocol: int | None = Field(default=None, description=(
+        "what its merge keeps: 2, a target job of frames' per-frame sums; 1, a worker from "
+        "before; None once its heartbeat has expired (docs/farm.md, upgrading a farm)"))
 
 
 class WorkersPublic(BaseModel):

@@ -9,7 +9,7 @@ export function renderWorkers(view) {
   const tbody = h("tbody");
   const table = h("table", { class: "workers cards", id: "workers-table" },
     h("thead", {}, h("tr", {}, h("th", {}, "Worker"), h("th", {}, "Host"), h("th", {}, "Tags"),
-      h("th", {}, "State"),
+      h("th", {}, "Version"), h("th", {}, "State"),
       h("th", {}, "Current tile"), h("th", { class: "num" }, "Tiles done"),
       h("th", { class: "num" }, "Paths/s"), h("th", { class: "num" }, "Last heartbeat"))),
     tbody);
@@ -30,6 +30,9 @@ export function renderWorkers(view) {
     const now = body.server_time ?? Date.now() / 1000;
     const lostAfter = 3 * (body.heartbeat_interval ?? 2);
     const counts = {};
+    // A worker whose merge keeps less than another live one's (a farm upgraded worker by
+    // worker): target jobs of frames submitted while it is live pool their frames' sums
+    const newest = Math.max(1, ...body.data.map((w) => w.protocol ?? 1));
     const rows = body.data.map((w) => {
       const age = w.last_heartbeat ? now - w.last_heartbeat : null;
       // The store says lost once the heartbeat hash expired; the age check catches the rest.
@@ -41,6 +44,15 @@ export function renderWorkers(view) {
         h("td", { "data-label": "Tags", class: "tags" },
           ...(w.tags && w.tags.length ? w.tags.map((t) => h("span", { class: "tag" }, t))
             : ["–"])),
+        h("td", { "data-label": "Version", class: "version" }, w.version || "–",
+          ...(w.protocol !== null && w.protocol < newest
+            ? [" ", h("span", {
+              class: "badge outdated",
+              title: "its merge is older than the newest live worker's: a target job of frames "
+                + "submitted while it is live pools its frames' error sums (docs/farm.md, "
+                + "upgrading a farm)",
+            }, "older merge")]
+            : [])),
         h("td", { "data-label": "State", class: "state" },
           h("span", { class: `badge w-${state}` }, state)),
         h("td", { "data-label": "Current tile" }, state === "lost" ? "–" : currentTile(w.current_task)),

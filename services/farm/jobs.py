@@ -34,11 +34,11 @@ from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
 from services.farm.frames import PatchError, apply_patch
 from services.farm.planner import Plan, chain_heads, default_tile_size
-from services.farm.pools import live_tag_sets, waiting_for
+from services.farm.pools import live_tag_sets, merge_protocol, waiting_for
 from services.farm.queue import enqueue
 from services.farm.records import Records, RecordsUnavailable, Submission
 from services.farm.settings import Settings
-from services.farm.store import JobMeta, JobStore
+from services.farm.store import FRAME_SUMS_PROTOCOL, MERGE_PROTOCOL, JobMeta, JobStore
 
 Loc = list[str | int]
 
@@ -252,11 +252,15 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     prior = records.create(created, submission)
     if prior is not None and submission is not None:
         return _replayed(store, *prior, submission)  # the same request at the same moment
+    # A target job of frames keeps each frame's sums where every live worker's merge does (a
+    # farm upgraded worker by worker: else its frames' sums pool, as an old worker's merge keeps)
+    frame_sums = (plan.frames == 1 or scene.target_error is None
+                  or merge_protocol(store.workers(), MERGE_PROTOCOL) >= FRAME_SUMS_PROTOCOL)
     try:
         meta = store.create_job(job_id, options.name, options.priority, plan, scene.scene_json,
                                 scene.methods, created.created_at, submitter, options.tags,
                                 scene.frames_json, scene.target_error, options.denoise,
-                                scene.expected_bias)
+                                scene.expected_bias, frame_sums)
     except Exception:
         with contextlib.suppress(RecordsUnavailable):
             records.delete(job_id)

@@ -66,6 +66,25 @@ def live_tag_sets(workers: list[dict[str, str]]) -> list[frozenset[str]]:
             for w in workers if w.get("state", "lost") != "lost"]
 
 
+def merge_protocol(workers: list[dict[str, str]], own: int) -> int:
+    """The merge protocol every live worker keeps (``services.farm.store.MERGE_PROTOCOL``; a
+    heartbeat without one is a worker from before protocols: 1); ``own`` where none is live (the
+    workers that come are this code's, or are refused nothing: see docs/farm.md)."""
+    return min((worker_protocol(w) or 1 for w in workers if w.get("state", "lost") != "lost"),
+               default=own)
+
+
+def worker_protocol(worker: dict[str, str]) -> int | None:
+    """A worker's merge protocol from its heartbeat: 1 where it gives none (from before
+    protocols), None where its heartbeat has expired (nothing known of it)."""
+    if "pid" not in worker:
+        return None
+    try:
+        return int(worker.get("protocol") or 1)
+    except ValueError:
+        return 1
+
+
 def waiting_for(job_tags: Iterable[str], live: list[frozenset[str]]) -> str | None:
     """What a queued or running job requiring ``job_tags`` waits for, when no live worker has
     them all; None when one does (or it requires none)."""

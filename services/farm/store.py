@@ -263,6 +263,13 @@ LOOK_SUMS = ("look_sum", "look_sq_sum", "look_pixels")
 # samples (``renderer.film.adaptive.PILOT``, at most render.spp; ``JobMeta.pilot_error``): Σ e_p
 # of the tile's error terms then and its pixels
 PILOT_SUMS = ("pilot_sum", "pilot_pixels")
+# What this code's merge keeps, which each worker's heartbeat gives as ``protocol`` (a worker
+# from before gives none: 1): 2, a target job of frames' per-frame sums (``FRAME_SUMS``). A farm
+# upgraded worker by worker has old workers merging beside new ones; a job is stored with
+# per-frame sums only when every live worker's merge keeps them (``services.farm.pools.
+# merge_protocol``), else it pools its frames' sums as every worker's merge can
+MERGE_PROTOCOL = 2
+FRAME_SUMS_PROTOCOL = 2
 # A target job of frames keeps each of these sums for each frame too, as "{name}:{frame}" in its
 # ``frame_sums`` hash (its job hash's ``frame_sums`` set; ``JobStore.frame_meta``): each frame
 # is sampled to the target on its own, as its own render would be, not on the frames' mean error
@@ -613,10 +620,12 @@ class JobStore:
                    created_at: float | None = None, submitter: str | None = None,
                    tags: tuple[str, ...] = (), frames_json: bytes | None = None,
                    target_error: float | None = None, denoise: bool = False,
-                   expected_bias: float = 0.0) -> JobMeta:
+                   expected_bias: float = 0.0, frame_sums: bool = True) -> JobMeta:
         """Store a job, queued; ``frames_json``: the patches of a job of ``plan.frames``
         frames; ``target_error``: the scene's ``render.target_error`` (its merges then keep the
-        tiles' error summaries), ``expected_bias`` the share of it auto's models may take."""
+        tiles' error summaries), ``expected_bias`` the share of it auto's models may take;
+        ``frame_sums``: a target job of frames keeps each frame's sums (``FRAME_SUMS``; False
+        where a live worker's merge would not keep them, ``FRAME_SUMS_PROTOCOL``)."""
         now = time.time() if created_at is None else created_at
         fields: dict[str, Any] = {
             "id": job_id, "name": name, "status": "queued", "priority": priority,
@@ -628,7 +637,8 @@ class JobStore:
             "expected_bias": expected_bias,
             "denoise": "1" if denoise else "",
             # (a target job of frames: each frame's own sums, FRAME_SUMS)
-            "frame_sums": "1" if plan.frames > 1 and target_error is not None else "",
+            "frame_sums": ("1" if frame_sums and plan.frames > 1 and target_error is not None
+                           else ""),
         }
         pipe = self.r.pipeline()
         pipe.hset(self.job_key(job_id), mapping=fields)

@@ -188,6 +188,14 @@ def test_workers_page_lists_the_workers_and_shows_a_lost_one(dashboard, page, ar
     assert live.count() >= 2
     first = live.first.inner_text()
     assert "s ago" in first
+    # each its release, none marked older than another
+    from renderer import __version__
+    from services.farm.store import MERGE_PROTOCOL
+
+    assert live.first.locator("td.version").inner_text() == __version__
+    assert page.locator("#workers-table .outdated").count() == 0
+    assert {w.get("protocol") for w in store.workers() if w.get("state") != "lost"} == \
+        {str(MERGE_PROTOCOL)}  # (each worker process's heartbeat)
     # A worker that beats once and falls silent is shown as lost within 3 intervals.
     store.heartbeat("ghost@nowhere", {"host": "nowhere", "pid": 1, "state": "busy",
                                       "current_task": "", "tiles_done": 7,
@@ -197,6 +205,9 @@ def test_workers_page_lists_the_workers_and_shows_a_lost_one(dashboard, page, ar
     ghost.wait_for()
     # its node's pool tags, one badge each
     assert ghost.locator("td.tags .tag").all_inner_texts() == ["bigmem", "gpu"]
+    # a heartbeat without a release or protocol: a worker from before, its merge older than
+    # the farm's others
+    assert ghost.locator("td.version").inner_text() == "– older merge"
     t0 = time.monotonic()
     page.wait_for_selector("tr[data-id='ghost@nowhere'][data-state='lost']", timeout=10_000)
     assert time.monotonic() - t0 < 5.0

@@ -6,6 +6,7 @@ from __future__ import annotations
 import copy
 import io
 import json
+import time
 
 import numpy as np
 import pytest
@@ -271,3 +272,44 @@ def test_a_target_jobs_bias_is_its_frames_largest():
                                                                                      rel=1e-12)
     scene["render"].pop("target_error")
     assert check_scene(scene, Limits(), frames=frames).expected_bias == 0.0
+
+
+def test_a_target_job_of_frames_keeps_each_frames_sums_only_where_every_live_worker_does(
+        client, store, tiny_scene):
+    """A farm upgraded worker by worker: a worker from before merge protocols (its heartbeat
+    gives none) merges a target job of frames without the frames' own sums, and a job stored
+    with them would wait for sums it never writes. So a target job of frames keeps each frame's
+    sums where no live worker's merge is older than ``FRAME_SUMS_PROTOCOL`` (no worker live:
+    those to come are this code's), and pools them, as every worker's merge keeps, while one is
+    live; /api/workers says each worker's protocol and release. Seen failing with the sums kept
+    whatever the workers."""
+    from services.farm.store import FRAME_SUMS_PROTOCOL, MERGE_PROTOCOL
+
+    scene = copy.deepcopy(tiny_scene)
+    scene["render"]["target_error"] = 0.05
+    frames = [[], [{"op": "add", "path": "/render/seed", "value": 2}]]
+
+    def stored(body: dict) -> bool:
+        r = client.post("/api/jobs", json=body)
+        assert r.status_code in (201, 202), r.text
+        return store.get_job(r.json()["id"]).frame_sums
+
+    assert stored({"scene": scene, "frames": frames})
+    store.heartbeat("new@a", {"host": "a", "pid": 1, "state": "idle",
+                              "protocol": MERGE_PROTOCOL, "version": "0.1.0"}, ttl=60)
+    assert MERGE_PROTOCOL >= FRAME_SUMS_PROTOCOL and stored({"scene": scene, "frames": frames})
+    store.heartbeat("old@b", {"host": "b", "pid": 2, "state": "idle"}, ttl=60)
+    assert not stored({"scene": scene, "frames": frames})
+    workers = {w["id"]: w for w in client.get("/api/workers").json()["data"]}
+    assert (workers["new@a"]["protocol"], workers["new@a"]["version"]) == (MERGE_PROTOCOL,
+                                                                           "0.1.0")
+    assert (workers["old@b"]["protocol"], workers["old@b"]["version"]) == (1, None)
+    # (a job of one frame, or without a target, keeps no frames' sums either way)
+    assert not stored({"scene": scene})
+    store.remove_worker("old@b")
+    assert stored({"scene": scene, "frames": frames})
+    # an old worker whose heartbeat expired is no longer live: it merges nothing
+    store.r.zadd(store.k("workers"), {"gone@c": time.time() - 30})
+    assert stored({"scene": scene, "frames": frames})
+    assert next(w for w in client.get("/api/workers").json()["data"]
+                if w["id"] == "gone@c")["protocol"] is None
