@@ -239,3 +239,15 @@ def test_trace_path_reads_as_a_loop():
     assert fn.end_lineno - fn.lineno + 1 < 150
     subsurface = {p.stem for p in (ROOT / "renderer" / "integrators" / "subsurface").glob("*.py")}
     assert {"volumetric", "single_scatter", "diffuse_entry", "backlight", "diffusion"} <= subsurface
+
+
+def test_the_release_is_named_once():
+    """The release a worker's heartbeat gives (``renderer.__version__``, docs/farm.md, upgrading
+    a farm) is the package's (pyproject.toml's ``version``): a release that bumped one and not
+    the other would show workers of two releases as one."""
+    import tomllib
+
+    import renderer
+
+    project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
+    assert project["version"] == renderer.__version__
