@@ -251,3 +251,7 @@ def test_the_release_is_named_once():
 
     project = tomllib.loads((ROOT / "pyproject.toml").read_text())["project"]
     assert project["version"] == renderer.__version__
+    # (nowhere else: the API's OpenAPI document and the workers' heartbeats read it)
+    named = [f for d in ("renderer", "worker", "services") for f in (ROOT / d).rglob("*.py")
+             if f'"{project["version"]}"' in f.read_text()]
+    assert named == [ROOT / "renderer" / "__init__.py"], named

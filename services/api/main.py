@@ -10,6 +10,7 @@ from fastapi.exceptions import RequestValidationError
 from fastapi.middleware.cors import CORSMiddleware
 from fastapi.staticfiles import StaticFiles
 
+from renderer import __version__
 from services.api.deps import require_token
 from services.api.guards import (
     BodyLimit,
@@ -60,7 +61,7 @@ def create_app(settings: Settings | None = None) -> FastAPI:
             records.close()
             store.close()
 
-    app = FastAPI(title="Lucent", version="0.1.0", lifespan=lifespan,
+    app = FastAPI(title="Lucent", version=__version__, lifespan=lifespan,
                   description="A render farm for physically based images of translucent things.")
     app.state.settings = settings
     app.state.intake = Intake(settings.intake_inline_bytes, settings.intake_processes,
