@@ -244,6 +244,8 @@ class WorkerState:
                 # (what its merge keeps, and its release: a farm upgraded worker by worker)
                 "protocol": MERGE_PROTOCOL,
                 "version": __version__,
+                # (the service sizes a job's passes for the kernel the live workers render with)
+                "kernel": self.settings.worker_kernel,
             }
         self.store.heartbeat(self.worker_id, fields, ttl=3 * self.settings.heartbeat_interval)
 

@@ -168,6 +168,9 @@ class WorkerPublic(BaseModel):
                                                               "(LUCENT_WORKER_TAGS)")
     version: str | None = Field(default=None, description="its Lucent release (None: a worker "
                                                           "from before workers said)")
+    kernel: str | None = Field(default=None, description="the kernel it renders with "
+                                                         "(LUCENT_WORKER_KERNEL; None: a worker "
+                                                         "from before workers said)")
     protocol: int | None = Field(default=None, description=(
         "what its merge keeps: 2, a target job of frames' per-frame sums; 1, a worker from "
         "before; None once its heartbeat has expired (docs/farm.md, upgrading a farm)"))

@@ -74,6 +74,15 @@ def merge_protocol(workers: list[dict[str, str]], own: int) -> int:
                default=own)
 
 
+def packet_workers(workers: list[dict[str, str]], own: bool) -> bool:
+    """Whether a job's passes are sized for the packet kernel: a live worker renders with it,
+    or no live worker says its kernel (none is live, or those that are come from before their
+    heartbeats said): then ``own``, what the service's ``worker_kernel`` says."""
+    kernels = {w["kernel"] for w in workers
+               if w.get("state", "lost") != "lost" and w.get("kernel")}
+    return "packet" in kernels if kernels else own
+
+
 def worker_protocol(worker: dict[str, str]) -> int | None:
     """A worker's merge protocol from its heartbeat: 1 where it gives none (from before
     protocols), None where its heartbeat has expired (nothing known of it)."""

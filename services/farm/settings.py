@@ -87,8 +87,9 @@ class Settings(BaseSettings):
 
     packet_spp_per_pass: int = Field(default=32, ge=1)
     """The first pass of a job whose scene the packet kernel covers, when the workers render
-    with it (``worker_kernel`` ``packet``, the default; the service reads the same setting, so
-    give the API the workers' ``LUCENT_WORKER_KERNEL``): that kernel traces ~4 times as many
+    with it (``worker_kernel`` ``packet``, the default; the service reads the same setting, and
+    where workers are live and none says it renders with it, ``services.farm.pools.
+    packet_workers``, the scalar defaults stand): that kernel traces ~4 times as many
     paths a second as the scalar kernel (3.7x on the Cornell box), so 4 times the samples keep a
     task as long and the first preview as early as ``default_spp_per_pass`` on the scalar
     kernel. With the growth of 2 a 64-spp job runs 32 + 32 samples a tile (the 8, 16, 40 of the

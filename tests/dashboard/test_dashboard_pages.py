@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import io
 import json
+import os
 import time
 from pathlib import Path
 
@@ -194,8 +195,10 @@ def test_workers_page_lists_the_workers_and_shows_a_lost_one(dashboard, page, ar
 
     assert live.first.locator("td.version").inner_text() == __version__
     assert page.locator("#workers-table .outdated").count() == 0
-    assert {w.get("protocol") for w in store.workers() if w.get("state") != "lost"} == \
-        {str(MERGE_PROTOCOL)}  # (each worker process's heartbeat)
+    # (each worker process's heartbeat: what its merge keeps, the kernel it renders with)
+    assert {(w.get("protocol"), w.get("kernel")) for w in store.workers()
+            if w.get("state") != "lost"} == \
+        {(str(MERGE_PROTOCOL), os.environ.get("LUCENT_WORKER_KERNEL", "packet"))}
     # A worker that beats once and falls silent is shown as lost within 3 intervals.
     store.heartbeat("ghost@nowhere", {"host": "nowhere", "pid": 1, "state": "busy",
                                       "current_task": "", "tiles_done": 7,

@@ -281,11 +281,12 @@ def test_a_submission_gets_growing_passes_by_default(client, tiny_scene):
     assert "smaller than the first" in r.json()["detail"][0]["msg"]
 
 
-def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings, tiny_scene,
-                                                                       monkeypatch):
+def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings, store,
+                                                                       tiny_scene, monkeypatch):
     """On workers of the packet kernel (the default) a scene it covers gets the packet defaults
     (32 samples first, 256 at most: 32 + 32 for 64 spp); a scene it does not cover, or a farm
-    of scalar workers, the scalar defaults (8, 16, 40); a job's own sizes stand."""
+    of scalar workers, the scalar defaults (8, 16, 40); a job's own sizes stand. Seen failing
+    with the live workers' kernels unread."""
     tiny_scene["render"]["spp"] = 64
     spheres = copy.deepcopy(tiny_scene)
     spheres["objects"].append({"type": "sphere", "center": [0.0, -0.7, 0.0], "radius": 0.2,
@@ -304,6 +305,21 @@ def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings
         assert passes(client, mirror) == (8, 64, 3, 40)
         assert passes(client, tiny_scene, spp_per_pass=8) == (8, 256, 3, 40)
         assert passes(client, tiny_scene, spp_per_pass=8, max_spp_per_pass=8) == (8, 8, 8, 8)
+        # the live workers' kernels decide where they say them: scalar nodes behind a service
+        # left at the default get the scalar defaults; a node of the packet kernel among them,
+        # the packet ones (a worker from before, which says none, leaves the service's own)
+        beat = {"host": "h", "pid": 1, "state": "idle"}
+        store.heartbeat("old@h", beat, ttl=60)
+        assert passes(client, tiny_scene) == (32, 256, 2, 32)
+        store.heartbeat("scalar@h", {**beat, "kernel": "scalar"}, ttl=60)
+        assert passes(client, tiny_scene) == (8, 64, 3, 40)
+        assert passes(client, tiny_scene, spp_per_pass=8) == (8, 64, 3, 40)
+        assert {w["id"]: w["kernel"] for w in client.get("/api/workers").json()["data"]} == \
+            {"old@h": None, "scalar@h": "scalar"}
+        store.heartbeat("packet@h", {**beat, "kernel": "packet"}, ttl=60)
+        assert passes(client, tiny_scene) == (32, 256, 2, 32)
+        for w in ("old@h", "scalar@h", "packet@h"):
+            store.remove_worker(w)
     # a farm of scalar workers does not ask whether the packet kernel covers the scene
     import services.farm.jobs as farm_jobs
 

@@ -17,7 +17,7 @@ router = APIRouter(prefix="/workers", tags=["workers"])
 def list_workers(store: StoreDep, settings: SettingsDep):
     """Each worker process: host, state (``idle``, ``busy``, ``starting``; ``lost`` once its
     heartbeat has expired), current task, passes done, paths/s, last heartbeat, its node and the
-    node's tags, its Lucent release and merge protocol."""
+    node's tags, its Lucent release, kernel and merge protocol."""
     out = []
     for w in store.workers():
         out.append(WorkerPublic(
@@ -27,7 +27,8 @@ def list_workers(store: StoreDep, settings: SettingsDep):
             paths_per_second=float(w.get("paths_per_second", 0.0)),
             last_heartbeat=float(w["last_heartbeat"]) if w.get("last_heartbeat") else None,
             node=w.get("node") or None, tags=[t for t in w.get("tags", "").split(",") if t],
-            version=w.get("version") or None, protocol=worker_protocol(w),
+            version=w.get("version") or None, kernel=w.get("kernel") or None,
+            protocol=worker_protocol(w),
         ))
     return WorkersPublic(data=out, count=len(out), server_time=time.time(),
                          heartbeat_interval=settings.heartbeat_interval)
