@@ -34,7 +34,13 @@ from services.farm.blobs import asset_reader, open_blob_store
 from services.farm.cost import check_cost
 from services.farm.frames import PatchError, apply_patch
 from services.farm.planner import Plan, chain_heads, default_tile_size
-from services.farm.pools import live_tag_sets, merge_protocol, packet_workers, waiting_for
+from services.farm.pools import (
+    eligible,
+    live_tag_sets,
+    merge_protocol,
+    packet_workers,
+    waiting_for,
+)
 from services.farm.queue import enqueue
 from services.farm.records import Records, RecordsUnavailable, Submission
 from services.farm.settings import Settings
@@ -202,8 +208,10 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     # a farm of packet workers) are as many times larger as that kernel is faster: a task as
     # long, its fixed cost as small a share; where no live worker renders with it (scalar nodes
     # behind a service left at the default), the scalar kernel's
-    # (the live workers' heartbeats, read where they decide something: here and for the sums)
-    workers = store.workers() if scene.packet or scene.target_error is not None else []
+    # (the heartbeats of the live workers that take the job, read where they decide something:
+    # here and for the frames' sums)
+    workers = (eligible(store.workers(), options.tags)
+               if scene.packet or scene.target_error is not None else [])
     packet = scene.packet and packet_workers(workers, True)
     first = min(options.spp_per_pass or (settings.packet_spp_per_pass if packet
                                          else settings.default_spp_per_pass), scene.spp)
@@ -255,8 +263,9 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     prior = records.create(created, submission)
     if prior is not None and submission is not None:
         return _replayed(store, *prior, submission)  # the same request at the same moment
-    # A target job of frames keeps each frame's sums where every live worker's merge does (a
-    # farm upgraded worker by worker: else its frames' sums pool, as an old worker's merge keeps)
+    # A target job of frames keeps each frame's sums where the merge of every live worker that
+    # takes it does (a farm upgraded worker by worker: else its frames' sums pool, as an old
+    # worker's merge keeps)
     frame_sums = (plan.frames == 1 or scene.target_error is None
                   or merge_protocol(workers, MERGE_PROTOCOL) >= FRAME_SUMS_PROTOCOL)
     try:

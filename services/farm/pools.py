@@ -66,20 +66,27 @@ def live_tag_sets(workers: list[dict[str, str]]) -> list[frozenset[str]]:
             for w in workers if w.get("state", "lost") != "lost"]
 
 
+def eligible(workers: list[dict[str, str]], job_tags: Iterable[str]) -> list[dict[str, str]]:
+    """The live workers (``JobStore.workers``' heartbeats) that take a job requiring
+    ``job_tags``: those whose node has them all."""
+    return [w for w in workers if w.get("state", "lost") != "lost"
+            and has_tags((t for t in w.get("tags", "").split(",") if t), job_tags)]
+
+
 def merge_protocol(workers: list[dict[str, str]], own: int) -> int:
-    """The merge protocol every live worker keeps (``services.farm.store.MERGE_PROTOCOL``; a
-    heartbeat without one is a worker from before protocols: 1); ``own`` where none is live (the
-    workers that come are this code's, or are refused nothing: see docs/farm.md)."""
-    return min((worker_protocol(w) or 1 for w in workers if w.get("state", "lost") != "lost"),
-               default=own)
+    """The merge protocol every one of ``workers`` (``eligible``'s) keeps
+    (``services.farm.store.MERGE_PROTOCOL``; a heartbeat without one is a worker from before
+    protocols: 1); ``own`` where there are none (the workers that come are this code's, or are
+    refused nothing: see docs/farm.md)."""
+    return min((worker_protocol(w) or 1 for w in workers), default=own)
 
 
 def packet_workers(workers: list[dict[str, str]], own: bool) -> bool:
-    """Whether a job's passes are sized for the packet kernel: a live worker renders with it,
-    or no live worker says its kernel (none is live, or those that are come from before their
-    heartbeats said): then ``own``, what the service's ``worker_kernel`` says."""
-    kernels = {w["kernel"] for w in workers
-               if w.get("state", "lost") != "lost" and w.get("kernel")}
+    """Whether a job's passes are sized for the packet kernel: one of ``workers``
+    (``eligible``'s) renders with it, or none of them says its kernel (there are none, or they
+    come from before their heartbeats said): then ``own``, what the service's
+    ``worker_kernel`` says."""
+    kernels = {w["kernel"] for w in workers if w.get("kernel")}
     return "packet" in kernels if kernels else own
 
 

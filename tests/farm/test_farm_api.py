@@ -318,6 +318,10 @@ def test_a_scene_the_packet_kernel_covers_gets_passes_four_times_larger(settings
             {"old@h": None, "scalar@h": "scalar"}
         store.heartbeat("packet@h", {**beat, "kernel": "packet"}, ttl=60)
         assert passes(client, tiny_scene) == (32, 256, 2, 32)
+        # ... of the workers that take the job: only a node with its tags
+        store.heartbeat("scalar@h", {**beat, "kernel": "scalar", "tags": "slow"}, ttl=60)
+        assert passes(client, tiny_scene, tags=["slow"]) == (8, 64, 3, 40)
+        assert passes(client, tiny_scene) == (32, 256, 2, 32)
         for w in ("old@h", "scalar@h", "packet@h"):
             store.remove_worker(w)
     # a farm of scalar workers does not ask whether the packet kernel covers the scene

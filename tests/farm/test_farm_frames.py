@@ -300,6 +300,8 @@ def test_a_target_job_of_frames_keeps_each_frames_sums_only_where_every_live_wor
     assert MERGE_PROTOCOL >= FRAME_SUMS_PROTOCOL and stored({"scene": scene, "frames": frames})
     store.heartbeat("old@b", {"host": "b", "pid": 2, "state": "idle"}, ttl=60)
     assert not stored({"scene": scene, "frames": frames})
+    # (only the workers that take the job count: the old one has not its tags)
+    assert stored({"scene": scene, "frames": frames, "tags": ["bigmem"]})
     workers = {w["id"]: w for w in client.get("/api/workers").json()["data"]}
     assert (workers["new@a"]["protocol"], workers["new@a"]["version"]) == (MERGE_PROTOCOL,
                                                                            "0.1.0")
