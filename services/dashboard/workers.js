@@ -9,7 +9,7 @@ export function renderWorkers(view) {
   const tbody = h("tbody");
   const table = h("table", { class: "workers cards", id: "workers-table" },
     h("thead", {}, h("tr", {}, h("th", {}, "Worker"), h("th", {}, "Host"), h("th", {}, "Tags"),
-      h("th", {}, "Version"), h("th", {}, "State"),
+      h("th", {}, "Version"), h("th", {}, "Kernel"), h("th", {}, "State"),
       h("th", {}, "Current tile"), h("th", { class: "num" }, "Tiles done"),
       h("th", { class: "num" }, "Paths/s"), h("th", { class: "num" }, "Last heartbeat"))),
     tbody);
@@ -53,6 +53,7 @@ export function renderWorkers(view) {
                 + "upgrading a farm)",
             }, "older merge")]
             : [])),
+        h("td", { "data-label": "Kernel", class: "kernel" }, w.kernel || "–"),
         h("td", { "data-label": "State", class: "state" },
           h("span", { class: `badge w-${state}` }, state)),
         h("td", { "data-label": "Current tile" }, state === "lost" ? "–" : currentTile(w.current_task)),

@@ -194,6 +194,8 @@ def test_workers_page_lists_the_workers_and_shows_a_lost_one(dashboard, page, ar
     from services.farm.store import MERGE_PROTOCOL
 
     assert live.first.locator("td.version").inner_text() == __version__
+    assert live.first.locator("td.kernel").inner_text() == \
+        os.environ.get("LUCENT_WORKER_KERNEL", "packet")
     assert page.locator("#workers-table .outdated").count() == 0
     # (each worker process's heartbeat: what its merge keeps, the kernel it renders with)
     assert {(w.get("protocol"), w.get("kernel")) for w in store.workers()
@@ -211,6 +213,7 @@ def test_workers_page_lists_the_workers_and_shows_a_lost_one(dashboard, page, ar
     # a heartbeat without a release or protocol: a worker from before, its merge older than
     # the farm's others
     assert ghost.locator("td.version").inner_text() == "– older merge"
+    assert ghost.locator("td.kernel").inner_text() == "–"
     t0 = time.monotonic()
     page.wait_for_selector("tr[data-id='ghost@nowhere'][data-state='lost']", timeout=10_000)
     assert time.monotonic() - t0 < 5.0
