@@ -43,7 +43,12 @@ from celery import Celery
 from renderer.film.buffer import SampleBuffer
 from services.farm.lost_workers import requeue_lost
 from services.farm.planner import chain_heads
-from services.farm.queue import continue_chain, enqueue, waiting_ahead
+from services.farm.queue import (
+    continue_chain,
+    enqueue,
+    pool_frames_beside_old_workers,
+    waiting_ahead,
+)
 from services.farm.store import FRAME_LOOKED, MERGED_LAST, JobStore
 
 log = logging.getLogger(__name__)
@@ -153,6 +158,8 @@ def sweep(store: JobStore, stall: StallRule | None = None) -> int:
             log.exception("cannot merge %s", key)
     if stall is not None:
         requeue_lost(store, stall.celery)  # passes of workers whose heartbeat expired
+        # (a worker whose merge keeps no frames' sums, beside target jobs of frames that do)
+        pool_frames_beside_old_workers(store, stall.celery)
     for job_id in store.active_job_ids():
         if not store.finish_if_complete(job_id) and stall is not None:
             requeue_stalled(store, stall, job_id)

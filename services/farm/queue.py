@@ -4,14 +4,17 @@ tracer (the API process stays light)."""
 from __future__ import annotations
 
 import contextlib
+import logging
 
 from celery import Celery
 
 from services.farm.planner import celery_priority
-from services.farm.pools import queue_for
+from services.farm.pools import eligible, queue_for, worker_protocol
 from services.farm.settings import Settings
-from services.farm.store import ACTIVE, JobMeta, JobStore
+from services.farm.store import ACTIVE, FRAME_SUMS_PROTOCOL, JobMeta, JobStore
 from services.farm.targets import settle_converged, wake_converged
+
+log = logging.getLogger(__name__)
 
 TASK = "worker.tasks.render_pass"
 # Messages sent ahead of the rest of a job's (``enqueue``)
@@ -64,6 +67,36 @@ def waiting_ahead(app: Celery, store: JobStore, priority: int, tags: tuple[str, 
     sep = app.conf.broker_transport_options.get("sep", ":")
     return store.broker_messages([queue if level == 0 else f"{queue}{sep}{level}"
                                   for level in range(celery_priority(priority) + 1)])
+
+
+def pool_frames_beside_old_workers(store: JobStore, celery: Celery) -> list[str]:
+    """Where a live worker's merge keeps no frames' sums (its heartbeat's protocol below
+    ``FRAME_SUMS_PROTOCOL``: a farm upgraded worker by worker, an old worker that joined after
+    the job was stored), each active target job of frames it takes pools them from now on
+    (``JobStore.pool_frame_sums``), as the sums of the job that every merge keeps, and its
+    converged tiles are asked again on those (``targets.wake_converged``, job-wide). Else its
+    merges would leave its frames' sums short, and a frame whose first look or pilot never
+    completed would end at the pilot. The sweeper's, each sweep; returns the jobs pooled."""
+    old = [w for w in store.workers()
+           if w.get("state", "lost") != "lost"
+           and (worker_protocol(w) or 1) < FRAME_SUMS_PROTOCOL]
+    if not old:
+        return []
+    pooled = []
+    for meta in store.get_jobs(store.active_job_ids()).values():
+        takers = eligible(old, meta.tags) if meta.frame_sums else []
+        if not takers or not store.pool_frame_sums(meta.id):
+            continue
+
+        def send(todo: list[tuple[int, int]], job: JobMeta) -> None:
+            enqueue(celery, job.id, todo, job.priority, job.tags)
+
+        log.warning("job %s: worker %s merges without the frames' own sums (protocol %s): the "
+                    "job pools them from now on", meta.id, takers[0].get("id"),
+                    worker_protocol(takers[0]))
+        wake_converged(store, send, meta.id)
+        pooled.append(meta.id)
+    return pooled
 
 
 def continue_chain(store: JobStore, celery: Celery, job_id: str, tile: int,

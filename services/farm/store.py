@@ -657,6 +657,29 @@ class JobStore:
         h = self.r.hgetall(self.job_key(job_id))
         return JobMeta.from_hash(h) if h else None
 
+    def pool_frame_sums(self, job_id: str) -> bool:
+        """A target job of frames that kept each frame's sums pools them from now on (its job
+        hash's ``frame_sums`` cleared, their hash deleted): a worker whose merge does not keep
+        them takes its passes (``services.farm.queue.pool_frames_beside_old_workers``). A merge
+        under way that read the mark before may still add its change to the frames' hash:
+        nothing reads it any more, and it is deleted with the job (``tile_keys``). True if this
+        call changed the mark."""
+        key = self.job_key(job_id)
+        with self.r.pipeline() as pipe:
+            while True:
+                try:
+                    pipe.watch(key)
+                    if pipe.hget(key, "frame_sums") != b"1":
+                        pipe.unwatch()
+                        return False
+                    pipe.multi()
+                    pipe.hset(key, "frame_sums", "")
+                    pipe.delete(self.k("job", job_id, "frame_sums"))
+                    pipe.execute()
+                    return True
+                except redis.WatchError:
+                    continue
+
     def frame_meta(self, meta: JobMeta, frame: int) -> JobMeta:
         """``meta`` as the rule of a tile of ``frame`` sees it (``JobMeta.for_frame``), that
         frame's sums read from the job's ``frame_sums`` hash (one round trip, where the job keeps

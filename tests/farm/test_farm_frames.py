@@ -275,7 +275,7 @@ def test_a_target_jobs_bias_is_its_frames_largest():
 
 
 def test_a_target_job_of_frames_keeps_each_frames_sums_only_where_every_live_worker_does(
-        client, store, tiny_scene):
+        client, store, tiny_scene, wait_until):
     """A farm upgraded worker by worker: a worker from before merge protocols (its heartbeat
     gives none) merges a target job of frames without the frames' own sums, and a job stored
     with them would wait for sums it never writes. So a target job of frames keeps each frame's
@@ -315,3 +315,52 @@ def test_a_target_job_of_frames_keeps_each_frames_sums_only_where_every_live_wor
     assert stored({"scene": scene, "frames": frames})
     assert next(w for w in client.get("/api/workers").json()["data"]
                 if w["id"] == "gone@c")["protocol"] is None
+    # An old worker that joins after such a job was stored: the API's sweeper pools its sums
+    # (pool_frames_beside_old_workers, below)
+    r = client.post("/api/jobs", json={"scene": scene, "frames": frames})
+    assert store.get_job(r.json()["id"]).frame_sums
+    store.heartbeat("old@b", {"host": "b", "pid": 2, "state": "idle"}, ttl=60)
+    wait_until(lambda: not store.get_job(r.json()["id"]).frame_sums, 10.0, "the sums pooled")
+
+
+def test_an_old_worker_that_joins_a_target_job_of_frames_makes_it_pool_its_sums(
+        store, monkeypatch):
+    """A target job of frames stored with each frame's sums, then a worker from before merge
+    protocols joins: its merges would leave the frames' sums short (each merge adds a tile's
+    change to them), so the sweeper's ``pool_frames_beside_old_workers`` makes the job pool
+    them (the job's own sums, which every merge keeps) and asks its converged tiles again on
+    those, job-wide. Not a job that worker does not take (its tags), nor one pooled already;
+    a merge after it keeps no frames' sums. Seen failing with the job left as it was."""
+    import numpy as np
+
+    from renderer.film.buffer import SampleBuffer
+    from services.farm import queue
+
+    plan = Plan(16, 16, 64, 16, 8, 0, 2)  # 2 frames of one 16x16 tile
+    jobs = {name: f"{i:032x}" for i, name in enumerate(("plain", "gpu", "untargeted"), 1)}
+    store.create_job(jobs["plain"], "", 0, plan, b"{}", {}, time.time(), target_error=0.05)
+    store.create_job(jobs["gpu"], "", 0, plan, b"{}", {}, time.time(), tags=("gpu",),
+                     target_error=0.05)
+    store.create_job(jobs["untargeted"], "", 0, plan, b"{}", {}, time.time())
+    woken: list[str] = []
+    monkeypatch.setattr(queue, "wake_converged",
+                        lambda st, send, job_id, **kw: woken.append(job_id) or [])
+    store.heartbeat("new@a", {"host": "a", "pid": 1, "state": "idle", "protocol": 2}, ttl=60)
+    assert queue.pool_frames_beside_old_workers(store, None) == []
+    store.heartbeat("old@b", {"host": "b", "pid": 2, "state": "idle"}, ttl=60)
+    assert queue.pool_frames_beside_old_workers(store, None) == [jobs["plain"]]
+    assert woken == [jobs["plain"]]
+    assert not store.get_job(jobs["plain"]).frame_sums
+    assert store.get_job(jobs["gpu"]).frame_sums  # (the old worker has not its tag)
+    assert queue.pool_frames_beside_old_workers(store, None) == []  # (once)
+    # a merge after it keeps the job's sums, not the frames'
+    buf = SampleBuffer.empty(*plan.tile_rect(1))
+    x = np.random.default_rng(5).exponential(1.0, (4, 16, 16, 3))
+    buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 4
+    store.put_pass(jobs["plain"], 1, 0, buf.to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(jobs["plain"], 1, 0)
+    assert not store.r.exists(store.k("job", jobs["plain"], "frame_sums"))
+    assert store.get_job(jobs["plain"]).look_pixels == 256
+    store.put_pass(jobs["gpu"], 1, 0, buf.to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(jobs["gpu"], 1, 0)
+    assert store.r.exists(store.k("job", jobs["gpu"], "frame_sums"))
