@@ -197,6 +197,15 @@ redis.call('HSET', KEYS[3], ARGV[1], 'done')
 return n
 """
 
+# A target job of frames pools its frames' sums from now on (KEYS[1] the job hash, KEYS[2] its
+# frames' sums): 1 if it kept them until now, else 0 (``JobStore.pool_frame_sums``)
+_POOL_FRAME_SUMS = """
+if redis.call('HGET', KEYS[1], 'frame_sums') ~= '1' then return 0 end
+redis.call('HSET', KEYS[1], 'frame_sums', '')
+redis.call('DEL', KEYS[2])
+return 1
+"""
+
 # What a merge reads, under its WATCH, in one round trip (KEYS: the merged set, the pass buffer,
 # the job hash, the tile's accumulation, tile_samples, tile_state, tile_err, the pending set;
 # ARGV: the pass's member of the merged set, the tile, '1' when the caller has the pass's bytes,
@@ -664,21 +673,8 @@ class JobStore:
         under way that read the mark before may still add its change to the frames' hash:
         nothing reads it any more, and it is deleted with the job (``tile_keys``). True if this
         call changed the mark."""
-        key = self.job_key(job_id)
-        with self.r.pipeline() as pipe:
-            while True:
-                try:
-                    pipe.watch(key)
-                    if pipe.hget(key, "frame_sums") != b"1":
-                        pipe.unwatch()
-                        return False
-                    pipe.multi()
-                    pipe.hset(key, "frame_sums", "")
-                    pipe.delete(self.k("job", job_id, "frame_sums"))
-                    pipe.execute()
-                    return True
-                except redis.WatchError:
-                    continue
+        return bool(self.r.eval(_POOL_FRAME_SUMS, 2, self.job_key(job_id),
+                                self.k("job", job_id, "frame_sums")))
 
     def frame_meta(self, meta: JobMeta, frame: int) -> JobMeta:
         """``meta`` as the rule of a tile of ``frame`` sees it (``JobMeta.for_frame``), that
