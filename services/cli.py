@@ -416,7 +416,11 @@ def _render_options(args: argparse.Namespace) -> dict:
 
 
 def build_parser() -> argparse.ArgumentParser:
+    from renderer import __version__
+
     parser = argparse.ArgumentParser(prog="lucent", description=__doc__.split("\n\n")[0])
+    # (the release a worker's heartbeat gives: GET /api/workers, the dashboard's Workers page)
+    parser.add_argument("--version", action="version", version=f"lucent {__version__}")
     sub = parser.add_subparsers(dest="command", required=True)
 
     p = sub.add_parser("render", help="render a scene on this machine")

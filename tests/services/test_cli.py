@@ -530,3 +530,14 @@ def test_worker_kernel_reaches_the_node_and_the_settings(monkeypatch):
     monkeypatch.setattr(subprocess, "Popen", lambda cmd, **kw: spawned.update(kw["env"]))
     services.launcher.start_worker("redis://127.0.0.1:1", 1, kernel="wavefront")
     assert spawned["LUCENT_WORKER_KERNEL"] == "wavefront"
+
+
+def test_version_says_the_release_the_workers_heartbeat_gives(capsys):
+    """``lucent --version``: the release (``renderer.__version__``), the one a worker's
+    heartbeat gives and the dashboard's Workers page shows, to match a node against them."""
+    from renderer import __version__
+
+    with pytest.raises(SystemExit) as ended:
+        main(["--version"])
+    assert ended.value.code == 0
+    assert capsys.readouterr().out == f"lucent {__version__}\n"
