@@ -17,6 +17,7 @@ from fastapi.responses import PlainTextResponse
 
 from services.api.deps import RecordsDep, StoreDep
 from services.farm.availability import readiness
+from services.farm.pools import worker_protocol
 from services.farm.records import RecordsUnavailable
 from services.farm.store import STATUSES
 
@@ -47,6 +48,11 @@ def readyz(store: StoreDep, records: RecordsDep,
     return {"status": "ok"}
 
 
+def _label(value: str) -> str:
+    """A Prometheus label value, escaped (a heartbeat's text)."""
+    return value.replace("\\", "\\\\").replace('"', '\\"').replace("\n", "\\n")
+
+
 @metrics_router.get("/metrics", response_class=PlainTextResponse)
 def metrics(store: StoreDep, records: RecordsDep) -> str:
     """Prometheus text format (version 0.0.4)."""
@@ -54,6 +60,9 @@ def metrics(store: StoreDep, records: RecordsDep) -> str:
     by_status = records.count_by_status()
     workers = store.workers()
     live = Counter(w.get("state", "lost") for w in workers)
+    # (a farm upgraded worker by worker: its live workers by release, kernel and merge protocol)
+    releases = Counter((w.get("version") or "", w.get("kernel") or "", worker_protocol(w) or 1)
+                       for w in workers if w.get("state", "lost") != "lost")
     counters = store.metrics()
     lines = [
         "# HELP lucent_jobs Jobs by status.",
@@ -62,6 +71,11 @@ def metrics(store: StoreDep, records: RecordsDep) -> str:
         "# HELP lucent_workers Worker processes by state.",
         "# TYPE lucent_workers gauge",
         *(f'lucent_workers{{state="{s}"}} {n}' for s, n in sorted(live.items())),
+        "# HELP lucent_worker_releases Live worker processes by release, kernel and merge "
+        "protocol (empty: a worker from before its heartbeat said).",
+        "# TYPE lucent_worker_releases gauge",
+        *(f'lucent_worker_releases{{version="{_label(v)}",kernel="{_label(k)}",'
+          f'protocol="{p}"}} {n}' for (v, k, p), n in sorted(releases.items())),
         "# HELP lucent_tasks_done_total Passes rendered.",
         "# TYPE lucent_tasks_done_total counter",
         f"lucent_tasks_done_total {counters.get('tasks_done', 0):g}",
