@@ -70,7 +70,7 @@ def metrics(store: StoreDep, records: RecordsDep) -> str:
         *(f'lucent_jobs{{status="{s}"}} {by_status.get(s, 0)}' for s in STATUSES),
         "# HELP lucent_workers Worker processes by state.",
         "# TYPE lucent_workers gauge",
-        *(f'lucent_workers{{state="{s}"}} {n}' for s, n in sorted(live.items())),
+        *(f'lucent_workers{{state="{_label(s)}"}} {n}' for s, n in sorted(live.items())),
         "# HELP lucent_worker_releases Live worker processes by release, kernel and merge "
         "protocol (empty: a worker from before its heartbeat said).",
         "# TYPE lucent_worker_releases gauge",
