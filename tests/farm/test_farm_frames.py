@@ -310,10 +310,11 @@ def test_a_target_job_of_frames_keeps_each_frames_sums_only_where_every_live_wor
     metrics = client.get("/metrics").text
     assert 'lucent_worker_releases{version="0.1.0",kernel="",protocol="2"} 1' in metrics
     assert 'lucent_worker_releases{version="",kernel="",protocol="1"} 1' in metrics
-    store.heartbeat("odd@c", {"host": "c", "pid": 3, "state": "idle", "protocol": 2,
+    store.heartbeat("odd@c", {"host": "c", "pid": 3, "state": 'id"le', "protocol": 2,
                               "version": 'x"y\\z\nw'}, ttl=60)
-    assert ('lucent_worker_releases{version="x\\"y\\\\z\\nw",kernel="",protocol="2"} 1'
-            in client.get("/metrics").text)  # (a label's quote, backslash and newline escaped)
+    metrics = client.get("/metrics").text  # (a label's quote, backslash and newline escaped)
+    assert 'lucent_worker_releases{version="x\\"y\\\\z\\nw",kernel="",protocol="2"} 1' in metrics
+    assert 'lucent_workers{state="id\\"le"} 1' in metrics
     store.remove_worker("odd@c")
     # (a job of one frame, or without a target, keeps no frames' sums either way)
     assert not stored({"scene": scene})
