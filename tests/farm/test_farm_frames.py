@@ -319,6 +319,8 @@ def test_a_target_job_of_frames_keeps_each_frames_sums_only_where_every_live_wor
     # (a job of one frame, or without a target, keeps no frames' sums either way)
     assert not stored({"scene": scene})
     store.remove_worker("old@b")
+    # (a sweep of the API's that read the old worker live may still be pooling: let it end)
+    time.sleep(0.5)
     assert stored({"scene": scene, "frames": frames})
     # an old worker whose heartbeat expired is no longer live: it merges nothing
     store.r.zadd(store.k("workers"), {"gone@c": time.time() - 30})
