@@ -13,6 +13,7 @@ import logging
 import redis
 from kombu.exceptions import OperationalError
 
+from services.farm.pools import live
 from services.farm.store import JobStore
 
 log = logging.getLogger(__name__)
@@ -60,6 +61,6 @@ def readiness(store: JobStore) -> list[str]:
         workers = store.workers()
     except UNAVAILABLE as err:
         return [unavailable_detail(err)]
-    if not any(w.get("state", "lost") != "lost" for w in workers):
+    if not live(workers):
         return ["no live workers: no worker process has sent a heartbeat within its timeout"]
     return []

@@ -22,7 +22,7 @@ kills its process (a crash, not an exception) is not counted here: the redeliver
 
 from __future__ import annotations
 
-from services.farm.pools import has_tags
+from services.farm.pools import eligible
 from services.farm.store import JobMeta, JobStore
 
 # Seconds a blocklisted node's process waits after handing a pass back, so that the pass goes to
@@ -33,13 +33,8 @@ HAND_BACK_PAUSE = 0.5
 def eligible_nodes(store: JobStore, meta: JobMeta) -> list[str]:
     """The live worker nodes that may render the job: its tags, not blocklisted for it."""
     blocked = set(store.blocklist(meta.id))
-    nodes = set()
-    for w in store.workers():
-        node = w.get("node") or w["id"]
-        tags = [t for t in w.get("tags", "").split(",") if t]
-        if w.get("state", "lost") != "lost" and node not in blocked and has_tags(tags, meta.tags):
-            nodes.add(node)
-    return sorted(nodes)
+    nodes = {w.get("node") or w["id"] for w in eligible(store.workers(), meta.tags)}
+    return sorted(nodes - blocked)
 
 
 def no_eligible_reason(store: JobStore, meta: JobMeta, threshold: int) -> str | None:

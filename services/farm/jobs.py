@@ -211,7 +211,8 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     # (the heartbeats of the live workers that take the job, read where they decide something:
     # here and for the frames' sums)
     workers = (eligible(store.workers(), options.tags)
-               if scene.packet or scene.target_error is not None else [])
+               if scene.packet or (scene.target_error is not None and scene.n_frames > 1)
+               else [])
     packet = scene.packet and packet_workers(workers, True)
     first = min(options.spp_per_pass or (settings.packet_spp_per_pass if packet
                                          else settings.default_spp_per_pass), scene.spp)

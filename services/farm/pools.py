@@ -60,17 +60,21 @@ def has_tags(worker_tags: Iterable[str], job_tags: Iterable[str]) -> bool:
     return set(job_tags) <= set(worker_tags)
 
 
+def live(workers: list[dict[str, str]]) -> list[dict[str, str]]:
+    """The worker processes whose heartbeat has not expired, of ``JobStore.workers``'."""
+    return [w for w in workers if w.get("state", "lost") != "lost"]
+
+
 def live_tag_sets(workers: list[dict[str, str]]) -> list[frozenset[str]]:
     """The tags of each live worker process (``JobStore.workers``' heartbeats)."""
-    return [frozenset(t for t in w.get("tags", "").split(",") if t)
-            for w in workers if w.get("state", "lost") != "lost"]
+    return [frozenset(t for t in w.get("tags", "").split(",") if t) for w in live(workers)]
 
 
 def eligible(workers: list[dict[str, str]], job_tags: Iterable[str]) -> list[dict[str, str]]:
     """The live workers (``JobStore.workers``' heartbeats) that take a job requiring
     ``job_tags``: those whose node has them all."""
-    return [w for w in workers if w.get("state", "lost") != "lost"
-            and has_tags((t for t in w.get("tags", "").split(",") if t), job_tags)]
+    return [w for w in live(workers)
+            if has_tags((t for t in w.get("tags", "").split(",") if t), job_tags)]
 
 
 def merge_protocol(workers: list[dict[str, str]], own: int) -> int:

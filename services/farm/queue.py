@@ -5,11 +5,12 @@ from __future__ import annotations
 
 import contextlib
 import logging
+from collections.abc import Callable
 
 from celery import Celery
 
 from services.farm.planner import celery_priority
-from services.farm.pools import eligible, queue_for, worker_protocol
+from services.farm.pools import eligible, live, queue_for, worker_protocol
 from services.farm.settings import Settings
 from services.farm.store import ACTIVE, FRAME_SUMS_PROTOCOL, JobMeta, JobStore
 from services.farm.targets import settle_converged, wake_converged
@@ -69,6 +70,15 @@ def waiting_ahead(app: Celery, store: JobStore, priority: int, tags: tuple[str, 
                                   for level in range(celery_priority(priority) + 1)])
 
 
+def _sender(celery: Celery) -> Callable[[list[tuple[int, int]], JobMeta], None]:
+    """What ``targets``' wake and settle send the passes they ask again with: ``enqueue``."""
+
+    def send(todo: list[tuple[int, int]], job: JobMeta) -> None:
+        enqueue(celery, job.id, todo, job.priority, job.tags)
+
+    return send
+
+
 def pool_frames_beside_old_workers(store: JobStore, celery: Celery) -> list[str]:
     """Where a live worker's merge keeps no frames' sums (its heartbeat's protocol below
     ``FRAME_SUMS_PROTOCOL``: a farm upgraded worker by worker, an old worker that joined after
@@ -77,9 +87,7 @@ def pool_frames_beside_old_workers(store: JobStore, celery: Celery) -> list[str]
     converged tiles are asked again on those (``targets.wake_converged``, job-wide). Else its
     merges would leave its frames' sums short, and a frame whose first look or pilot never
     completed would end at the pilot. The sweeper's, each sweep; returns the jobs pooled."""
-    old = [w for w in store.workers()
-           if w.get("state", "lost") != "lost"
-           and (worker_protocol(w) or 1) < FRAME_SUMS_PROTOCOL]
+    old = [w for w in live(store.workers()) if (worker_protocol(w) or 1) < FRAME_SUMS_PROTOCOL]
     if not old:
         return []
     pooled = []
@@ -87,14 +95,10 @@ def pool_frames_beside_old_workers(store: JobStore, celery: Celery) -> list[str]
         takers = eligible(old, meta.tags) if meta.frame_sums else []
         if not takers or not store.pool_frame_sums(meta.id):
             continue
-
-        def send(todo: list[tuple[int, int]], job: JobMeta) -> None:
-            enqueue(celery, job.id, todo, job.priority, job.tags)
-
         log.warning("job %s: worker %s merges without the frames' own sums (protocol %s): the "
                     "job pools them from now on", meta.id, takers[0].get("id"),
                     worker_protocol(takers[0]))
-        wake_converged(store, send, meta.id)
+        wake_converged(store, _sender(celery), meta.id)
         pooled.append(meta.id)
     return pooled
 
@@ -114,10 +118,7 @@ def continue_chain(store: JobStore, celery: Celery, job_id: str, tile: int,
     meta = store.get_job(job_id)
     if meta is None or meta.target_error is None or meta.status not in ACTIVE:
         return False
-
-    def send(todo: list[tuple[int, int]], job: JobMeta) -> None:
-        enqueue(celery, job.id, todo, job.priority, job.tags)
-
+    send = _sender(celery)
     wake_converged(store, send, job_id, of_tile=tile)
     if pass_index + 1 >= meta.plan.n_passes:
         settle_converged(store, send, job_id, tile)

@@ -17,7 +17,7 @@ from fastapi.responses import PlainTextResponse
 
 from services.api.deps import RecordsDep, StoreDep
 from services.farm.availability import readiness
-from services.farm.pools import worker_protocol
+from services.farm.pools import live, worker_protocol
 from services.farm.records import RecordsUnavailable
 from services.farm.store import STATUSES
 
@@ -59,10 +59,10 @@ def metrics(store: StoreDep, records: RecordsDep) -> str:
     records.sync(store.jobs_in_flight())
     by_status = records.count_by_status()
     workers = store.workers()
-    live = Counter(w.get("state", "lost") for w in workers)
+    by_state = Counter(w.get("state", "lost") for w in workers)
     # (a farm upgraded worker by worker: its live workers by release, kernel and merge protocol)
     releases = Counter((w.get("version") or "", w.get("kernel") or "", worker_protocol(w) or 1)
-                       for w in workers if w.get("state", "lost") != "lost")
+                       for w in live(workers))
     counters = store.metrics()
     lines = [
         "# HELP lucent_jobs Jobs by status.",
@@ -70,7 +70,7 @@ def metrics(store: StoreDep, records: RecordsDep) -> str:
         *(f'lucent_jobs{{status="{s}"}} {by_status.get(s, 0)}' for s in STATUSES),
         "# HELP lucent_workers Worker processes by state.",
         "# TYPE lucent_workers gauge",
-        *(f'lucent_workers{{state="{_label(s)}"}} {n}' for s, n in sorted(live.items())),
+        *(f'lucent_workers{{state="{_label(s)}"}} {n}' for s, n in sorted(by_state.items())),
         "# HELP lucent_worker_releases Live worker processes by release, kernel and merge "
         "protocol (empty: a worker from before its heartbeat said).",
         "# TYPE lucent_worker_releases gauge",
