@@ -995,7 +995,14 @@ class JobStore:
         """Each tile's expected relMSE from its merged samples, the mean of
         its pixels' error terms (its ``tile_err`` summary: Σ e_p over the pixels with 2 samples
         or more, over their number), for the tiles whose summary counts a pixel."""
-        return _estimates(self.r.hgetall(self.k("job", job_id, "tile_err")))
+        return self.tile_estimates_of([job_id])[job_id]
+
+    def tile_estimates_of(self, job_ids: list[str]) -> dict[str, dict[int, float]]:
+        """``tile_estimates`` of each job, in one round trip."""
+        pipe = self.r.pipeline(transaction=False)
+        for job_id in job_ids:
+            pipe.hgetall(self.k("job", job_id, "tile_err"))
+        return {j: _estimates(h) for j, h in zip(job_ids, pipe.execute(), strict=True)}
 
     # --- the blocklist --------------------------------------------------------------------------
     def note_failure(self, job_id: str, node: str, threshold: int) -> int:

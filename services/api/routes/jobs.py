@@ -199,14 +199,14 @@ def list_jobs(store: StoreDep, records: RecordsDep,
     live = store.get_jobs([m.id for m in metas])
     tagged = any(m.tags and m.status in ACTIVE for m in live.values())
     live_tags = live_tag_sets(store.workers()) if tagged else None
-    data = []
-    for m in metas:
-        meta = live.get(m.id, m)
-        public = to_public(meta, live_tags)
-        if _frames_on_their_own(meta, public):  # as its detail has it: each frame's progress
-            _frames_target_progress(public, meta.plan, store.tile_estimates(meta.id))
-        data.append(public)
-    return JobsPublic(data=data, count=total, offset=offset, limit=limit)
+    listed = [(meta, to_public(meta, live_tags)) for meta in (live.get(m.id, m) for m in metas)]
+    # (as their detail has it: each frame's progress, from their tiles' estimates read at once)
+    own = [(meta, public) for meta, public in listed if _frames_on_their_own(meta, public)]
+    estimates = store.tile_estimates_of([meta.id for meta, _ in own]) if own else {}
+    for meta, public in own:
+        _frames_target_progress(public, meta.plan, estimates[meta.id])
+    return JobsPublic(data=[public for _, public in listed], count=total, offset=offset,
+                      limit=limit)
 
 
 def _frames_on_their_own(meta: JobMeta, public: JobPublic) -> bool:
