@@ -197,6 +197,19 @@ redis.call('HSET', KEYS[3], ARGV[1], 'done')
 return n
 """
 
+# A converged tile of a job with a target error asked again (``services.farm.targets``): back to
+# queued for its next pass, only while it is still converged and that pass still unmerged
+# (KEYS[1] the tile states, KEYS[2] the merged set; ARGV[1] the tile, ARGV[2] the pass's
+# member): 1 if so, and its caller sends the pass; 0 if another caller has it or a merge moved
+# the tile on since the rule read it. A tile marked queued for a pass that had merged meanwhile
+# waited with nothing in flight: the pass was dropped as a duplicate, and nothing sent the next.
+_REQUEUE_CONVERGED = """
+if redis.call('HGET', KEYS[1], ARGV[1]) ~= 'converged' then return 0 end
+if redis.call('SISMEMBER', KEYS[2], ARGV[2]) == 1 then return 0 end
+redis.call('HSET', KEYS[1], ARGV[1], 'queued')
+return 1
+"""
+
 # A target job of frames pools its frames' sums from now on (KEYS[1] the job hash, KEYS[2] its
 # frames' sums): 1 if it kept them until now, else 0 (``JobStore.pool_frame_sums``)
 _POOL_FRAME_SUMS = """
@@ -590,6 +603,7 @@ class JobStore:
         self._add_attempt = client.register_script(_ADD_ATTEMPT)
         self._begin_pass = client.register_script(_BEGIN_PASS)
         self._skip_passes = client.register_script(_SKIP_PASSES)
+        self._requeue_converged = client.register_script(_REQUEUE_CONVERGED)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
         self._delete = client.register_script(_DELETE)
         self._note_failure = client.register_script(_NOTE_FAILURE)
@@ -777,6 +791,40 @@ class JobStore:
             return [pair for pair, merged in zip(pairs, flags, strict=True) if not merged]
         members = {m.decode() for m in self.r.smembers(self.k("job", job_id, "merged"))}
         return [(t, p) for t, p in plan.order() if pass_member(t, p) not in members]
+
+    def chain_view(self, job_id: str, plan: Plan, frame: int | None = None
+                   ) -> tuple[list[tuple[int, int]], dict[int, str]]:
+        """``unmerged`` and ``tile_states`` (``frame``: that frame's pairs and tiles) read in one
+        MULTI/EXEC, so that they agree: a tile's state and its next pass as of one moment.
+        Read apart, a tile that merged a pass and converged between the two reads showed as
+        converged at the pass it had just merged (``services.farm.targets``)."""
+        pipe = self.r.pipeline(transaction=True)
+        merged_key = self.k("job", job_id, "merged")
+        state_key = self.k("job", job_id, "tile_state")
+        if frame is not None:
+            pairs = plan.frame_order(frame)
+            tiles = list(plan.frame_tiles(frame))
+            if not pairs:  # (a plan of no passes: SMISMEMBER takes at least one member)
+                return [], self.tile_states(job_id, tiles)
+            pipe.smismember(merged_key, [pass_member(t, p) for t, p in pairs])
+            pipe.hmget(state_key, [str(t) for t in tiles])
+            flags, values = pipe.execute()
+            return ([pair for pair, merged in zip(pairs, flags, strict=True) if not merged],
+                    {t: v.decode() for t, v in zip(tiles, values, strict=True) if v is not None})
+        pipe.smembers(merged_key)
+        pipe.hgetall(state_key)
+        members, states = pipe.execute()
+        done = {m.decode() for m in members}
+        return ([(t, p) for t, p in plan.order() if pass_member(t, p) not in done],
+                {int(k): v.decode() for k, v in states.items()})
+
+    def requeue_converged(self, job_id: str, tile: int, pass_index: int) -> bool:
+        """A converged tile back to queued for its next pass ``pass_index``, in one step and only
+        while it is still converged and that pass unmerged: True if so (the caller sends the
+        pass), False if another caller has requeued it or a merge has moved it on since."""
+        return bool(self._requeue_converged(
+            keys=[self.k("job", job_id, "tile_state"), self.k("job", job_id, "merged")],
+            args=[str(tile), pass_member(tile, pass_index)]))
 
     def reopen_job(self, job_id: str) -> list[tuple[int, int]]:
         """For a retry: the job back to running, attempts, tile errors and stalls cleared;

@@ -68,11 +68,10 @@ def _scope(store: JobStore, meta: JobMeta, tile: int | None
     time linear in its own tiles); else the job's."""
     if tile is not None and meta.frame_sums:
         frame = meta.plan.frame_of(tile)
-        heads = dict(chain_heads(store.unmerged(meta.id, meta.plan, frame)))
-        return (store.frame_meta(meta, frame), heads,
-                store.tile_states(meta.id, list(meta.plan.frame_tiles(frame))))
-    return (meta, dict(chain_heads(store.unmerged(meta.id, meta.plan))),
-            store.tile_states(meta.id))
+        todo, states = store.chain_view(meta.id, meta.plan, frame)
+        return store.frame_meta(meta, frame), dict(chain_heads(todo)), states
+    todo, states = store.chain_view(meta.id, meta.plan)
+    return meta, dict(chain_heads(todo)), states
 
 
 def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
@@ -86,15 +85,17 @@ def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], Job
     this does nothing: that tile's end settles the job. Called by the worker after a tile
     converges and after a tile's last pass merges (``tile``: in a target job of frames, that
     tile's frame is settled, on its own sums, whatever the other frames' tiles do); two calls
-    at once send a pass twice at most, and a pass is merged once."""
+    at once send a tile's pass once (``_ask_again``)."""
     meta = store.get_job(job_id)
     if meta is None or meta.target_error is None or meta.status not in ("queued", "running"):
         return []
     meta, heads, states = _scope(store, meta, tile)
     if any(states.get(t) != "converged" for t in heads):
         return []
-    again = _ask_again(store, send, meta, heads)
-    if again:
+    again, taken = _ask_again(store, send, meta, heads)
+    if again or taken:
+        # (taken: a tile the rule gives samples that another caller has queued, or whose merge
+        # has moved it on, since it was read: the job goes on, and that tile's end settles it)
         return again
     for t, pass_index in heads.items():
         store.skip_passes(job_id, t, pass_index, meta.plan.n_passes)
@@ -108,22 +109,31 @@ def settle_converged(store: JobStore, send: Callable[[list[tuple[int, int]], Job
 
 
 def _ask_again(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
-               meta: JobMeta, heads: dict[int, int]) -> list[tuple[int, int]]:
+               meta: JobMeta, heads: dict[int, int]) -> tuple[list[tuple[int, int]], int]:
     """Run the rule again on each converged tile of ``heads`` (tile: its next pass) and queue
-    those it now gives samples at that pass; returns them."""
+    those it now gives samples at that pass: the passes sent, and how many tiles it gave
+    samples that were not sent. Each is sent only where it is still converged at that pass
+    (``JobStore.requeue_converged``, one step): the rule read them a moment ago, and another
+    caller may have queued it since, or a merge moved it on (a pass sent for a next pass that
+    had merged meanwhile was dropped as a duplicate, and its tile, marked queued, waited with
+    nothing in flight for the stall rule: caustic floor jobs at 0.1 took 30 s, about one in
+    six, on two worker processes)."""
     again: list[tuple[int, int]] = []
+    taken = 0
     if meta.target_error is None:
-        return again
+        return again, taken
     for tile, pass_index in heads.items():
         counts = adaptive_counts(store, meta, tile, meta.target_error,
                                  meta.plan.sample_range(pass_index)[1])
-        if counts.any():
+        if not counts.any():
+            continue
+        if store.requeue_converged(meta.id, tile, pass_index):
             again.append((tile, pass_index))
-    for tile, _ in again:
-        store.set_tile_state(meta.id, tile, "queued")
+        else:
+            taken += 1
     if again:
         send(again, meta)
-    return again
+    return again, taken
 
 
 def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMeta], None],
@@ -140,8 +150,8 @@ def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMe
     waiting. ``of_tile``: the tile whose merge completed them, or that asks for itself; in a
     target job of frames only its frame's tiles are asked (each frame's tiles read their
     frame's sums, and the others' did not change: a job of many frames does not ask every
-    converged tile at each frame's look and pilot). Two calls at once send a pass twice at
-    most, and a pass is merged once."""
+    converged tile at each frame's look and pilot). Two calls at once send a tile's pass once
+    (``_ask_again``)."""
     meta = store.get_job(job_id)
     if (meta is None or meta.target_error is None or meta.status not in ("queued", "running")
             # (nothing is known yet; a job of frames' own first looks are in its frames' sums)
@@ -151,4 +161,4 @@ def wake_converged(store: JobStore, send: Callable[[list[tuple[int, int]], JobMe
     meta, heads, states = _scope(store, meta, of_tile)
     heads = {t: p for t, p in heads.items()
              if states.get(t) == "converged" and (asked is None or t in asked)}
-    return _ask_again(store, send, meta, heads)
+    return _ask_again(store, send, meta, heads)[0]

@@ -795,6 +795,133 @@ def test_a_target_jobs_tiles_end_their_pilot_on_the_frames_estimate_there(store)
     np.testing.assert_array_equal(adaptive_counts(store, meta, 0, target, 16), 12 - PILOT)
 
 
+def _waiting_at_the_end_of_its_pilot(store, rng):
+    """A target job of ``LOOK_PLAN`` whose tiles have ended their pilots (passes 0 and 1
+    merged), its frame's estimate there 1.4× the aim (``JobMeta.pilot_error``), and tile 0
+    converged with its next pass, 2, unmerged: it stopped to wait for that estimate, which the
+    rule now gives samples. Returns the job's id and target."""
+    import numpy as np
+
+    from renderer.film.adaptive import AIM, FIRST_LOOK, PILOT, error_terms
+
+    job_id = uuid.uuid4().hex
+    passes = {(t, p): look_tile(t, rng.exponential(1.0, (n, 16, 16, 3)))
+              for t in (0, 1) for p, n in ((0, FIRST_LOOK), (1, PILOT - FIRST_LOOK))}
+    terms = []
+    for t in (0, 1):
+        pilot = look_tile(t, np.zeros((0, 16, 16, 3)))
+        pilot.add(passes[t, 0])
+        pilot.add(passes[t, 1])
+        terms.append(error_terms(pilot).ravel())
+    target = float(np.concatenate(terms).mean()) / (1.4 * AIM)
+    store.create_job(job_id, "", 0, LOOK_PLAN, b"{}", {}, time.time(), target_error=target)
+    for (t, p), buf in passes.items():
+        store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
+        store.merge_pass_buffer(job_id, t, p)
+    store.set_tile_state(job_id, 0, "converged")
+    assert store.get_job(job_id).pilot_error is not None
+    return job_id, target
+
+
+def test_a_converged_tile_is_asked_again_once_and_only_at_the_pass_it_waits_at(store):
+    """A converged tile asked again is queued and its pass sent only while it is still
+    converged at that pass (``JobStore.requeue_converged``, one step). Two wakes at once send
+    its pass once. And a wake whose view of the tile is a moment old, a merge having moved the
+    tile on since (another wake sent its pass 2, which merged, and the tile converged again at
+    3), sends nothing and leaves it converged, for the caller that moved it to ask: sending the
+    merged pass 2 (a duplicate, dropped) and marking the tile queued left it waiting with
+    nothing in flight until the stall rule, 30 s (caustic floor jobs at 0.1 on an embedded farm
+    of two workers, about one in six). Seen failing with the tile marked queued and its pass
+    sent whatever it had become (the two reads and the mark apart): two sends, and (0, 2)
+    sent a second time with the tile left queued."""
+    import numpy as np
+
+    from services.farm.targets import _ask_again, settle_converged, wake_converged
+
+    rng = np.random.default_rng(37)
+    job_id, _ = _waiting_at_the_end_of_its_pilot(store, rng)
+    meta = store.get_job(job_id)
+    sent: list[tuple[int, int]] = []
+
+    def send(todo, m):
+        sent.extend(todo)
+
+    # two wakes that both read tile 0 converged at pass 2: the first sends it, the second not
+    assert _ask_again(store, send, meta, {0: 2}) == ([(0, 2)], 0)
+    assert _ask_again(store, send, meta, {0: 2}) == ([], 1)
+    assert sent == [(0, 2)] and store.tile_states(job_id)[0] == "queued"
+    assert store.requeue_converged(job_id, 0, 2) is False  # queued: not converged
+
+    # A wake that reads the tile converged at pass 2; then, before it acts, pass 2 renders and
+    # merges (sent by another wake) and the tile converges again at pass 3
+    job_id, _ = _waiting_at_the_end_of_its_pilot(store, rng)
+    sent.clear()
+    view = store.chain_view
+
+    def moved_on_after_the_read(*args, **kwargs):
+        seen = view(*args, **kwargs)
+        store.put_pass(job_id, 0, 2, look_tile(0, rng.exponential(1.0, (4, 16, 16, 3)))
+                       .to_bytes(), ttl=60)
+        assert store.merge_pass_buffer(job_id, 0, 2)
+        store.set_tile_state(job_id, 0, "converged")
+        return seen
+
+    store.chain_view = moved_on_after_the_read
+    try:
+        assert wake_converged(store, send, job_id) == []
+    finally:
+        del store.chain_view
+    assert sent == [] and store.tile_states(job_id)[0] == "converged"
+    assert store.requeue_converged(job_id, 0, 2) is False  # pass 2: merged
+    # the tile as it is now: converged at pass 3, which the rule still gives samples
+    assert wake_converged(store, send, job_id) == [(0, 3)] == sent
+    assert store.tile_states(job_id)[0] == "queued"
+
+    # The job's end (settle_converged: every tile converged) read a moment before both tiles
+    # moved on: it sends nothing, and does not end the job on that old view (their ends do)
+    job_id, _ = _waiting_at_the_end_of_its_pilot(store, rng)
+    store.set_tile_state(job_id, 1, "converged")
+    sent.clear()
+
+    def both_moved_on(*args, **kwargs):
+        seen = view(*args, **kwargs)
+        for t in (0, 1):
+            store.put_pass(job_id, t, 2, look_tile(t, rng.exponential(1.0, (4, 16, 16, 3)))
+                           .to_bytes(), ttl=60)
+            assert store.merge_pass_buffer(job_id, t, 2)
+        return seen
+
+    store.chain_view = both_moved_on
+    try:
+        assert settle_converged(store, send, job_id) == []
+    finally:
+        del store.chain_view
+    assert sent == [] and store.get_status(job_id) in ("queued", "running")
+    assert set(store.tile_states(job_id).values()) == {"converged"}
+
+
+def test_chain_view_reads_a_tiles_state_and_next_pass_together(store):
+    """``JobStore.chain_view``: what ``unmerged`` and ``tile_states`` give, the job's and one
+    frame's, read in one MULTI/EXEC."""
+    from services.farm.planner import Plan
+
+    plan = Plan(32, 16, 64, 16, 16, frames=2)
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.1,
+                     frames_json=b"[[], []]")
+    for t, p in ((0, 0), (0, 1), (1, 0), (3, 0)):
+        store.skip_passes(job_id, t, p, p + 1)
+    store.set_tile_state(job_id, 2, "converged")
+    assert store.chain_view(job_id, plan) == (store.unmerged(job_id, plan),
+                                              store.tile_states(job_id))
+    for frame in (0, 1):
+        tiles = list(plan.frame_tiles(frame))
+        assert store.chain_view(job_id, plan, frame) == (
+            store.unmerged(job_id, plan, frame), store.tile_states(job_id, tiles))
+    assert (0, 1) not in store.chain_view(job_id, plan, 0)[0]
+    assert store.chain_view(job_id, plan, 1)[1][2] == "converged"
+
+
 def test_a_target_jobs_pixel_that_drops_every_sample_does_not_hold_its_frame_back(store):
     """A pixel whose every sample is dropped as non-finite (its count stays 0) ends its pilot
     with the samples drawn, not kept: its tile's pilot ends, the frame's estimates at the end of
