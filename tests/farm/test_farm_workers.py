@@ -8,6 +8,7 @@ import json
 import os
 import signal
 import uuid
+from pathlib import Path
 
 import numpy as np
 import pytest
@@ -256,6 +257,26 @@ def test_a_target_job_runs_a_chain_of_passes_per_tile_not_every_planned_pass(
     after = farm_client.get(f"/api/jobs/{job['id']}").json()
     assert (after["target_error"], after["expected_error"], after["progress"]) == (
         0.02, job["expected_error"], 1.0)
+
+
+@pytest.mark.slow
+def test_target_jobs_never_wait_for_the_stall_rule(farm, farm_client, wait_for_job):
+    """Target jobs whose tiles converge at about the same moment on two worker processes: the
+    caustic floor at 64×48 and 0.1, tiles of 16 px, 24 seeds, each job a few tenths of a second,
+    and each must end within 10 s, a third of the stall rule's 30 s
+    (``LUCENT_STALL_UNHELD_TIMEOUT``), which re-sends the passes of an idle job. Seen failing
+    with a converged tile requeued whatever it had become since it was read (7 of 33 such jobs
+    took 30-31 s: a wake sent a tile's pass that had just merged, and left the tile marked
+    queued with nothing in flight; ``JobStore.requeue_converged``)."""
+    scene = json.loads((Path(__file__).parents[2] / "examples" / "caustic_floor.json")
+                       .read_text())
+    scene["film"] = {"width": 64, "height": 48}
+    for seed in range(7, 31):
+        scene["render"].update(spp=8192, target_error=0.1, seed=seed)
+        r = farm_client.post("/api/jobs", json={"scene": scene, "tile_size": 16})
+        assert r.status_code == 201, r.text
+        job = wait_for_job(farm_client, r.json()["id"], timeout=10.0)
+        assert job["status"] == "done", job
 
 
 def test_a_target_job_of_frames_takes_each_frame_to_the_target(farm, farm_client,
