@@ -416,12 +416,17 @@ class Records:
     def archive(self, meta: JobMeta, images: dict[str, str], tiles: dict[str, Any],
                 image_bytes: int = 0) -> bool:
         """The done job's last state, its image's blob keys and its tiles' summary; False if it
-        has no row (deleted meanwhile: the caller removes what it stored)."""
+        has no row (deleted meanwhile: the caller removes what it stored) or is archived
+        already. Only the first archive writes: two sweepers (``lucent up``'s two API processes)
+        may archive a job at once, and the second can read the tiles' summary after the first
+        has deleted the job from Redis (no samples, no ``expected_error``); written anyway, it
+        replaced the first's in the record, and the done job's answer lost its error."""
         values = {**_progress(meta), "tiles": json.dumps(tiles), "archived_at": time.time(),
                   "image_exr": images.get("exr"), "image_png": images.get("png"),
                   "image_bytes": image_bytes}
         with self._begin() as conn:
-            return conn.execute(update(jobs).where(jobs.c.id == meta.id)
+            return conn.execute(update(jobs).where(jobs.c.id == meta.id,
+                                                   jobs.c.archived_at.is_(None))
                                 .values(**values)).rowcount > 0
 
     # --- failed and cancelled jobs out of Redis -------------------------------------------------

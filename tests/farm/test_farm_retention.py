@@ -97,6 +97,34 @@ def test_an_image_read_while_its_job_is_archived_is_its_image(farm, tiny_scene, 
             assert client.get(f"/api/jobs/{job_id}/{path}").content == old
 
 
+def test_a_done_job_archived_twice_at_once_keeps_the_first_archives_record(
+        farm, tiny_scene, tmp_path, wait_for_job, monkeypatch):
+    """Two sweepers archive one done job at once (``lucent up`` runs two API processes, each
+    with its sweeper): the second reads the tiles' summary after the first has archived the job
+    and deleted it from Redis. The record keeps the first's summary (the tiles' samples, the
+    job's expected relMSE, which the job's answer and ``lucent submit --wait`` give), and the
+    images stay. Seen failing with the record written by every archive: the second's empty
+    summary replaced the first's (``expected_error`` None; found as CI's test_farm_cli
+    missing the CLI's error line)."""
+    with done_job(farm, tiny_scene, tmp_path, wait_for_job) as (client, job_id, records, blobs):
+        before = client.get(f"/api/jobs/{job_id}").json()
+        assert before["expected_error"] is not None
+        images = {path: client.get(f"/api/jobs/{job_id}/{path}").content for path in IMAGES}
+        store = farm.store()
+        first = archive_inside(monkeypatch, "tiles_final", store, records, blobs, job_id)
+        assert archive_job(store, records, blobs, job_id) is False  # the second
+        assert first == [True]
+        monkeypatch.undo()
+        assert job_keys(store, job_id) == set()
+        kept = records.get(job_id).tiles_final
+        assert kept["expected_error"] == pytest.approx(before["expected_error"])
+        assert sum(kept["samples"]) == before["tiles"] * tiny_scene["render"]["spp"]
+        after = client.get(f"/api/jobs/{job_id}").json()
+        assert (after["status"], after["expected_error"]) == ("done", before["expected_error"])
+        for path, old in images.items():
+            assert client.get(f"/api/jobs/{job_id}/{path}").content == old
+
+
 def test_a_done_job_leaves_redis_for_its_record(farm, tiny_scene, tmp_path, wait_for_job):
     # Only the sweep at start: the test archives by hand, between the two reads of the image.
     settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
