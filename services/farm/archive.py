@@ -176,7 +176,16 @@ def archive_job(store: JobStore, records: Records, blobs: BlobStore, job_id: str
     if meta.plan.frames > 1:
         tiles["frame_images"] = frame_images
     size = sum(len(b) for data in frames_data for b in data.values())
-    if not records.archive(meta, images, tiles, size):  # deleted
+    if not records.archive(meta, images, tiles, size):
+        record = records.get(job_id)
+        if record is not None and record.images:
+            # Archived already: by another sweeper at the same moment (lucent up's two API
+            # processes), or by one that died before deleting the job from Redis. Its record
+            # stands (Records.archive writes once); the job leaves Redis as it would have left
+            # it. (Its images are that record's: the same content, the same keys.)
+            store.delete_job(job_id, ("done",))
+            return False
+        # deleted meanwhile
         for key in {k for fi in frame_images for k in fi.values()}:
             if not records.blob_in_use(key):  # written for nothing, unless another job's
                 blobs.delete(key)

@@ -125,6 +125,33 @@ def test_a_done_job_archived_twice_at_once_keeps_the_first_archives_record(
             assert client.get(f"/api/jobs/{job_id}/{path}").content == old
 
 
+def test_a_done_job_whose_archiver_died_before_deleting_it_leaves_redis(
+        farm, tiny_scene, tmp_path, wait_for_job):
+    """An archive that wrote the job's record and died before deleting the job from Redis: the
+    next sweep's archive leaves the record as written (it writes once) and deletes the job
+    from Redis, as the first would have. Seen failing with the job left in Redis (the second
+    archive, refused its write, took the job only off the list to archive)."""
+    from services.farm.archive import frame_exr
+    from services.farm.blobs import put_content
+    from services.farm.merge import assemble
+
+    with done_job(farm, tiny_scene, tmp_path, wait_for_job) as (client, job_id, records, blobs):
+        store = farm.store()
+        meta = store.get_job(job_id)
+        expected = meta.expected_error
+        # the first archive, up to its record: the image stored, the row written
+        _, exr = frame_exr(store, blobs, meta, 0, assemble(store, job_id)[0])
+        images = {"exr": put_content(blobs, exr)}
+        assert records.archive(meta, images, store.tiles_final(job_id, meta.plan.n_tiles), 0)
+        assert job_keys(store, job_id)  # ... and its process died: the job still in Redis
+        assert archive_job(store, records, blobs, job_id) is False  # the next sweep's
+        assert job_keys(store, job_id) == set()
+        kept = records.get(job_id)
+        assert kept.images == images and kept.tiles_final["expected_error"] == expected
+        assert client.get(f"/api/jobs/{job_id}").json()["expected_error"] == pytest.approx(
+            expected)
+
+
 def test_a_done_job_leaves_redis_for_its_record(farm, tiny_scene, tmp_path, wait_for_job):
     # Only the sweep at start: the test archives by hand, between the two reads of the image.
     settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
