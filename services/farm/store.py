@@ -47,6 +47,7 @@ import dataclasses
 import json
 import re
 import time
+from collections.abc import Iterable
 from dataclasses import dataclass, field
 from typing import Any
 
@@ -360,6 +361,16 @@ def pass_member(tile: int, pass_index: int) -> str:
     return f"{tile}:{pass_index}"
 
 
+def _unmerged(pairs: list[tuple[int, int]], merged: Iterable[Any]) -> list[tuple[int, int]]:
+    """Of ``pairs``, those whose flag in ``merged`` (one a pair, in order) is false."""
+    return [pair for pair, flag in zip(pairs, merged, strict=True) if not flag]
+
+
+def _states(read: Iterable[tuple[int, bytes | None]]) -> dict[int, str]:
+    """Tile states as Redis gave them, ``(tile, value)``: those that have one."""
+    return {t: v.decode() for t, v in read if v is not None}
+
+
 @dataclass
 class JobMeta:
     """A job's hash, typed."""
@@ -604,6 +615,7 @@ class JobStore:
         self._begin_pass = client.register_script(_BEGIN_PASS)
         self._skip_passes = client.register_script(_SKIP_PASSES)
         self._requeue_converged = client.register_script(_REQUEUE_CONVERGED)
+        self._pool_frame_sums = client.register_script(_POOL_FRAME_SUMS)
         self._claim_holding = client.register_script(_CLAIM_HOLDING)
         self._delete = client.register_script(_DELETE)
         self._note_failure = client.register_script(_NOTE_FAILURE)
@@ -687,8 +699,8 @@ class JobStore:
         under way that read the mark before may still add its change to the frames' hash:
         nothing reads it any more, and it is deleted with the job (``tile_keys``). True if this
         call changed the mark."""
-        return bool(self.r.eval(_POOL_FRAME_SUMS, 2, self.job_key(job_id),
-                                self.k("job", job_id, "frame_sums")))
+        return bool(self._pool_frame_sums(
+            keys=[self.job_key(job_id), self.k("job", job_id, "frame_sums")]))
 
     def frame_meta(self, meta: JobMeta, frame: int) -> JobMeta:
         """``meta`` as the rule of a tile of ``frame`` sees it (``JobMeta.for_frame``), that
@@ -786,11 +798,11 @@ class JobStore:
             pairs = plan.frame_order(frame)
             if not pairs:
                 return []
-            flags = self.r.smismember(self.k("job", job_id, "merged"),
-                                      [pass_member(t, p) for t, p in pairs])
-            return [pair for pair, merged in zip(pairs, flags, strict=True) if not merged]
+            return _unmerged(pairs, self.r.smismember(self.k("job", job_id, "merged"),
+                                                      [pass_member(t, p) for t, p in pairs]))
         members = {m.decode() for m in self.r.smembers(self.k("job", job_id, "merged"))}
-        return [(t, p) for t, p in plan.order() if pass_member(t, p) not in members]
+        pairs = plan.order()
+        return _unmerged(pairs, (pass_member(t, p) in members for t, p in pairs))
 
     def chain_view(self, job_id: str, plan: Plan, frame: int | None = None
                    ) -> tuple[list[tuple[int, int]], dict[int, str]]:
@@ -809,14 +821,14 @@ class JobStore:
             pipe.smismember(merged_key, [pass_member(t, p) for t, p in pairs])
             pipe.hmget(state_key, [str(t) for t in tiles])
             flags, values = pipe.execute()
-            return ([pair for pair, merged in zip(pairs, flags, strict=True) if not merged],
-                    {t: v.decode() for t, v in zip(tiles, values, strict=True) if v is not None})
+            return _unmerged(pairs, flags), _states(zip(tiles, values, strict=True))
         pipe.smembers(merged_key)
         pipe.hgetall(state_key)
         members, states = pipe.execute()
         done = {m.decode() for m in members}
-        return ([(t, p) for t, p in plan.order() if pass_member(t, p) not in done],
-                {int(k): v.decode() for k, v in states.items()})
+        pairs = plan.order()
+        return (_unmerged(pairs, (pass_member(t, p) in done for t, p in pairs)),
+                _states((int(k), v) for k, v in states.items()))
 
     def requeue_converged(self, job_id: str, tile: int, pass_index: int) -> bool:
         """A converged tile back to queued for its next pass ``pass_index``, in one step and only
@@ -1081,9 +1093,9 @@ class JobStore:
             if not tiles:
                 return {}
             values = self.r.hmget(self.k("job", job_id, "tile_state"), [str(t) for t in tiles])
-            return {t: v.decode() for t, v in zip(tiles, values, strict=True) if v is not None}
+            return _states(zip(tiles, values, strict=True))
         h = self.r.hgetall(self.k("job", job_id, "tile_state"))
-        return {int(k): v.decode() for k, v in h.items()}
+        return _states((int(k), v) for k, v in h.items())
 
     def tile_samples(self, job_id: str) -> dict[int, int]:
         h = self.r.hgetall(self.k("job", job_id, "tile_samples"))
