@@ -823,6 +823,30 @@ def _waiting_at_the_end_of_its_pilot(store, rng):
     return job_id, target
 
 
+@contextlib.contextmanager
+def _moved_on_after_the_read(store, job_id: str, tiles, rng):
+    """``store.chain_view`` that, after its read, merges pass 2 of each of ``tiles`` (4 more
+    samples a pixel) and leaves the tile converged, as a tile that was sent the pass by another
+    caller, rendered it and found nothing more: a merge that lands between a caller's read of
+    the tiles and what it does on it."""
+    view = store.chain_view
+
+    def read_then_move_on(*args, **kwargs):
+        seen = view(*args, **kwargs)
+        for t in tiles:
+            store.put_pass(job_id, t, 2, look_tile(t, rng.exponential(1.0, (4, 16, 16, 3)))
+                           .to_bytes(), ttl=60)
+            assert store.merge_pass_buffer(job_id, t, 2)
+            store.set_tile_state(job_id, t, "converged")
+        return seen
+
+    store.chain_view = read_then_move_on
+    try:
+        yield
+    finally:
+        del store.chain_view
+
+
 def test_a_converged_tile_is_asked_again_once_and_only_at_the_pass_it_waits_at(store):
     """A converged tile asked again is queued and its pass sent only while it is still
     converged at that pass (``JobStore.requeue_converged``, one step). Two wakes at once send
@@ -856,21 +880,8 @@ def test_a_converged_tile_is_asked_again_once_and_only_at_the_pass_it_waits_at(s
     # merges (sent by another wake) and the tile converges again at pass 3
     job_id, _ = _waiting_at_the_end_of_its_pilot(store, rng)
     sent.clear()
-    view = store.chain_view
-
-    def moved_on_after_the_read(*args, **kwargs):
-        seen = view(*args, **kwargs)
-        store.put_pass(job_id, 0, 2, look_tile(0, rng.exponential(1.0, (4, 16, 16, 3)))
-                       .to_bytes(), ttl=60)
-        assert store.merge_pass_buffer(job_id, 0, 2)
-        store.set_tile_state(job_id, 0, "converged")
-        return seen
-
-    store.chain_view = moved_on_after_the_read
-    try:
+    with _moved_on_after_the_read(store, job_id, (0,), rng):
         assert wake_converged(store, send, job_id) == []
-    finally:
-        del store.chain_view
     assert sent == [] and store.tile_states(job_id)[0] == "converged"
     assert store.requeue_converged(job_id, 0, 2) is False  # pass 2: merged
     # the tile as it is now: converged at pass 3, which the rule still gives samples
@@ -882,20 +893,8 @@ def test_a_converged_tile_is_asked_again_once_and_only_at_the_pass_it_waits_at(s
     job_id, _ = _waiting_at_the_end_of_its_pilot(store, rng)
     store.set_tile_state(job_id, 1, "converged")
     sent.clear()
-
-    def both_moved_on(*args, **kwargs):
-        seen = view(*args, **kwargs)
-        for t in (0, 1):
-            store.put_pass(job_id, t, 2, look_tile(t, rng.exponential(1.0, (4, 16, 16, 3)))
-                           .to_bytes(), ttl=60)
-            assert store.merge_pass_buffer(job_id, t, 2)
-        return seen
-
-    store.chain_view = both_moved_on
-    try:
+    with _moved_on_after_the_read(store, job_id, (0, 1), rng):
         assert settle_converged(store, send, job_id) == []
-    finally:
-        del store.chain_view
     assert sent == [] and store.get_status(job_id) in ("queued", "running")
     assert set(store.tile_states(job_id).values()) == {"converged"}
 
