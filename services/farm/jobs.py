@@ -260,7 +260,8 @@ def queue_job(store: JobStore, records: Records, celery: Celery, settings: Setti
     # The record first: with the database away, nothing is queued (503) and the job is not run
     # unrecorded; with Redis away after it, the record goes again (the sweeper would fail it).
     created = JobMeta.new(job_id, options.name, options.priority, plan, scene.methods,
-                          time.time(), submitter, options.tags, options.denoise)
+                          time.time(), submitter, options.tags, options.denoise,
+                          scene.target_error, scene.expected_bias)
     prior = records.create(created, submission)
     if prior is not None and submission is not None:
         return _replayed(store, *prior, submission)  # the same request at the same moment

@@ -33,6 +33,10 @@ timings                ``created_at``, ``started_at``, ``finished_at`` (Unix sec
                        (``request_key``; unique): a submission sent again finds this job
 ``request_digest``     the SHA-256 of that submission's body (the same key with another body
                        is refused)
+``target_error``,      its ``render.target_error`` and the share of it ``auto``'s models may
+``expected_bias``      take; whether its done image is denoised; the frames' expected relMSE
+``denoise``,           from their samples' noise as its merges last left it (``JobMeta``'s; the
+``expected_error``     job's listing gives them once it is out of Redis without ``tiles``)
 =====================  ========================================================================
 
 ``job_counts`` holds the number of jobs of each status, kept by triggers on ``jobs`` (a listing's
@@ -64,6 +68,7 @@ from typing import Any
 
 from sqlalchemy import (
     BigInteger,
+    Boolean,
     Column,
     Connection,
     Double,
@@ -126,6 +131,10 @@ jobs = Table(
     Column("pass_growth", Integer),
     Column("request_key", String(64)),
     Column("request_digest", String(64)),
+    Column("target_error", Double),
+    Column("expected_error", Double),
+    Column("expected_bias", Double),
+    Column("denoise", Boolean),
     Index("jobs_created_at", "created_at", "id"),
     Index("jobs_status_created_at", "status", "created_at", "id"),
     Index("jobs_finished_at", "finished_at"),
@@ -535,15 +544,30 @@ def _row(meta: JobMeta) -> dict[str, Any]:
 
 
 def _progress(meta: JobMeta) -> dict[str, Any]:
-    return {"status": meta.status, "tasks_merged": meta.tasks_merged,
-            "samples_merged": meta.samples_merged, "dropped": meta.dropped,
-            "version": meta.version, "started_at": meta.started_at,
-            "finished_at": meta.finished_at, "error": meta.error}
+    """What a row follows of its job while Redis holds it, and keeps of it once out: its
+    status, counters, times and error, and where it has them its target and expected error
+    (the columns of migration 0007: a job without them is written as before it)."""
+    out = {"status": meta.status, "tasks_merged": meta.tasks_merged,
+           "samples_merged": meta.samples_merged, "dropped": meta.dropped,
+           "version": meta.version, "started_at": meta.started_at,
+           "finished_at": meta.finished_at, "error": meta.error}
+    errors = {"target_error": meta.target_error, "expected_error": meta.expected_error,
+              "expected_bias": meta.expected_bias or None, "denoise": meta.denoise or None}
+    out.update({name: value for name, value in errors.items() if value is not None})
+    return out
 
 
 def _meta(row: Any) -> JobMeta:
     images = {fmt: row[f"image_{fmt}"] for fmt in ("exr", "png") if row[f"image_{fmt}"]}
     tiles = row.get("tiles")
+    final = json.loads(tiles) if tiles else {}
+
+    def kept(name: str) -> Any:
+        """A column of migration 0007, or where it is NULL (a row written before it and not
+        since), the tiles' summary's (read with the row, not with a listing's page)."""
+        value = row.get(name)
+        return final.get(name) if value is None else value
+
     return JobMeta(
         id=row["id"], name=row["name"], status=row["status"], priority=row["priority"],
         plan=Plan(row["width"], row["height"], row["spp"], row["tile_size"],
@@ -553,6 +577,8 @@ def _meta(row: Any) -> JobMeta:
         dropped=row["dropped"], version=row["version"], created_at=row["created_at"],
         started_at=row["started_at"], finished_at=row["finished_at"], error=row["error"],
         methods=json.loads(row["methods"]), images=images,
-        tiles_final=json.loads(tiles) if tiles else {}, submitter=row["submitter"],
+        tiles_final=final, submitter=row["submitter"],
         image_removed=row["image_removed_at"] is not None, parked=row.get("state_blob"),
-        tags=tuple(t for t in (row.get("tags") or "").split(",") if t))
+        tags=tuple(t for t in (row.get("tags") or "").split(",") if t),
+        target_error=kept("target_error"), expected_bias=float(kept("expected_bias") or 0.0),
+        denoise=bool(kept("denoise")), recorded_error=kept("expected_error"))

@@ -396,6 +396,9 @@ class JobMeta:
     parked: str | None = None  # a record's: the blob of a failed or cancelled job's tiles
     tags: tuple[str, ...] = ()  # the worker tags it requires (services.farm.pools)
     denoise: bool = False  # its done image denoised (services.farm.archive.frame_exr)
+    # a record's (services.farm.records): the frames' expected relMSE its row keeps, which
+    # ``expected_error`` gives where the meta holds no sums (a job out of Redis)
+    recorded_error: float | None = None
     # render.target_error, and the sums of its tiles' summaries (renderer.film.adaptive
     # tile_summary, kept by every merge): a target job's scale, and every job's expected error
     target_error: float | None = None
@@ -450,9 +453,10 @@ class JobMeta:
     def expected_error(self) -> float | None:
         """The frames' expected relMSE from their merged samples' noise (with ``expected_bias``
         the quantity target_error bounds; every job's merges keep it), once every pixel has an
-        estimate (2 samples); else None."""
+        estimate (2 samples); else None. A record's meta, which holds no sums, gives the error its
+        row keeps (``recorded_error``)."""
         if not self._all_counted(self.err_pixels):
-            return None
+            return self.recorded_error
         return self.err_sum / self.err_pixels
 
     @property
@@ -487,13 +491,14 @@ class JobMeta:
     @classmethod
     def new(cls, job_id: str, name: str, priority: int, plan: Plan, methods: dict[str, str],
             created_at: float, submitter: str | None = None,
-            tags: tuple[str, ...] = (), denoise: bool = False) -> JobMeta:
+            tags: tuple[str, ...] = (), denoise: bool = False,
+            target_error: float | None = None, expected_bias: float = 0.0) -> JobMeta:
         """A job just submitted: queued, nothing merged (what ``create_job`` stores)."""
         return cls(id=job_id, name=name, status="queued", priority=priority, plan=plan,
                    tasks_merged=0, samples_merged=0, dropped=0, version=0,
                    created_at=created_at, started_at=None, finished_at=None, error=None,
                    methods=methods, images={}, tiles_final={}, submitter=submitter, tags=tags,
-                   denoise=denoise)
+                   denoise=denoise, target_error=target_error, expected_bias=expected_bias)
 
     @property
     def samples_planned(self) -> int:

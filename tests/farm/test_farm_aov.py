@@ -99,6 +99,9 @@ def test_a_job_with_denoise_serves_the_denoised_image_and_keeps_the_noisy_layer(
         # the job's answer says it, from Redis and, archived, from its record
         assert r.json()["denoise"] is True
         assert client.get(f"/api/jobs/{job_id}").json()["denoise"] is True
+        # ... and its listing, which reads no record's tiles' summary (migration 0007)
+        page = client.get("/api/jobs", params={"limit": 500}).json()["data"]
+        assert next(j for j in page if j["id"] == job_id)["denoise"] is True
 
 
 def test_denoise_is_refused_naming_the_option_without_pyoidn(client, tiny_scene, monkeypatch):

@@ -152,6 +152,34 @@ def test_a_done_job_whose_archiver_died_before_deleting_it_leaves_redis(
             expected)
 
 
+def test_an_archived_target_job_is_listed_with_its_target_and_error(farm, tiny_scene, tmp_path,
+                                                                    wait_for_job):
+    """A done job with a target error, archived, is listed (``GET /api/jobs``, which reads no
+    record's tiles' summary) with its target, expected error and bias as its detail gives them
+    and as they were listed from Redis. Seen failing before the record kept them as columns
+    (migration 0007): listed with target_error and expected_error None."""
+    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
+    scene = own_scene(tiny_scene)
+    scene["render"] = {**scene["render"], "spp": 256, "target_error": 0.05}
+    fields = ("target_error", "expected_error", "expected_bias", "denoise")
+
+    def listed(client: TestClient, job_id: str) -> dict:
+        page = client.get("/api/jobs", params={"limit": 500}).json()["data"]
+        return next(j for j in page if j["id"] == job_id)
+
+    with TestClient(create_app(settings)) as client:
+        job_id = client.post("/api/jobs", json={"scene": scene, "tile_size": 16}).json()["id"]
+        assert wait_for_job(client, job_id)["status"] == "done"
+        before = {k: listed(client, job_id)[k] for k in fields}
+        assert before["target_error"] == 0.05 and before["expected_error"] is not None
+        records = records_of(settings)
+        assert archive_job(farm.store(), records, FileBlobStore(settings.blob_path), job_id)
+        after = listed(client, job_id)
+        detail = client.get(f"/api/jobs/{job_id}").json()
+        for k in fields:
+            assert after[k] == pytest.approx(before[k]) and detail[k] == pytest.approx(before[k])
+
+
 def test_a_done_job_leaves_redis_for_its_record(farm, tiny_scene, tmp_path, wait_for_job):
     # Only the sweep at start: the test archives by hand, between the two reads of the image.
     settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})

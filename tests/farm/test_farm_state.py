@@ -58,12 +58,12 @@ def test_migration_at_start_up_is_idempotent(settings):
     with TestClient(create_app(settings)) as c:
         assert c.get("/api/jobs").json()["count"] == 0
     records = records_of(settings)
-    assert records.revision() == "0006"
+    assert records.revision() == "0007"
     records.create(_meta(time.time()))
     records.migrate()
     with TestClient(create_app(settings)) as c:
         assert c.get("/api/jobs").json()["count"] == 1
-    assert records.revision() == "0006"
+    assert records.revision() == "0007"
     indexes = {i["name"] for i in inspect(records.engine).get_indexes("jobs")}
     assert {"jobs_created_at", "jobs_status_created_at", "jobs_finished_at", "jobs_image_exr",
             "jobs_image_png", "jobs_request_key"} <= indexes
@@ -100,7 +100,7 @@ def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
     for status in ("done", "done", "failed", "running"):
         records.create(_meta(t0, status))
     records.migrate()
-    assert records.revision() == "0006"
+    assert records.revision() == "0007"
     assert records.count_by_status() == {"queued": 0, "running": 1, "done": 2, "failed": 1,
                                          "cancelled": 0}
     first = records.page("done")[0][0]
@@ -109,6 +109,46 @@ def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
     assert records.count_by_status() == {"queued": 0, "running": 0, "done": 1, "failed": 2,
                                          "cancelled": 0}
     assert records.page()[1] == 3 and records.page("failed")[1] == 2
+
+
+def test_the_errors_migration_takes_an_archived_jobs_errors_from_its_tiles_summary(settings):
+    """A database at 0006 whose archived jobs keep their target, expected error, bias and
+    denoise only in their tiles' summary (JSON a listing's page does not read), upgraded: a
+    page lists each archived job with them, as its record's detail gives them; a job whose
+    summary has none lists none (on SQLite, and on PostgreSQL with ``DATABASE_URL``). Seen
+    failing with the upgrade's copy left out: the page listed the target job's target and error
+    as None and its denoise as False."""
+    import json
+
+    from sqlalchemy import update
+
+    from services.farm.records import jobs
+
+    records = Records(settings.database, settings.database_schema)
+    records.migrate("0006")
+    t0 = time.time()
+    target, plain = _meta(t0), _meta(t0 + 1)
+    kept = {"target_error": 0.05, "expected_error": 0.031, "expected_bias": 0.004,
+            "denoise": True}
+    for meta, final in ((target, kept), (plain, {})):
+        records.create(meta)
+        with records.engine.begin() as conn:  # archived as 0006 archived it
+            conn.execute(update(jobs).where(jobs.c.id == meta.id).values(
+                tiles=json.dumps({"samples": [16] * 4, "errors": {}, **final}),
+                archived_at=t0 + 2))
+    records.migrate()
+    assert records.revision() == "0007"
+    page = {m.id: m for m in records.page()[0]}
+    listed = page[target.id]
+    assert listed.tiles_final == {}  # (the page did not read the summary)
+    assert (listed.target_error, listed.expected_error, listed.expected_bias,
+            listed.denoise) == (0.05, 0.031, 0.004, True)
+    detail = records.get(target.id)
+    assert (detail.target_error, detail.expected_error, detail.expected_bias,
+            detail.denoise) == (0.05, 0.031, 0.004, True)
+    other = page[plain.id]
+    assert (other.target_error, other.expected_error, other.expected_bias,
+            other.denoise) == (None, None, 0.0, False)
 
 
 def test_a_plans_pass_growth_lasts_in_the_records_redis_and_a_snapshot(tmp_path, store):
