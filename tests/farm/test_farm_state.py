@@ -111,6 +111,40 @@ def test_the_counts_migration_counts_the_jobs_already_there(tmp_path):
     assert records.page()[1] == 3 and records.page("failed")[1] == 2
 
 
+def test_a_parked_target_job_is_listed_and_shown_with_its_target_and_error(settings, store):
+    """A cancelled job with a target error, parked out of Redis: its record, listed (a page,
+    which reads no tiles' summary) and read whole, gives its target, bias and the expected
+    error its merges had reached. Seen failing before the record kept them as columns
+    (migration 0007): a parked job's summary holds neither, so both gave the target as None."""
+    import numpy as np
+
+    from renderer.film.buffer import SampleBuffer
+    from services.farm.archive import park_job
+
+    records = records_of(settings)
+    plan = Plan(32, 16, 64, 16, 8)  # 2 tiles x 8 passes of 8
+    job_id = uuid.uuid4().hex
+    store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02,
+                     expected_bias=0.003)
+    records.create(store.get_job(job_id))
+    rng = np.random.default_rng(3)
+    for t in range(plan.n_tiles):
+        buf = SampleBuffer.empty(*plan.tile_rect(t))
+        x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
+        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
+        store.put_pass(job_id, t, 0, buf.to_bytes(), ttl=60)
+        assert store.merge_pass_buffer(job_id, t, 0)
+    expected = store.get_job(job_id).expected_error
+    assert expected is not None
+    assert store.cancel_job(job_id)
+    assert park_job(store, records, FileBlobStore(settings.blob_path), job_id)
+    assert store.get_job(job_id) is None
+    for meta in (next(m for m in records.page()[0] if m.id == job_id), records.get(job_id)):
+        assert meta.status == "cancelled" and meta.parked
+        assert (meta.target_error, meta.expected_bias) == (0.02, 0.003)
+        assert meta.expected_error == pytest.approx(expected, rel=1e-12)
+
+
 def test_the_errors_migration_takes_an_archived_jobs_errors_from_its_tiles_summary(settings):
     """A database at 0006 whose archived jobs keep their target, expected error, bias and
     denoise only in their tiles' summary (JSON a listing's page does not read), upgraded: a
