@@ -1,12 +1,16 @@
 """A farm for the dashboard's scripts (bench/dashboard_screenshots.py, bench/dashboard_load.py):
 an embedded Redis, one worker node and ``uvicorn services.api.main:app`` in its own process (so that
-its CPU time can be measured alone), on free localhost ports; everything stopped on exit."""
+its CPU time can be measured alone), on free localhost ports, with a data folder of its own (its
+job records and images: not the user's farm's, whose jobs it would list, and mark failed as lost
+where its Redis does not hold them); everything stopped and removed on exit."""
 
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
+import tempfile
 import time
 import uuid
 from pathlib import Path
@@ -33,11 +37,13 @@ class DashboardFarm:
         self.redis: EmbeddedRedis | None = None
         self.worker: subprocess.Popen | None = None
         self.server: subprocess.Popen | None = None
+        self.data: Path | None = None
 
     def __enter__(self) -> DashboardFarm:
         self.redis = EmbeddedRedis().start()
+        self.data = Path(tempfile.mkdtemp(prefix="lucent-bench-data-"))
         env = {"LUCENT_KEY_PREFIX": self.prefix, "LUCENT_HEARTBEAT_INTERVAL": str(self.heartbeat),
-               "LUCENT_API_TOKEN": ""}
+               "LUCENT_API_TOKEN": "", "LUCENT_DATA_DIR": str(self.data)}
         if self.workers:
             self.worker = start_worker(self.redis.url, self.workers, 1, extra_env=env,
                                        log=subprocess.DEVNULL)
@@ -71,6 +77,8 @@ class DashboardFarm:
             terminate(self.worker, 30.0)
         if self.redis is not None:
             self.redis.stop()
+        if self.data is not None:
+            shutil.rmtree(self.data, ignore_errors=True)
 
     def store(self) -> JobStore:
         assert self.redis is not None

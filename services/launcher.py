@@ -47,6 +47,15 @@ def _die_with_parent() -> None:
         ctypes.CDLL("libc.so.6", use_errno=True).prctl(1, signal.SIGTERM)  # PR_SET_PDEATHSIG
 
 
+def _apart_dying_with_parent() -> None:
+    """preexec_fn: ``_die_with_parent``, in a process group of its own, so that the Ctrl-C a
+    terminal sends ``lucent up``'s group does not reach it: the embedded Redis stays until the
+    farm stops it last, after the API's last chores (a done job archived: ``Sweeper.stop``) and
+    the workers' warm shutdown have used it."""
+    os.setpgid(0, 0)
+    _die_with_parent()
+
+
 def free_port(host: str = "127.0.0.1") -> int:
     with socket.socket() as s:
         s.bind((host, 0))
@@ -99,7 +108,7 @@ class EmbeddedRedis:
              "--dir", self.data_dir, "--save", "",
              "--appendonly", "yes" if self.appendonly else "no",
              "--daemonize", "no", "--loglevel", "warning"],
-            stdout=subprocess.DEVNULL, preexec_fn=_die_with_parent,
+            stdout=subprocess.DEVNULL, preexec_fn=_apart_dying_with_parent,
         )
         deadline = time.monotonic() + timeout
         client = redis.Redis(host=self.host, port=self.port)

@@ -107,6 +107,21 @@ export function fmtRate(x) {
   return x.toFixed(0);
 }
 
+// A relMSE to 3 significant digits, as the job pages give it
+export const digits3 = (x) => String(Number(Number(x).toPrecision(3)));
+
+// A job's error in a few words: the relMSE it asks for (render.target_error) and its frames'
+// estimate from the samples merged so far (the API's expected_error, which a job out of Redis
+// keeps in its record; "so far" while it runs), "" where it has neither
+export function errorSummary(j) {
+  const est = j.expected_error == null ? null
+    : digits3(j.expected_error) + (FINAL.includes(j.status) ? "" : " so far");
+  if (j.target_error != null) {
+    return `target relMSE ${j.target_error}` + (est == null ? "" : ` · ${est}`);
+  }
+  return est == null ? "" : `relMSE ${est}`;
+}
+
 export function fmtTime(t) {
   if (!t) return "–";
   const d = new Date(t * 1000);

@@ -3,8 +3,8 @@
 // a job of frames: a strip of every frame (click one to preview it; Play runs the sequence).
 
 import {
-  FINAL, api, authHeaders, elapsed, fmtDuration, fmtRate, fmtTime, h, poll, progressBar,
-  showNotice, statusBadge, token,
+  FINAL, api, authHeaders, digits3, elapsed, fmtDuration, fmtRate, fmtTime, h, poll,
+  progressBar, showNotice, statusBadge, token,
 } from "./api.js";
 
 const POLL_MS = 1000;         // while the job is queued or running
@@ -36,7 +36,6 @@ function errorColour(ratio) {
   return samplesColour((Math.log(ratio) / Math.log(ERROR_SPAN) + 1) / 2);
 }
 
-const digits3 = (x) => String(Number(Number(x).toPrecision(3)));
 
 // The ramp's middle: the target; without one the frames' estimate, or before every pixel has
 // one the pixel-weighted mean of the tiles' estimates so far; null when no tile has one

@@ -1,8 +1,8 @@
 // The Jobs page: every job with its progress, a status filter, bulk cancel, retry and delete.
 
 import {
-  FINAL, api, elapsed, fmtDuration, fmtRate, fmtTime, h, poll, progressBar, showNotice,
-  statusBadge,
+  FINAL, api, elapsed, errorSummary, fmtDuration, fmtRate, fmtTime, h, poll, progressBar,
+  showNotice, statusBadge,
 } from "./api.js";
 
 const STATUSES = ["queued", "running", "done", "failed", "cancelled"];
@@ -57,7 +57,9 @@ export function renderJobs(view) {
     return [
       h("td", { "data-label": "Name" }, h("div", {},
         h("a", { href: `#/job/${j.id}`, class: "job-link" }, j.name || j.id.slice(0, 8)),
-        h("div", { class: "muted small" }, `${j.width}×${j.height}, ${j.spp} spp`))),
+        h("div", { class: "muted small" }, `${j.width}×${j.height}, ${j.spp} spp`),
+        // (the relMSE asked for and the estimate: a finished job's from its record)
+        errorSummary(j) ? h("div", { class: "muted small job-relmse" }, errorSummary(j)) : null)),
       h("td", { "data-label": "Status", class: "status" }, statusBadge(j.status)),
       h("td", { "data-label": "Progress", class: "wide" }, progressBar(j.progress, j.status)),
       h("td", { "data-label": "Samples/s", class: "num" }, fmtRate(j.samples_per_second)),

@@ -14,6 +14,8 @@ import numpy as np
 import pytest
 from PIL import Image
 
+from tests.conftest import wait_until
+
 ROOT = Path(__file__).resolve().parents[2]
 
 ROOT_EXAMPLE = "cornell_box"
@@ -354,6 +356,13 @@ def test_a_job_with_a_target_error_shows_the_target_and_its_estimate(dashboard, 
     page.wait_for_function("document.querySelector('#preview').complete")
     assert page.eval_on_selector("#preview", IMG_MEAN) > 20
     shot(page, artifacts, "target")
+    # The Jobs page gives the target and the estimate under the job's name, once it is out of
+    # Redis too (the sweeper archives it within a second or so: the listing reads its record)
+    wait_until(lambda: dashboard.store().get_job(job_id) is None, 30, "the job archived")
+    page.goto(f"{dashboard.url}/#/jobs")
+    summary = page.wait_for_selector(f"tr[data-id='{job_id}'] .job-relmse")
+    assert summary.inner_text() == f"target relMSE 0.05 · {reached}"
+    shot(page, artifacts, "jobs-target")
     no_page_errors(page)
 
 
@@ -484,6 +493,10 @@ def test_a_job_without_a_target_shows_its_estimated_error(dashboard, page, api):
     assert [e for e, _ in shown] == pytest.approx([t["expected_error"] for t in job["tile_states"]])
     # (the tiles' estimates differ, and so do their colours)
     assert len({e for e, _ in shown}) == len(shown) == len({c for _, c in shown}) > 1
+    # ... and the Jobs page under its name
+    page.goto(f"{dashboard.url}/#/jobs")
+    summary = page.wait_for_selector(f"tr[data-id='{job_id}'] .job-relmse")
+    assert summary.inner_text() == f"relMSE {estimate}"
 
     store = dashboard.store()
     empty = uuid.uuid4().hex

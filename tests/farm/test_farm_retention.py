@@ -180,6 +180,27 @@ def test_an_archived_target_job_is_listed_with_its_target_and_error(farm, tiny_s
             assert after[k] == pytest.approx(before[k]) and detail[k] == pytest.approx(before[k])
 
 
+def test_a_job_done_just_before_the_api_stops_is_archived_on_the_way_out(farm, tiny_scene,
+                                                                          tmp_path,
+                                                                          wait_for_job):
+    """The API stopped right after a job finished (``lucent demo`` stops as soon as its job is
+    done), before its sweeper's next round: the sweeper's last chores at the stop bring the
+    job's record up to date and archive it. Seen failing without them: the record still said
+    queued, and the next farm on that data folder with a Redis of its own (``lucent up`` after
+    ``make demo``) listed the job as failed, "Redis lost this job's in-flight state"."""
+    # Only the sweep at start: the job finishes between two sweeps
+    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
+    store = farm.store()
+    with TestClient(create_app(settings)) as client:
+        job_id = client.post("/api/jobs", json={"scene": own_scene(tiny_scene),
+                                                "tile_size": 16}).json()["id"]
+        assert wait_for_job(client, job_id)["status"] == "done"
+        assert records_of(settings).get(job_id).status == "queued"  # as submitted
+    record = records_of(settings).get(job_id)
+    assert record.status == "done" and record.images
+    assert job_keys(store, job_id) == set()
+
+
 def test_a_done_job_leaves_redis_for_its_record(farm, tiny_scene, tmp_path, wait_for_job):
     # Only the sweep at start: the test archives by hand, between the two reads of the image.
     settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
