@@ -27,28 +27,45 @@ def _stop(up: subprocess.Popen) -> None:
         raise
 
 
+def _up(env: dict, wait_until, **popen) -> tuple[subprocess.Popen, str]:
+    """``lucent up --workers 1`` on a free port, once it answers ``/readyz``: (it, its URL)."""
+    port = free_port()
+    up = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--port", str(port),
+                           "--workers", "1"], env=env, stderr=subprocess.PIPE, text=True,
+                          **popen)
+    url = f"http://127.0.0.1:{port}"
+
+    def ready():
+        try:
+            return httpx.get(f"{url}/readyz", timeout=1).status_code == 200
+        except httpx.HTTPError:
+            return up.poll() is not None
+    try:
+        wait_until(ready, 60, "lucent up to answer", interval=0.2)
+    except BaseException:
+        up.kill()
+        raise
+    assert up.poll() is None
+    return up, url
+
+
+def _submit_and_wait(scene: dict, tmp_path, url: str, env: dict,
+                     *args: str) -> subprocess.CompletedProcess:
+    """``lucent submit --wait --quiet`` of ``scene`` (written beside the test) to ``url``."""
+    scene_path = tmp_path / "box.json"
+    scene_path.write_text(json.dumps(scene))
+    return subprocess.run(
+        [sys.executable, "-m", "services.cli", "submit", str(scene_path), "--server", url,
+         "--wait", "--quiet", *args], env=env, capture_output=True, text=True, timeout=240)
+
+
 def test_up_serves_submit_works_and_sigterm_leaves_no_process(tmp_path, tiny_scene, wait_until):
     psutil = pytest.importorskip("psutil")
-    port = free_port()
     env = {k: v for k, v in os.environ.items() if k not in ("REDIS_URL", "LUCENT_API_TOKEN")}
-    up = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--port", str(port),
-                           "--workers", "1"], env=env, stderr=subprocess.PIPE, text=True)
-    url = f"http://127.0.0.1:{port}"
+    up, url = _up(env, wait_until)
     try:
-        def ready():
-            try:
-                return httpx.get(f"{url}/readyz", timeout=1).status_code == 200
-            except httpx.HTTPError:
-                return up.poll() is not None
-        wait_until(ready, 60, "lucent up to answer", interval=0.2)
-        assert up.poll() is None
-        scene_path = tmp_path / "box.json"
-        scene_path.write_text(json.dumps(tiny_scene))
         out = tmp_path / "box.npy"
-        done = subprocess.run(
-            [sys.executable, "-m", "services.cli", "submit", str(scene_path), "--server", url,
-             "--wait", "-o", str(out), "--quiet"], env=env, capture_output=True, text=True,
-            timeout=240)
+        done = _submit_and_wait(tiny_scene, tmp_path, url, env, "-o", str(out))
         assert done.returncode == 0, done.stderr
         assert np.load(out).shape == (24, 32, 3) and np.load(out).any()
         # the job's expected relMSE, estimated from its samples (it has no target)
@@ -84,30 +101,15 @@ def test_up_stopped_by_ctrl_c_right_after_a_job_keeps_its_record_and_leaves_no_p
     psutil = pytest.importorskip("psutil")
     from services.farm.records import Records
 
-    port = free_port()
     data = tmp_path / "data"
     env = {k: v for k, v in os.environ.items()
            if k not in ("REDIS_URL", "LUCENT_API_TOKEN", "DATABASE_URL", "LUCENT_DATABASE_URL")}
     # (only the sweep at start: the job finishes between two sweeps)
     env.update(LUCENT_DATA_DIR=str(data), LUCENT_SWEEP_INTERVAL="400",
                LUCENT_STALL_TIMEOUT="900", LUCENT_STALL_UNHELD_TIMEOUT="900")
-    up = subprocess.Popen([sys.executable, "-m", "services.cli", "up", "--port", str(port),
-                           "--workers", "1"], env=env, stderr=subprocess.PIPE, text=True,
-                          start_new_session=True)
-    url = f"http://127.0.0.1:{port}"
+    up, url = _up(env, wait_until, start_new_session=True)  # (its own group: the Ctrl-C's)
     try:
-        def ready():
-            try:
-                return httpx.get(f"{url}/readyz", timeout=1).status_code == 200
-            except httpx.HTTPError:
-                return up.poll() is not None
-        wait_until(ready, 60, "lucent up to answer", interval=0.2)
-        assert up.poll() is None
-        scene_path = tmp_path / "box.json"
-        scene_path.write_text(json.dumps(tiny_scene))
-        done = subprocess.run(
-            [sys.executable, "-m", "services.cli", "submit", str(scene_path), "--server", url,
-             "--wait", "--quiet"], env=env, capture_output=True, text=True, timeout=240)
+        done = _submit_and_wait(tiny_scene, tmp_path, url, env)
         assert done.returncode == 0, done.stderr
         job_id = done.stdout.split()[-1]
         records = Records(f"sqlite:///{data / 'lucent.db'}")
