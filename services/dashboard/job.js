@@ -36,7 +36,6 @@ function errorColour(ratio) {
   return samplesColour((Math.log(ratio) / Math.log(ERROR_SPAN) + 1) / 2);
 }
 
-
 // The ramp's middle: the target; without one the frames' estimate, or before every pixel has
 // one the pixel-weighted mean of the tiles' estimates so far; null when no tile has one
 function errorCentre(job) {

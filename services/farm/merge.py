@@ -200,19 +200,17 @@ class Sweeper:
             except redis.RedisError as err:
                 log.warning("sweep failed: %s", err)
 
-    def stop(self, final: bool = True) -> None:
-        """Stop sweeping; with ``final``, run the chores once more first: a farm stopped just
-        after a job finished (``lucent demo`` stops as soon as its job is done) leaves the job's
-        record up to date and a done job archived, where it left the record as the last sweep
-        had seen it (running), and the next farm on the same data folder with a Redis of its
-        own then marked it failed as lost. Not the merge sweep: nothing is requeued on the way
-        out. A chore that fails (Redis gone first: Ctrl-C reaches ``lucent up``'s embedded
-        Redis too) ends them with one line in the log, and the stop goes on."""
+    def stop(self) -> None:
+        """Stop sweeping, then run the chores once more: a farm stopped just after a job
+        finished (``lucent demo`` stops as soon as its job is done) leaves the job's record up
+        to date and a done job archived. Before, the record stayed as the last sweep had seen
+        it (running), and the next farm on the same data folder, with a Redis of its own, marked
+        the job failed as lost. Not the merge sweep: nothing is requeued on the way out. A
+        chore that fails (Redis or the database gone first) ends them with one line in the
+        log, and the stop goes on."""
         self._stop.set()
         if self._thread is not None:
             self._thread.join(timeout=10)
-        if not final:
-            return
         try:
             for chore in self.chores:
                 chore()
