@@ -426,8 +426,9 @@ class LocalFarm:
 
         def handler(signum: int, _frame: object) -> None:
             received.append(signum)
-            # Ctrl-C reaches the whole process group: the children stop by themselves, and
-            # must not be started again meanwhile.
+            # Ctrl-C reaches the whole process group: the worker node and the API stop by
+            # themselves, and must not be started again meanwhile (the embedded Redis, in a
+            # group of its own, waits for stop()).
             if self.supervisor is not None:
                 self.supervisor.hold()
 
