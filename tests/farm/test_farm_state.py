@@ -49,6 +49,20 @@ def _archived(records: Records, job_id: str) -> bool:
     return record is not None and bool(record.images)
 
 
+def _merge_noisy_pass(store, job_id: str, plan: Plan, tile: int, pass_index: int, rng,
+                      scale: float = 0.5):
+    """Merge pass ``pass_index`` of ``tile``: 8 samples a pixel drawn from Γ(2, ``scale``) per
+    channel (noise the adaptive rule estimates); returns its buffer."""
+    from renderer.film.buffer import SampleBuffer
+
+    buf = SampleBuffer.empty(*plan.tile_rect(tile))
+    x = rng.gamma(2.0, scale, size=(8,) + buf.sum.shape)
+    buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
+    store.put_pass(job_id, tile, pass_index, buf.to_bytes(), ttl=60)
+    assert store.merge_pass_buffer(job_id, tile, pass_index)
+    return buf
+
+
 # --- job records in SQL --------------------------------------------------------------------------
 
 
@@ -118,7 +132,6 @@ def test_a_parked_target_job_is_listed_and_shown_with_its_target_and_error(setti
     (migration 0007): a parked job's summary holds neither, so both gave the target as None."""
     import numpy as np
 
-    from renderer.film.buffer import SampleBuffer
     from services.farm.archive import park_job
 
     records = records_of(settings)
@@ -129,11 +142,7 @@ def test_a_parked_target_job_is_listed_and_shown_with_its_target_and_error(setti
     records.create(store.get_job(job_id))
     rng = np.random.default_rng(3)
     for t in range(plan.n_tiles):
-        buf = SampleBuffer.empty(*plan.tile_rect(t))
-        x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
-        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
-        store.put_pass(job_id, t, 0, buf.to_bytes(), ttl=60)
-        assert store.merge_pass_buffer(job_id, t, 0)
+        _merge_noisy_pass(store, job_id, plan, t, 0, rng)
     expected = store.get_job(job_id).expected_error
     assert expected is not None
     assert store.cancel_job(job_id)
@@ -231,7 +240,6 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     count only the tiles merged after it."""
     import numpy as np
 
-    from renderer.film.buffer import SampleBuffer
     from services.farm.store import JobSnapshot
 
     rng = np.random.default_rng(7)
@@ -241,13 +249,7 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
                      expected_bias=0.003)
     for t, passes in ((0, 2), (1, 1)):
         for p in range(passes):
-            buf = SampleBuffer.empty(*plan.tile_rect(t))
-            x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
-            buf.sum[:] = x.sum(axis=0)
-            buf.sum_sq[:] = (x * x).sum(axis=0)
-            buf.count[:] = 8
-            store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
-            assert store.merge_pass_buffer(job_id, t, p)
+            _merge_noisy_pass(store, job_id, plan, t, p, rng)
     before = store.get_job(job_id)
     kept = store.r.hgetall(store.k("job", job_id, "tile_err"))
     assert before.target_error == 0.02 and before.expected_error is not None and len(kept) == 2
@@ -284,11 +286,7 @@ def test_a_parked_target_job_comes_back_with_its_target_and_error_sums(store):
     assert store.get_job(plain).target_error is None
     assert not store.r.exists(store.k("job", plain, "tile_err"))
     for t in (0, 1):
-        buf = SampleBuffer.empty(*plan.tile_rect(t))
-        x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
-        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
-        store.put_pass(plain, t, 0, buf.to_bytes(), ttl=60)
-        assert store.merge_pass_buffer(plain, t, 0)
+        _merge_noisy_pass(store, plain, plan, t, 0, rng)
     before = store.get_job(plain)
     snap = store.snapshot(plain)
     assert before.expected_error is not None
@@ -310,7 +308,6 @@ def test_a_job_reports_each_tiles_estimate_while_in_redis_and_archived(store, ta
     import numpy as np
 
     from renderer.film.adaptive import error_terms
-    from renderer.film.buffer import SampleBuffer
 
     rng = np.random.default_rng(3)
     plan = Plan(40, 16, 64, 16, 8)  # 3 tiles (16, 16 and 8 px wide) x 8 passes of 8
@@ -319,13 +316,7 @@ def test_a_job_reports_each_tiles_estimate_while_in_redis_and_archived(store, ta
     merged = {}
     for t in (0, 2):  # (tile 1 merges nothing: no estimate)
         for p in range(2):
-            buf = SampleBuffer.empty(*plan.tile_rect(t))
-            x = rng.gamma(2.0, 0.5 + t, size=(8,) + buf.sum.shape)
-            buf.sum[:] = x.sum(axis=0)
-            buf.sum_sq[:] = (x * x).sum(axis=0)
-            buf.count[:] = 8
-            store.put_pass(job_id, t, p, buf.to_bytes(), ttl=60)
-            assert store.merge_pass_buffer(job_id, t, p)
+            buf = _merge_noisy_pass(store, job_id, plan, t, p, rng, 0.5 + t)
             merged[t] = merged[t] + buf if t in merged else buf
     want = {t: float(error_terms(b).mean()) for t, b in merged.items()}
     view = store.job_view(job_id)
@@ -337,12 +328,7 @@ def test_a_job_reports_each_tiles_estimate_while_in_redis_and_archived(store, ta
     assert view[0].expected_error is None and "expected_error" not in final  # tile 1: none
     assert ("target_error" in final) == (target is not None)
     # tile 1's first pass: every pixel has an estimate, the job's is their pixels' mean
-    buf = SampleBuffer.empty(*plan.tile_rect(1))
-    x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
-    buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
-    store.put_pass(job_id, 1, 0, buf.to_bytes(), ttl=60)
-    assert store.merge_pass_buffer(job_id, 1, 0)
-    merged[1] = buf
+    merged[1] = _merge_noisy_pass(store, job_id, plan, 1, 0, rng)
     frame = np.concatenate([error_terms(merged[t]).ravel() for t in range(3)])
     assert store.get_job(job_id).expected_error == pytest.approx(frame.mean(), rel=1e-12)
     assert store.tiles_final(job_id, plan.n_tiles)["expected_error"] == pytest.approx(
@@ -369,11 +355,7 @@ def test_a_tile_summary_of_the_previous_rule_is_taken_back_out(store):
     store.create_job(job_id, "", 0, plan, b"{}", {}, time.time(), target_error=0.02)
 
     def one_pass(p: int) -> None:
-        buf = SampleBuffer.empty(*plan.tile_rect(0))
-        x = rng.gamma(2.0, 0.5, size=(8,) + buf.sum.shape)
-        buf.sum[:], buf.sum_sq[:], buf.count[:] = x.sum(axis=0), (x * x).sum(axis=0), 8
-        store.put_pass(job_id, 0, p, buf.to_bytes(), ttl=60)
-        assert store.merge_pass_buffer(job_id, 0, p)
+        _merge_noisy_pass(store, job_id, plan, 0, p, rng)
 
     one_pass(0)
     job_key = store.k("job", job_id)
