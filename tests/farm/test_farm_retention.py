@@ -52,13 +52,15 @@ def archived(records, job_id: str) -> bool:
 
 
 @contextlib.contextmanager
-def done_job(farm, tiny_scene, tmp_path, wait_for_job):
+def done_job(farm, tiny_scene, tmp_path, wait_for_job, **render):
     """An API on the farm whose sweeper waits (only its sweep at start), and a done job of a
-    scene of its own: (client, job id, the farm's records, its blob store)."""
+    scene of its own (``render``: fields of its ``render`` block changed): (client, job id, the
+    farm's records, its blob store). The records and blobs outlive the API."""
     settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
+    scene = own_scene(tiny_scene)
+    scene["render"].update(render)
     with TestClient(create_app(settings)) as client:
-        job_id = client.post("/api/jobs", json={"scene": own_scene(tiny_scene),
-                                                "tile_size": 16}).json()["id"]
+        job_id = client.post("/api/jobs", json={"scene": scene, "tile_size": 16}).json()["id"]
         assert wait_for_job(client, job_id)["status"] == "done"
         yield client, job_id, records_of(settings), FileBlobStore(settings.blob_path)
 
@@ -158,22 +160,17 @@ def test_an_archived_target_job_is_listed_with_its_target_and_error(farm, tiny_s
     record's tiles' summary) with its target, expected error and bias as its detail gives them
     and as they were listed from Redis. Seen failing before the record kept them as columns
     (migration 0007): listed with target_error and expected_error None."""
-    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
-    scene = own_scene(tiny_scene)
-    scene["render"] = {**scene["render"], "spp": 256, "target_error": 0.05}
     fields = ("target_error", "expected_error", "expected_bias", "denoise")
 
     def listed(client: TestClient, job_id: str) -> dict:
         page = client.get("/api/jobs", params={"limit": 500}).json()["data"]
         return next(j for j in page if j["id"] == job_id)
 
-    with TestClient(create_app(settings)) as client:
-        job_id = client.post("/api/jobs", json={"scene": scene, "tile_size": 16}).json()["id"]
-        assert wait_for_job(client, job_id)["status"] == "done"
+    with done_job(farm, tiny_scene, tmp_path, wait_for_job, spp=256,
+                  target_error=0.05) as (client, job_id, records, blobs):
         before = {k: listed(client, job_id)[k] for k in fields}
         assert before["target_error"] == 0.05 and before["expected_error"] is not None
-        records = records_of(settings)
-        assert archive_job(farm.store(), records, FileBlobStore(settings.blob_path), job_id)
+        assert archive_job(farm.store(), records, blobs, job_id)
         after = listed(client, job_id)
         detail = client.get(f"/api/jobs/{job_id}").json()
         for k in fields:
@@ -188,17 +185,12 @@ def test_a_job_done_just_before_the_api_stops_is_archived_on_the_way_out(farm, t
     job's record up to date and archive it. Seen failing without them: the record still said
     queued, and the next farm on that data folder with a Redis of its own (``lucent up`` after
     ``make demo``) listed the job as failed, "Redis lost this job's in-flight state"."""
-    # Only the sweep at start: the job finishes between two sweeps
-    settings = farm.settings.model_copy(update={"sweep_interval": 400.0, "data_dir": tmp_path})
-    store = farm.store()
-    with TestClient(create_app(settings)) as client:
-        job_id = client.post("/api/jobs", json={"scene": own_scene(tiny_scene),
-                                                "tile_size": 16}).json()["id"]
-        assert wait_for_job(client, job_id)["status"] == "done"
-        assert records_of(settings).get(job_id).status == "queued"  # as submitted
-    record = records_of(settings).get(job_id)
+    # (done_job's sweeper: only the sweep at start; the job finishes between two sweeps)
+    with done_job(farm, tiny_scene, tmp_path, wait_for_job) as (_, job_id, records, _):
+        assert records.get(job_id).status == "queued"  # as submitted
+    record = records.get(job_id)
     assert record.status == "done" and record.images
-    assert job_keys(store, job_id) == set()
+    assert job_keys(farm.store(), job_id) == set()
 
 
 def test_a_done_job_leaves_redis_for_its_record(farm, tiny_scene, tmp_path, wait_for_job):
