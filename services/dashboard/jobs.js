@@ -54,12 +54,13 @@ export function renderJobs(view) {
   const rows = new Map();
 
   function cells(j) {
+    const relmse = errorSummary(j);
     return [
       h("td", { "data-label": "Name" }, h("div", {},
         h("a", { href: `#/job/${j.id}`, class: "job-link" }, j.name || j.id.slice(0, 8)),
         h("div", { class: "muted small" }, `${j.width}×${j.height}, ${j.spp} spp`),
         // (the relMSE asked for and the estimate: a finished job's from its record)
-        errorSummary(j) ? h("div", { class: "muted small job-relmse" }, errorSummary(j)) : null)),
+        relmse ? h("div", { class: "muted small job-relmse" }, relmse) : null)),
       h("td", { "data-label": "Status", class: "status" }, statusBadge(j.status)),
       h("td", { "data-label": "Progress", class: "wide" }, progressBar(j.progress, j.status)),
       h("td", { "data-label": "Samples/s", class: "num" }, fmtRate(j.samples_per_second)),
