@@ -18,9 +18,8 @@ The error is the chart suite's relMSE, mean((x − ref)²/(ref² + 0.01)), over 
 the "edge" pixels: the tenth of the frame where the reference's luminance changes fastest (what a
 denoiser blurs). "gain" is uniform sampling's error at equal time over the denoised one (above 1:
 the denoised image is closer to the reference); the last table gives the gains alone, frame ·
-edges. ``--out`` writes every row to a CSV, ``--chart``
-draws error against time per scene, ``--from-csv`` redraws and reprints from a CSV without
-rendering.
+edges. ``--out`` writes every row to a CSV, ``--chart`` draws error against time per scene,
+``--from-csv`` reprints the tables (and redraws the chart) from a CSV without rendering.
 """
 
 from __future__ import annotations
