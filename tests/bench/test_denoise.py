@@ -69,7 +69,7 @@ def test_a_denoised_render_is_compared_with_uniform_sampling_at_its_time():
         assert r["uniform_edges"] == pytest.approx(4 * C / (2 * n))
 
 
-def test_rows_survive_the_csv_and_make_a_table_and_a_chart(tmp_path, capsys):
+def test_rows_survive_the_csv_and_make_the_tables(tmp_path, capsys):
     ref = np.full((6, 8, 3), 0.5)
     rows = dn.measure("fake", {"render": {}}, None, ref, [4, 16], 1, _fake(ref, []))
     path = tmp_path / "d" / "rows.csv"
@@ -90,7 +90,12 @@ def test_rows_survive_the_csv_and_make_a_table_and_a_chart(tmp_path, capsys):
     assert dn.main(["--from-csv", str(path)]) == 0
     out = capsys.readouterr().out
     assert "| fake | 16 |" in out and "| fake | 2 · 2 | 2 · 2 |" in out
-    pytest.importorskip("matplotlib")
+
+
+def test_the_chart_is_drawn(tmp_path):
+    pytest.importorskip("matplotlib")  # (the bench extra)
+    ref = np.full((6, 8, 3), 0.5)
+    rows = dn.measure("fake", {"render": {}}, None, ref, [4, 16], 1, _fake(ref, []))
     png = tmp_path / "chart.png"
-    dn.chart(back, png)
+    dn.chart(rows, png)
     assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n"
