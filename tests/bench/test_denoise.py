@@ -93,7 +93,7 @@ def test_rows_survive_the_csv_and_make_the_tables(tmp_path, capsys):
 
 
 def test_the_chart_is_drawn(tmp_path):
-    pytest.importorskip("matplotlib")  # (the bench extra)
+    pytest.importorskip("matplotlib")  # (the bench and test extras)
     ref = np.full((6, 8, 3), 0.5)
     rows = dn.measure("fake", {"render": {}}, None, ref, [4, 16], 1, _fake(ref, []))
     png = tmp_path / "chart.png"
