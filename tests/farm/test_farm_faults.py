@@ -101,23 +101,23 @@ class Nodes:
     def pool(self, proc: subprocess.Popen) -> list[int]:
         return [c.pid for c in psutil.Process(proc.pid).children()]
 
+    def _wait_beating(self, store: JobStore, proc: subprocess.Popen, n: int,
+                      states: tuple[str, ...], what: str, interval: float) -> list[int]:
+        """Until ``n`` pool processes of ``proc`` beat in one of ``states``; the pids that do."""
+        def beating():
+            assert proc.poll() is None, self.logs()
+            pids = {int(w["pid"]) for w in store.workers() if w.get("state") in states}
+            found = [p for p in self.pool(proc) if p in pids]
+            return found if len(found) >= n else None
+        return _until(beating, 240.0, what, interval=interval)
+
     def wait_warm(self, store: JobStore, proc: subprocess.Popen, n: int) -> list[int]:
         """Until ``n`` pool processes of ``proc`` beat as idle or busy; their pids."""
-        def warm():
-            assert proc.poll() is None, self.logs()
-            beating = {int(w["pid"]) for w in store.workers()
-                       if w.get("state") in ("idle", "busy")}
-            pids = [p for p in self.pool(proc) if p in beating]
-            return pids if len(pids) >= n else None
-        return _until(warm, 240.0, "warm worker processes", interval=0.1)
+        return self._wait_beating(store, proc, n, ("idle", "busy"), "warm worker processes", 0.1)
 
     def wait_busy(self, store: JobStore, proc: subprocess.Popen) -> list[int]:
         """Until a pool process of ``proc`` beats as busy (a task in hand); the pids that do."""
-        def busy():
-            assert proc.poll() is None, self.logs()
-            rendering = {int(w["pid"]) for w in store.workers() if w.get("state") == "busy"}
-            return [p for p in self.pool(proc) if p in rendering] or None
-        return _until(busy, 240.0, "a busy worker process", interval=0.01)
+        return self._wait_beating(store, proc, 1, ("busy",), "a busy worker process", 0.01)
 
     def kill(self, proc: subprocess.Popen) -> None:
         """SIGKILL the node and its pool at once: a machine losing power."""
