@@ -125,6 +125,11 @@ def read_csv(path: Path) -> list[dict]:
                  for k, v in row.items()} for row in csv.DictReader(f)]
 
 
+def _gains(r: dict) -> tuple[float, float]:
+    """A denoised row's gains, frame and edges: uniform sampling's error at equal time over its."""
+    return r["uniform_rel_mse"] / r["rel_mse"], r["uniform_edges"] / r["edges"]
+
+
 def table(rows: list[dict]) -> str:
     """The denoised rows as a Markdown table, with the uniform error at equal time and the
     gains (uniform over denoised: above 1, denoising is closer to the reference)."""
@@ -134,11 +139,11 @@ def table(rows: list[dict]) -> str:
     for r in rows:
         if r["kind"] != "denoised":
             continue
+        frame, edges = _gains(r)
         lines.append(
             f"| {r['scene']} | {r['spp']} | {r['seconds']:.3f} | {r['rel_mse']:.3g} | "
             f"{r['edges']:.3g} | {r['uniform_spp']:.0f} | {r['uniform_rel_mse']:.3g} | "
-            f"{r['uniform_edges']:.3g} | {r['uniform_rel_mse'] / r['rel_mse']:.3g} | "
-            f"{r['uniform_edges'] / r['edges']:.3g} |")
+            f"{r['uniform_edges']:.3g} | {frame:.3g} | {edges:.3g} |")
     return "\n".join(lines)
 
 
@@ -150,8 +155,7 @@ def gains(rows: list[dict]) -> str:
     lines = ["| scene | " + " | ".join(f"{n} spp" for n in spp) + " |",
              "|---|" + "---:|" * len(spp)]
     for name in dict.fromkeys(r["scene"] for r in rows):
-        cells = {r["spp"]: f"{r['uniform_rel_mse'] / r['rel_mse']:.3g} · "
-                           f"{r['uniform_edges'] / r['edges']:.3g}"
+        cells = {r["spp"]: "{:.3g} · {:.3g}".format(*_gains(r))
                  for r in rows if r["scene"] == name and r["kind"] == "denoised"}
         lines.append(f"| {name} | " + " | ".join(cells.get(n, "") for n in spp) + " |")
     return "\n".join(lines)
